@@ -1,0 +1,1 @@
+"""`mros`: the command-line tool for ROS users (topics, messages, parameters, nodes, IXM)."""

@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# Debian packages the tests and benchmarks use: real ROS 1 (ros_comm 1.15) as interop partner and golden
+# reference, a C++ toolchain for the roscpp test node, iproute2 for network-namespace tests.
+# mrosd itself needs none of these.
+set -euo pipefail
+SUDO=""
+[ "$(id -u)" -eq 0 ] || SUDO="sudo"
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -q
+$SUDO apt-get install -y -q \
+    python3-rospy python3-rostopic python3-rosnode python3-rosparam python3-rosmaster python3-rosservice \
+    python3-genmsg python3-genpy python3-std-msgs python3-sensor-msgs python3-geometry-msgs python3-nav-msgs \
+    ros-core libroscpp-dev libstd-msgs-dev libsensor-msgs-dev libgeometry-msgs-dev \
+    ros-std-msgs ros-geometry-msgs ros-sensor-msgs ros-rosgraph-msgs ros-actionlib-msgs ros-diagnostic-msgs \
+    ros-nav-msgs ros-shape-msgs ros-stereo-msgs ros-trajectory-msgs ros-visualization-msgs ros-tf2-msgs \
+    ros-map-msgs ros-std-srvs python3-std-srvs \
+    g++ cmake pkg-config iproute2 procps
