@@ -37,7 +37,9 @@ def ros_available() -> bool:
 
 
 _ROS = ros_available()
-needs_ros = pytest.mark.skipif(not _ROS, reason="Debian ROS 1 (ros_comm) is not installed: run scripts/install-system-deps.sh")
+needs_ros = pytest.mark.skipif(
+    not _ROS, reason="Debian ROS 1 (ros_comm) is not installed: run scripts/install-system-deps.sh"
+)
 
 
 def free_port() -> int:
@@ -92,9 +94,7 @@ class Processes:
         stderr: int | None = subprocess.PIPE,
         stdin: int | None = subprocess.DEVNULL,
     ) -> subprocess.Popen[bytes]:
-        proc = subprocess.Popen(
-            list(argv), env=env, stdout=stdout, stderr=stderr, stdin=stdin, start_new_session=True
-        )
+        proc = subprocess.Popen(list(argv), env=env, stdout=stdout, stderr=stderr, stdin=stdin, start_new_session=True)
         self._procs.append(proc)
         return proc
 
@@ -102,7 +102,9 @@ class Processes:
         """Run ``code`` under the system python that has rospy."""
         return self.start([ROS_PYTHON, "-c", code], env, **kw)  # type: ignore[arg-type]
 
-    def our_python(self, argv: Sequence[str], env: dict[str, str] | None = None, **kw: int | None) -> subprocess.Popen[bytes]:
+    def our_python(
+        self, argv: Sequence[str], env: dict[str, str] | None = None, **kw: int | None
+    ) -> subprocess.Popen[bytes]:
         """Run a module or script under the project's own interpreter."""
         return self.start([sys.executable, *argv], env, **kw)  # type: ignore[arg-type]
 

@@ -94,5 +94,5 @@ async def test_an_unreachable_server_is_a_clear_error() -> None:
     from tests.rosenv import free_port
 
     async with XmlRpcClient(timeout=2) as client:
-        with pytest.raises(XmlRpcError, match="ping at http://127.0.0.1"):
+        with pytest.raises(XmlRpcError, match=r"ping at http://127\.0\.0\.1"):
             await client.call(f"http://127.0.0.1:{free_port()}/", "ping")
