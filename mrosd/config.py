@@ -1,0 +1,207 @@
+"""The daemon's configuration: a TOML file decoded into typed Structs, then environment overrides.
+
+Precedence, lowest first: built-in defaults, the TOML file (``--config``, ``$MROSD_CONFIG``, else
+``/etc/mrosd/mrosd.toml`` when it exists), then the environment (``ROS_MASTER_URI`` gives the master's port,
+``MROSD_*`` variables override single keys). Every error names the offending key and the file, so that
+``mrosd --check-config`` tells the operator what to fix. The ``[ixm.rules]`` table is kept opaque here: the
+IXM server owns its meaning and parses it; this module only checks that it is a table.
+
+This module performs no I/O beyond reading the one file; it knows nothing of sockets or the event loop.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+import tomllib
+import urllib.parse
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal
+
+import msgspec
+
+from mrosd.errors import ConfigError
+
+__all__ = [
+    "DEFAULT_CONFIG_PATH",
+    "Config",
+    "IxmConfig",
+    "LogConfig",
+    "MasterConfig",
+    "RosoutConfig",
+    "default_ixm_socket",
+    "load_config",
+]
+
+DEFAULT_CONFIG_PATH = Path("/etc/mrosd/mrosd.toml")
+
+LogLevel = Literal["debug", "info", "warning", "error"]
+
+
+class MasterConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """``[master]``: where the ROS master and parameter server listen and who may call them."""
+
+    host: str = "0.0.0.0"
+    port: int = 11311
+    #: networks (CIDR) whose clients may call the master; empty means everyone who can reach the port.
+    allow: list[str] = msgspec.field(default_factory=list)
+
+
+class IxmConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """``[ixm]``: the shared-memory registry's Unix socket and its access rules (opaque here)."""
+
+    enabled: bool = True
+    #: empty means the default search (``$MROSD_IXM_SOCKET``, ``/run/mrosd``, ``$XDG_RUNTIME_DIR``, ``/tmp``).
+    socket: str = ""
+    rules: dict[str, Any] = msgspec.field(default_factory=dict)
+
+
+class RosoutConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """``[rosout]``: the built-in /rosout -> /rosout_agg aggregator that roscore users expect."""
+
+    enabled: bool = True
+
+
+class LogConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """``[log]``: the daemon's own log verbosity."""
+
+    level: LogLevel = "info"
+
+
+class Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """The whole configuration; each section is optional in the file."""
+
+    master: MasterConfig = msgspec.field(default_factory=MasterConfig)
+    ixm: IxmConfig = msgspec.field(default_factory=IxmConfig)
+    rosout: RosoutConfig = msgspec.field(default_factory=RosoutConfig)
+    log: LogConfig = msgspec.field(default_factory=LogConfig)
+    #: the file this came from, or "" for defaults only (not a TOML key).
+    source: str = ""
+
+
+def default_ixm_socket(environ: Mapping[str, str] | None = None) -> str:
+    """The IXM socket path of the architecture contract, first match wins."""
+    env = os.environ if environ is None else environ
+    if env.get("MROSD_IXM_SOCKET"):
+        return env["MROSD_IXM_SOCKET"]
+    run = Path("/run/mrosd")
+    if run.is_dir() and os.access(run, os.W_OK):
+        return str(run / "ixm.sock")
+    xdg = env.get("XDG_RUNTIME_DIR")
+    if xdg:
+        return str(Path(xdg) / "mrosd" / "ixm.sock")
+    return f"/tmp/mrosd-{os.getuid()}/ixm.sock"
+
+
+def _convert(raw: dict[str, Any], source: str) -> Config:
+    raw = dict(raw)
+    raw.pop("source", None)
+    try:
+        cfg = msgspec.convert(raw, Config)
+    except msgspec.ValidationError as exc:
+        # msgspec says e.g. "Expected `int`, got `str` - at `$.master.port`"; turn the path into the TOML key.
+        text = str(exc).replace("`$.", "`").replace(" - at ", " at key ")
+        raise ConfigError(f"{source}: {text}") from exc
+    cfg.source = source
+    return cfg
+
+
+def _validate(cfg: Config) -> None:
+    where = cfg.source or "configuration"
+    if not 0 <= cfg.master.port <= 65535:
+        raise ConfigError(f"{where}: master.port must be 0..65535, got {cfg.master.port}")
+    for i, net in enumerate(cfg.master.allow):
+        try:
+            ipaddress.ip_network(net, strict=False)
+        except ValueError as exc:
+            raise ConfigError(f"{where}: master.allow[{i}] is not a network: {net!r}") from exc
+
+
+def _bool(name: str, value: str) -> bool:
+    lowered = value.strip().lower()
+    if lowered in ("1", "true", "yes", "on"):
+        return True
+    if lowered in ("0", "false", "no", "off"):
+        return False
+    raise ConfigError(f"environment: {name} must be a boolean (1/0, true/false), got {value!r}")
+
+
+def apply_environment(cfg: Config, environ: Mapping[str, str]) -> Config:
+    """Apply ``ROS_MASTER_URI`` and ``MROSD_*`` overrides to ``cfg`` in place and return it."""
+    uri = environ.get("ROS_MASTER_URI")
+    if uri:
+        parsed = urllib.parse.urlsplit(uri)
+        try:
+            port = parsed.port
+        except ValueError as exc:
+            raise ConfigError(f"environment: ROS_MASTER_URI has a bad port: {uri!r}") from exc
+        if parsed.scheme != "http" or not parsed.hostname:
+            raise ConfigError(f"environment: ROS_MASTER_URI must look like http://host:port/, got {uri!r}")
+        cfg.master.port = 11311 if port is None else port
+    if "MROSD_MASTER_HOST" in environ:
+        cfg.master.host = environ["MROSD_MASTER_HOST"]
+    if "MROSD_MASTER_PORT" in environ:
+        value = environ["MROSD_MASTER_PORT"]
+        try:
+            cfg.master.port = int(value)
+        except ValueError as exc:
+            raise ConfigError(f"environment: MROSD_MASTER_PORT must be an integer, got {value!r}") from exc
+    if "MROSD_MASTER_ALLOW" in environ:
+        cfg.master.allow = [n.strip() for n in environ["MROSD_MASTER_ALLOW"].split(",") if n.strip()]
+    if environ.get("MROSD_IXM_SOCKET"):
+        cfg.ixm.socket = environ["MROSD_IXM_SOCKET"]
+    if "MROSD_IXM" in environ:
+        cfg.ixm.enabled = _bool("MROSD_IXM", environ["MROSD_IXM"])
+    if "MROSD_ROSOUT" in environ:
+        cfg.rosout.enabled = _bool("MROSD_ROSOUT", environ["MROSD_ROSOUT"])
+    if "MROSD_LOG_LEVEL" in environ:
+        level = environ["MROSD_LOG_LEVEL"].strip().lower()
+        if level not in ("debug", "info", "warning", "error"):
+            raise ConfigError(f"environment: MROSD_LOG_LEVEL must be debug/info/warning/error, got {level!r}")
+        cfg.log.level = level  # type: ignore[assignment]
+    return cfg
+
+
+def parse_config(text: str, source: str = "<string>") -> Config:
+    """Decode TOML text into a validated Config (no environment applied).
+
+    Raises:
+        ConfigError: the text is not TOML, a key is unknown, or a value has the wrong type or range.
+    """
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: not valid TOML: {exc}") from exc
+    cfg = _convert(raw, source)
+    _validate(cfg)
+    return cfg
+
+
+def load_config(path: str | Path | None = None, environ: Mapping[str, str] | None = None) -> Config:
+    """Read the configuration file (if any) and apply environment overrides.
+
+    ``path`` None means ``$MROSD_CONFIG``, else ``/etc/mrosd/mrosd.toml`` when it exists, else defaults.
+    An explicitly named file that does not exist is an error.
+
+    Raises:
+        ConfigError: the file is unreadable or invalid, or an environment override is malformed.
+    """
+    env = os.environ if environ is None else environ
+    explicit = path is not None or bool(env.get("MROSD_CONFIG"))
+    chosen = Path(path) if path is not None else Path(env.get("MROSD_CONFIG") or DEFAULT_CONFIG_PATH)
+    if chosen.exists() or explicit:
+        try:
+            text = chosen.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ConfigError(f"{chosen}: cannot read the configuration file: {exc.strerror or exc}") from exc
+        except UnicodeDecodeError as exc:
+            raise ConfigError(f"{chosen}: not UTF-8 text: {exc}") from exc
+        cfg = parse_config(text, str(chosen))
+    else:
+        cfg = Config()
+    apply_environment(cfg, env)
+    _validate(cfg)
+    if not cfg.ixm.socket:
+        cfg.ixm.socket = default_ixm_socket(env)
+    return cfg
