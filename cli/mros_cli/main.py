@@ -1,15 +1,23 @@
-"""The root click group `mros`; each noun lives in its own module and is added here."""
+"""The root click group `mros`; each noun lives in its own module and is added here.
+
+Also owns what every noun shares: the global ``--master-uri`` option, running one coroutine per command,
+the calls to the master (``Graph``) and the exit codes scripts rely on: 0 success, 1 error (one line on
+stderr, ``mros: error: ...``), 2 usage error (click's), 130 interrupted.
+"""
 
 from __future__ import annotations
 
+import asyncio
 import importlib
 import importlib.util
+import os
 import sys
-from typing import Any
+from collections.abc import Awaitable, Coroutine
+from typing import Any, TypeVar
 
 import click
 
-from mrosd.errors import MrosError
+from mrosd.errors import MasterError, MasterUnreachableError, MrosError, XmlRpcError
 
 #: noun -> module that defines a click group named ``group`` (imported lazily so `mros msg` never pays for
 #: aiohttp and `mros topic` never pays for the codegen until it needs it).
@@ -23,6 +31,103 @@ SUBCOMMANDS = {
     "ixm": "mros_cli.ixm",
     "daemon": "mros_cli.daemon",
 }
+
+EXIT_OK = 0
+EXIT_ERROR = 1
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+#: What the CLI calls itself on the graph (as rostopic uses /rostopic_<pid>_<ms>).
+CALLER_ID = f"/mros_{os.getpid()}"
+
+#: Bound on one call to the master or to a node's slave API from the CLI.
+CALL_TIMEOUT = 5.0
+
+T = TypeVar("T")
+
+
+def master_uri_from_env() -> str:
+    """``$ROS_MASTER_URI`` or roscore's default."""
+    return os.environ.get("ROS_MASTER_URI") or "http://localhost:11311/"
+
+
+def master_uri(ctx: click.Context | None = None) -> str:
+    """The master URI chosen for this invocation (``--master-uri`` or the environment)."""
+    ctx = ctx or click.get_current_context(silent=True)
+    while ctx is not None:
+        if isinstance(ctx.obj, dict) and ctx.obj.get("master_uri"):
+            return str(ctx.obj["master_uri"])
+        ctx = ctx.parent
+    return master_uri_from_env()
+
+
+class Graph:
+    """The CLI's calls to the master and to nodes' slave APIs, over one XML-RPC client.
+
+    Each master call returns the value on code 1 and raises ``MasterError`` (with the master's status
+    text) otherwise, or ``MasterUnreachableError`` when nothing answers.
+    """
+
+    def __init__(self, uri: str | None = None, timeout: float = CALL_TIMEOUT) -> None:
+        from mrosd.xmlrpc import XmlRpcClient
+
+        self.uri = uri or master_uri()
+        self.timeout = timeout
+        self.xmlrpc = XmlRpcClient(timeout=timeout)
+
+    async def master(self, method: str, *args: Any) -> Any:
+        """Call a Master or Parameter Server API method with our caller id prepended."""
+        from mrosd.xmlrpc import Fault
+
+        try:
+            reply = await self.xmlrpc.call(self.uri, method, CALLER_ID, *args, timeout=self.timeout)
+        except Fault as exc:
+            raise MasterError(method, -1, exc.message) from exc
+        except XmlRpcError as exc:
+            raise MasterUnreachableError(self.uri, str(exc).split(": ", 1)[-1]) from exc
+        return _unwrap(method, reply)
+
+    async def node(self, uri: str, method: str, *args: Any, timeout: float | None = None) -> Any:
+        """Call a node's slave API method; raises ``MasterError`` on a failure code, ``XmlRpcError`` if down."""
+        reply = await self.xmlrpc.call(uri, method, CALLER_ID, *args, timeout=timeout or self.timeout)
+        return _unwrap(method, reply)
+
+    async def aclose(self) -> None:
+        """Close the pooled connections."""
+        await self.xmlrpc.aclose()
+
+    async def __aenter__(self) -> Graph:
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.aclose()
+
+
+def _unwrap(method: str, reply: Any) -> Any:
+    if not isinstance(reply, list | tuple) or len(reply) != 3:
+        raise MasterError(method, -1, f"malformed reply {reply!r}")
+    code, status, value = reply
+    if code != 1:
+        raise MasterError(method, int(code) if isinstance(code, int) else -1, str(status))
+    return value
+
+
+def run(coro: Coroutine[Any, Any, T] | Awaitable[T]) -> T:
+    """Run one command's coroutine on a fresh loop (uvloop when installed)."""
+    try:
+        import uvloop
+
+        factory: Any = uvloop.new_event_loop
+    except ImportError:
+        factory = None
+    with asyncio.Runner(loop_factory=factory) as runner:
+        return runner.run(coro)  # type: ignore[arg-type]
+
+
+def fail(message: str) -> None:
+    """Print one error line on stderr and exit with code 1."""
+    click.echo(f"mros: error: {message}", err=True)
+    sys.exit(EXIT_ERROR)
 
 
 class LazyGroup(click.Group):
@@ -42,20 +147,49 @@ class LazyGroup(click.Group):
     def invoke(self, ctx: click.Context) -> Any:
         try:
             return super().invoke(ctx)
+        except MasterError as exc:
+            if isinstance(exc, MasterUnreachableError):
+                fail(str(exc))
+            fail(exc.status)
         except MrosError as exc:
-            click.echo(f"mros: error: {exc}", err=True)
-            sys.exit(1)
+            fail(" ".join(str(exc).split()))
+        except KeyboardInterrupt:
+            sys.exit(EXIT_INTERRUPTED)
+        except BrokenPipeError:
+            # `mros topic echo ... | head` closed the pipe: not an error for the user.
+            try:
+                sys.stdout = open(os.devnull, "w")  # noqa: SIM115  (silence the flush at exit)
+            except OSError:
+                pass
+            sys.exit(EXIT_OK)
+        return None
 
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.option(
+    "--master-uri",
+    envvar="ROS_MASTER_URI",
+    default="http://localhost:11311/",
+    show_default=True,
+    metavar="URI",
+    help="ROS master to talk to (default: $ROS_MASTER_URI).",
+)
 @click.version_option(package_name="mrosd")
-def cli() -> None:
+@click.pass_context
+def cli(ctx: click.Context, master_uri: str) -> None:
     """mros: talk to a ROS 1 graph (topics, messages, parameters, nodes, services, IXM).
 
+    \b
+    Exit codes: 0 success, 1 error (one line on stderr), 2 usage error.
+    Shell completion (bash): eval "$(_MROS_COMPLETE=bash_source mros)"
     \b
     Examples:
       mros topic list -v
       mros topic echo /chatter -n 1
+      mros topic pub /chatter std_msgs/String "data: hi" -r 10
       mros msg show geometry_msgs/PoseStamped
       mros param get /robot_description
+      mros node list
     """
+    ctx.ensure_object(dict)
+    ctx.obj["master_uri"] = master_uri

@@ -1,0 +1,211 @@
+"""Rendering messages for people and scripts: rostopic's YAML text, exactly, and one JSON object per line.
+
+The text form is what ``rostopic echo`` prints (genpy's ``strify_message``), so scripts that parse it keep
+working: ``field: value`` lines, nested messages indented by two spaces, arrays of numbers as Python lists,
+``uint8[]`` as a list of numbers, arrays of messages as ``- `` items, time and duration as ``secs``/``nsecs``
+lines (nsecs right-aligned in 9 columns), strings double-quoted as PyYAML's ``default_style='"'`` does, an
+empty string as ``''``, and ``---`` after each message. ``--noarr`` replaces every array by the quoted text
+``<array type: T, length: N>`` just as rostopic does (including its ``rstrip('[]')`` of fixed-size types).
+
+Speed matters here (``mros topic echo`` must keep up with camera streams), so each message class gets a
+cached rendering plan, short ASCII strings skip PyYAML, and ``uint8[]`` is turned into decimal text with
+bytes.translate and slice assignment instead of one Python object per byte.
+
+This module knows message instances only through their ``__struct_fields__`` and ``_field_types`` (the
+contract of ``mrosd.msg``); it does no I/O.
+"""
+
+from __future__ import annotations
+
+import base64
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import msgspec
+import yaml
+
+__all__ = ["SEPARATOR", "JsonRenderer", "TextRenderer", "extract_field", "quote_string", "uint8_text"]
+
+#: What rostopic writes after each message ('---' is YAML's document separator).
+SEPARATOR = "\n---\n"
+
+_SAFE = frozenset(chr(c) for c in range(0x20, 0x7F)) - {'"', "\\"}
+#: Beyond this length PyYAML may fold a double-quoted scalar at a space (its best_width is 80 columns).
+_FAST_QUOTE_MAX = 70
+
+# uint8 -> decimal digits, one translate table per digit position; 0 marks a leading zero to delete.
+_HUNDREDS = bytes(0 if b < 100 else 0x30 + b // 100 for b in range(256))
+_TENS = bytes(0 if b < 10 else 0x30 + (b // 10) % 10 for b in range(256))
+_UNITS = bytes(0x30 + b % 10 for b in range(256))
+
+
+def quote_string(value: str) -> str:
+    """A string as genpy's strify_message prints it (PyYAML double-quoted style; ``''`` when empty)."""
+    if not value:
+        return "''"
+    if len(value) <= _FAST_QUOTE_MAX and _SAFE.issuperset(value):
+        return f'"{value}"'
+    return yaml.dump(value, default_style='"').rstrip("\n")
+
+
+def uint8_text(data: bytes | bytearray | memoryview) -> str:
+    """``str(list(data))`` for a byte string (``[1, 2, 255]``), without building a million ints."""
+    n = len(data)
+    if n == 0:
+        return "[]"
+    raw = bytes(data)
+    out = bytearray(5 * n)
+    out[0::5] = raw.translate(_HUNDREDS)
+    out[1::5] = raw.translate(_TENS)
+    out[2::5] = raw.translate(_UNITS)
+    out[3::5] = b"," * n
+    out[4::5] = b" " * n
+    del out[-2:]
+    return "[" + out.translate(None, b"\0").decode("ascii") + "]"
+
+
+def _is_time(value: Any) -> bool:
+    return hasattr(value, "secs") and hasattr(value, "nsecs") and not hasattr(type(value), "_field_types")
+
+
+def _fields(cls: type) -> tuple[tuple[str, str], ...]:
+    names: tuple[str, ...] = cls.__struct_fields__  # type: ignore[attr-defined]
+    types: Sequence[str] = cls._field_types  # type: ignore[attr-defined]
+    return tuple(zip(names, types, strict=True))
+
+
+def extract_field(msg: Any, path: Sequence[str]) -> Any:
+    """The value at ``path`` in ``msg``; a name may carry an index, ``points[0]``.
+
+    Raises:
+        KeyError: a name on the path is not a field, or an index is out of range.
+    """
+    value = msg
+    for name in path:
+        base, _, rest = name.partition("[")
+        if not hasattr(type(value), "__struct_fields__") or base not in type(value).__struct_fields__:
+            raise KeyError(f"no field {base!r} in {getattr(type(value), '_type', type(value).__name__)}")
+        value = getattr(value, base)
+        if rest:
+            try:
+                value = value[int(rest.rstrip("]"))]
+            except (ValueError, IndexError, TypeError) as exc:
+                raise KeyError(f"bad index [{rest} for field {base!r}") from exc
+    return value
+
+
+class TextRenderer:
+    """rostopic echo's text for one message (without the separator); reuse one instance per topic.
+
+    Args:
+        noarr: replace arrays by ``<array type: T, length: N>`` as ``rostopic echo --noarr``.
+        offset_ns: when not None, print time fields as offsets from this time (``rostopic echo --offset``).
+    """
+
+    def __init__(self, *, noarr: bool = False) -> None:
+        self.noarr = noarr
+        self.offset_ns: int | None = None
+        self._plans: dict[type, tuple[tuple[str, str, Callable[[Any, str], str]], ...]] = {}
+
+    def render(self, value: Any, type_info: str | None = None) -> str:
+        """The text rostopic prints for ``value`` (a message, or a field value of ROS type ``type_info``)."""
+        if type_info is not None and "[" in type_info:
+            if self.noarr:
+                return quote_string(f"<array type: {type_info.rstrip('[]')}, length: {len(value)}>")
+            if type_info.startswith("uint8[") and isinstance(value, bytes | bytearray | memoryview):
+                return uint8_text(value)
+        return self._value(value, "")
+
+    # -- internals ---------------------------------------------------------------------------------------
+
+    def _plan(self, cls: type) -> tuple[tuple[str, str, Callable[[Any, str], str]], ...]:
+        plan = self._plans.get(cls)
+        if plan is None:
+            plan = tuple((name, rostype, self._field_renderer(rostype)) for name, rostype in _fields(cls))
+            self._plans[cls] = plan
+        return plan
+
+    def _field_renderer(self, rostype: str) -> Callable[[Any, str], str]:
+        if "[" in rostype:
+            if self.noarr:
+                element = rostype.rstrip("[]")
+                return lambda v, _i: quote_string(f"<array type: {element}, length: {len(v)}>")
+            if rostype.startswith("uint8["):
+                return self._uint8_field
+            return self._value
+        if rostype == "string":
+            return lambda v, _i: quote_string(v) if isinstance(v, str) else self._value(v, _i)
+        if rostype in ("time", "duration"):
+            return self._time if rostype == "time" else self._duration
+        return self._value
+
+    def _uint8_field(self, value: Any, indent: str) -> str:
+        if isinstance(value, bytes | bytearray | memoryview):
+            return uint8_text(value)
+        return self._value(value, indent)
+
+    def _time(self, value: Any, indent: str) -> str:
+        secs, nsecs = int(value.secs), int(value.nsecs)
+        if self.offset_ns is not None:
+            secs, nsecs = divmod(secs * 1_000_000_000 + nsecs - self.offset_ns, 1_000_000_000)
+        return f"\n{indent}secs: {secs}\n{indent}nsecs: {nsecs:9d}"
+
+    def _duration(self, value: Any, indent: str) -> str:
+        return f"\n{indent}secs: {int(value.secs)}\n{indent}nsecs: {int(value.nsecs):9d}"
+
+    def _message(self, msg: Any, indent: str) -> str:
+        inner = indent + "  "
+        text = "\n".join(f"{indent}{name}: {fn(getattr(msg, name), inner)}" for name, _t, fn in self._plan(type(msg)))
+        return "\n" + text if indent else text
+
+    def _value(self, value: Any, indent: str) -> str:
+        kind = type(value)
+        if kind is bool or kind is int or kind is float:
+            return str(value)
+        if kind is str:
+            return quote_string(value)
+        if hasattr(kind, "_field_types"):
+            return self._message(value, indent)
+        if _is_time(value):
+            return self._time(value, indent) if kind.__name__ == "Time" else self._duration(value, indent)
+        if kind is list or kind is tuple or hasattr(value, "tolist"):
+            items = list(value) if kind is not list else value
+            if not items:
+                return "[]"
+            first = items[0]
+            if isinstance(first, str):
+                dumped = yaml.dump(items).rstrip("\n")
+                if dumped.startswith("["):
+                    return dumped
+                return "\n" + "\n".join(indent + line for line in dumped.splitlines())
+            if type(first) in (int, float, bool):
+                return str(items)
+            pref = indent + "- "
+            inner = indent + "  "
+            return "\n" + "\n".join(pref + self._value(v, inner) for v in items)
+        return str(value)
+
+
+def _json_default(value: Any) -> Any:
+    if _is_time(value):
+        return {"secs": int(value.secs), "nsecs": int(value.nsecs)}
+    if isinstance(value, memoryview):
+        return base64.b64encode(value).decode("ascii")
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise NotImplementedError(f"cannot encode {type(value).__name__} as JSON")
+
+
+class JsonRenderer:
+    """One compact JSON object per message; ``uint8[]`` as base64 (as rosbridge does), time as secs/nsecs."""
+
+    def __init__(self) -> None:
+        self._encoder = msgspec.json.Encoder(enc_hook=_json_default)
+
+    def render(self, value: Any) -> bytes:
+        """The JSON bytes for ``value`` (no trailing newline)."""
+        if isinstance(value, msgspec.Struct) and not hasattr(type(value), "_field_types") and _is_time(value):
+            return self._encoder.encode(_json_default(value))
+        if _is_time(value) and not isinstance(value, msgspec.Struct):
+            return self._encoder.encode(_json_default(value))
+        return self._encoder.encode(value)

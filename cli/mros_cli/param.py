@@ -1,0 +1,286 @@
+"""``mros param``: the parameter server, printed and parsed as ``rosparam`` does.
+
+Values are YAML on the command line and on output (``rosparam get`` prints ``yaml.dump`` of the value without
+the ``...`` end marker); ``set`` of a dictionary updates key by key; ``list`` prints sorted names under a
+namespace; ``dump``/``load`` read and write YAML files (``-`` is stdin/stdout), honouring ``_ns`` in loaded
+documents. Names are resolved against ``$ROS_NAMESPACE`` as rosparam does.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import Any
+
+import click
+import yaml
+
+from mros_cli.main import Graph, run
+from mrosd.errors import MrosError
+
+#: rosparam's key for a document's namespace in a loaded file.
+NS_KEY = "_ns"
+#: XML-RPC's int is 32-bit signed; rosparam refuses larger values the same way.
+MAX_XMLRPC_INT = 2**31 - 1
+
+
+def resolve(name: str) -> str:
+    """A parameter name resolved as rosparam's script_resolve_name does (relative to $ROS_NAMESPACE)."""
+    if not name:
+        name = "/"
+    if name.startswith("~"):
+        name = "/mros/" + name[1:]
+    if not name.startswith("/"):
+        ns = os.environ.get("ROS_NAMESPACE", "/") or "/"
+        name = ns.rstrip("/") + "/" + name
+        if not name.startswith("/"):
+            name = "/" + name
+    if len(name) > 1:
+        name = name.rstrip("/")
+    return name
+
+
+def join(ns: str, key: str) -> str:
+    """``ns_join``: key under namespace ns."""
+    if key.startswith("/"):
+        return key
+    return ns.rstrip("/") + "/" + key
+
+
+def yaml_text(value: Any) -> str:
+    """rosparam's output for a value: ``yaml.dump`` without the ``...`` document end marker."""
+    dump = yaml.dump(_plain(value))
+    if dump.endswith("\n...\n"):
+        dump = dump[:-5]
+    return dump
+
+
+def _plain(value: Any) -> Any:
+    # xmlrpc.client.Binary and DateTime are what rosparam sees too; keep the bytes readable.
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_plain(v) for v in value]
+    data = getattr(value, "data", None)
+    if isinstance(data, bytes):
+        return data
+    return value
+
+
+def _check(value: Any, where: str) -> Any:
+    """Values the XML-RPC parameter server can hold; a clear error naming the bad key otherwise."""
+    if isinstance(value, bool) or value is None:
+        if value is None:
+            raise MrosError(f"parameter {where} has no value (YAML null cannot be stored)")
+        return value
+    if isinstance(value, int) and not -MAX_XMLRPC_INT - 1 <= value <= MAX_XMLRPC_INT:
+        raise MrosError(f"parameter {where}: {value} does not fit the parameter server's 32-bit integers")
+    if isinstance(value, dict):
+        for key in value:
+            if not isinstance(key, str):
+                raise MrosError(f"parameter {where}: dictionary keys must be strings, got {key!r}")
+            _check(value[key], join(where, key))
+    if isinstance(value, list):
+        for i, item in enumerate(value):
+            _check(item, f"{where}[{i}]")
+    return value
+
+
+async def set_value(graph: Graph, name: str, value: Any) -> None:
+    """Set a value; a dictionary is an update of its keys, as rosparam set/load do."""
+    if isinstance(value, dict) and name != "/":
+        for key, item in value.items():
+            await set_value(graph, join(name, key), item)
+        return
+    await graph.master("setParam", name, value)
+
+
+@click.group(name="param")
+def group() -> None:
+    """Get, set, list, delete, dump and load parameters (like rosparam).
+
+    \b
+    Examples:
+      mros param set /rate 10
+      mros param set /pid "{p: 1.0, i: 0.1}"
+      mros param get /pid
+      mros param list /pid
+      mros param dump params.yaml /pid
+      mros param load params.yaml /robot
+      mros param delete /pid
+    """
+
+
+@group.command()
+@click.argument("name")
+def get(name: str) -> None:
+    """Print a parameter (or a namespace as a dictionary) as YAML.
+
+    \b
+    Example:
+      mros param get /robot_description
+    """
+
+    async def main() -> Any:
+        async with Graph() as graph:
+            return await graph.master("getParam", resolve(name))
+
+    sys.stdout.write(yaml_text(run(main())) + "\n")
+
+
+@group.command(name="set")
+@click.argument("name")
+@click.argument("value", required=False)
+@click.option("-t", "--textfile", type=click.File("r"), help="Use the text of this file as the string value.")
+@click.option("-b", "--binfile", type=click.File("rb"), help="Use the bytes of this file as a binary value.")
+def set_(name: str, value: str | None, textfile: Any, binfile: Any) -> None:
+    """Set a parameter from a YAML value (a dictionary updates its keys).
+
+    \b
+    Examples:
+      mros param set /rate 10
+      mros param set /name "'42'"        # the string 42
+      mros param set /gains "[1.0, 2.5]"
+      mros param set -t robot.urdf /robot_description
+    """
+    import xmlrpc.client
+
+    if textfile is not None and binfile is not None:
+        raise click.UsageError("give only one of --textfile and --binfile")
+    parsed: Any
+    if textfile is not None:
+        parsed = textfile.read()
+    elif binfile is not None:
+        parsed = xmlrpc.client.Binary(binfile.read())
+    elif value is None:
+        raise click.UsageError("missing VALUE (or --textfile/--binfile)")
+    else:
+        try:
+            parsed = yaml.safe_load(value) if value != "" else ""
+        except yaml.YAMLError as exc:
+            raise MrosError(f"value is not valid YAML: {' '.join(str(exc).split())}") from exc
+    resolved = resolve(name)
+    if not isinstance(parsed, xmlrpc.client.Binary):
+        _check(parsed, resolved)
+
+    async def main() -> None:
+        async with Graph() as graph:
+            await set_value(graph, resolved, parsed)
+
+    run(main())
+
+
+@group.command(name="list")
+@click.argument("namespace", required=False, default="/")
+def list_(namespace: str) -> None:
+    """List parameter names under a namespace (all by default), sorted.
+
+    \b
+    Example:
+      mros param list /robot
+    """
+    ns = resolve(namespace)
+    prefix = ns if ns.endswith("/") else ns + "/"
+
+    async def main() -> list[str]:
+        async with Graph() as graph:
+            names: list[str] = await graph.master("getParamNames")
+            return names
+
+    names = sorted(n for n in run(main()) if n.startswith(prefix))
+    click.echo("\n".join(names))
+
+
+@group.command()
+@click.argument("name")
+def delete(name: str) -> None:
+    """Delete a parameter or a whole namespace (``/`` empties the server).
+
+    \b
+    Example:
+      mros param delete /pid
+    """
+    resolved = resolve(name)
+
+    async def main() -> None:
+        async with Graph() as graph:
+            if resolved == "/":
+                await graph.master("setParam", "/", {})
+            else:
+                await graph.master("deleteParam", resolved)
+
+    run(main())
+
+
+@group.command()
+@click.argument("file", type=click.Path(dir_okay=False, allow_dash=True))
+@click.argument("namespace", required=False, default="/")
+def dump(file: str, namespace: str) -> None:
+    """Write a namespace (default: everything) to a YAML file, ``-`` for stdout.
+
+    \b
+    Example:
+      mros param dump params.yaml /robot
+    """
+
+    async def main() -> Any:
+        async with Graph() as graph:
+            return await graph.master("getParam", resolve(namespace))
+
+    tree = _plain(run(main()))
+    if file == "-":
+        yaml.dump(tree, sys.stdout)
+    else:
+        try:
+            with open(file, "w", encoding="utf-8") as out:
+                yaml.dump(tree, out)
+        except OSError as exc:
+            raise MrosError(f"cannot write {file}: {exc.strerror or exc}") from exc
+
+
+@group.command()
+@click.argument("file", type=click.Path(dir_okay=False, allow_dash=True))
+@click.argument("namespace", required=False)
+def load(file: str, namespace: str | None) -> None:
+    """Load parameters from a YAML file (``-`` for stdin) into a namespace.
+
+    Each YAML document may name its own namespace with ``_ns``.
+
+    \b
+    Example:
+      mros param load params.yaml /robot
+    """
+    try:
+        if file == "-":
+            text = sys.stdin.read()
+        else:
+            with open(file, encoding="utf-8") as src:
+                text = src.read()
+    except OSError as exc:
+        raise MrosError(f"cannot read {file}: {exc.strerror or exc}") from exc
+    try:
+        docs = [d for d in yaml.safe_load_all(text) if d is not None]
+    except yaml.YAMLError as exc:
+        raise MrosError(f"{file} is not valid YAML: {' '.join(str(exc).split())}") from exc
+    default_ns = resolve(namespace) if namespace else resolve("")
+    plan: list[tuple[str, Any]] = []
+    for raw in docs:
+        ns = default_ns
+        doc = raw
+        if isinstance(raw, dict) and NS_KEY in raw:
+            doc = dict(raw)
+            ns = join(default_ns, str(doc.pop(NS_KEY)))
+        if ns == "/" and not isinstance(doc, dict):
+            raise MrosError(f"{file}: the global namespace / can only be set to a dictionary")
+        plan.append((ns, _check(doc, ns)))
+
+    async def main() -> None:
+        async with Graph() as graph:
+            for ns, doc in plan:
+                if ns == "/" and isinstance(doc, dict):
+                    for key, item in doc.items():
+                        await set_value(graph, join("/", key), item)
+                else:
+                    await set_value(graph, ns, doc)
+
+    run(main())
