@@ -70,7 +70,8 @@ def wait_for_xmlrpc(uri: str, timeout: float = 20.0) -> None:
     last: Exception | None = None
     while time.monotonic() < deadline:
         try:
-            xmlrpc.client.ServerProxy(uri).getPid("/test")
+            with xmlrpc.client.ServerProxy(uri) as proxy:  # closed at once: no ResourceWarning under -W error
+                proxy.getPid("/test")
             return
         except (OSError, xmlrpc.client.Error) as exc:
             last = exc

@@ -148,8 +148,6 @@ class LazyGroup(click.Group):
         try:
             return super().invoke(ctx)
         except MasterError as exc:
-            if isinstance(exc, MasterUnreachableError):
-                fail(str(exc))
             fail(exc.status)
         except MrosError as exc:
             fail(" ".join(str(exc).split()))
@@ -193,3 +191,7 @@ def cli(ctx: click.Context, master_uri: str) -> None:
     """
     ctx.ensure_object(dict)
     ctx.obj["master_uri"] = master_uri
+
+
+if __name__ == "__main__":
+    cli(prog_name="mros")

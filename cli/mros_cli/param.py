@@ -9,6 +9,7 @@ documents. Names are resolved against ``$ROS_NAMESPACE`` as rosparam does.
 from __future__ import annotations
 
 import os
+import re
 import sys
 from typing import Any
 
@@ -128,7 +129,32 @@ def get(name: str) -> None:
     sys.stdout.write(yaml_text(run(main())) + "\n")
 
 
-@group.command(name="set")
+class NegativeNumbersCommand(click.Command):
+    """Lets ``mros param set /x -7`` pass ``-7`` as the value, as rosparam does, instead of an option."""
+
+    VALUE_OPTIONS = frozenset({"-t", "--textfile", "-b", "--binfile"})
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        options: list[str] = []
+        positional: list[str] = []
+        it = iter(args)
+        for arg in it:
+            if arg == "--":
+                positional.extend(it)
+                break
+            if NEGATIVE_NUMBER.match(arg) or not arg.startswith("-") or arg == "-":
+                positional.append(arg)
+            else:
+                options.append(arg)
+                if arg in self.VALUE_OPTIONS:
+                    options.append(next(it, ""))
+        return super().parse_args(ctx, [*options, "--", *positional] if positional else options)
+
+
+NEGATIVE_NUMBER = re.compile(r"^-(\d|\.\d|inf|\.inf)", re.IGNORECASE)
+
+
+@group.command(name="set", cls=NegativeNumbersCommand)
 @click.argument("name")
 @click.argument("value", required=False)
 @click.option("-t", "--textfile", type=click.File("r"), help="Use the text of this file as the string value.")

@@ -1,0 +1,338 @@
+"""``mros node``: list, inspect, ping, kill and clean up nodes, printed as ``rosnode`` prints them.
+
+Node facts come from the master (``getSystemState``, ``lookupNode``) and from each node's slave API
+(``getPid``, ``getBusInfo``, ``shutdown``); every call is bounded by the CLI's call timeout.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import re
+import sys
+import time
+from typing import Any
+
+import click
+
+from mros_cli.main import CALLER_ID, Graph, fail, run
+from mrosd.errors import MasterError, MasterUnreachableError, MrosError, XmlRpcError
+
+#: The free-text connection description roscpp/rospy put in getBusInfo, shown as rosnode shows it.
+CONNECTION_PATTERN = re.compile(r"\w+ connection on port (\d+) to \[(.*) on socket (\d+)\]")
+
+#: rosnode ping's timeout for one getPid.
+PING_TIMEOUT = 3.0
+
+
+def resolve(name: str) -> str:
+    """Node names are global in the CLI unless given relative to $ROS_NAMESPACE."""
+    from mros_cli.param import resolve as resolve_name
+
+    return resolve_name(name)
+
+
+def node_names(state: list[Any]) -> list[str]:
+    """Every node that appears in a getSystemState answer, sorted."""
+    names: set[str] = set()
+    for section in state:
+        for _name, nodes in section:
+            names.update(nodes)
+    return sorted(names)
+
+
+async def _lookup(graph: Graph, name: str) -> str | None:
+    try:
+        uri: str = await graph.master("lookupNode", name)
+    except MasterUnreachableError:
+        raise
+    except MasterError:
+        return None
+    return uri
+
+
+@click.group(name="node")
+def group() -> None:
+    """List, inspect, ping, kill and clean up nodes (like rosnode).
+
+    \b
+    Examples:
+      mros node list
+      mros node info /talker
+      mros node ping /talker -c 3
+      mros node kill /talker
+      mros node cleanup -y
+    """
+
+
+@group.command(name="list")
+@click.option("-u", "show_uri", is_flag=True, help="Print node XML-RPC URIs instead of names.")
+@click.option("-a", "--all", "show_all", is_flag=True, help="Print URI and name of every node.")
+@click.argument("namespace", required=False)
+def list_(show_uri: bool, show_all: bool, namespace: str | None) -> None:
+    """List the nodes registered with the master.
+
+    \b
+    Example:
+      mros node list
+    """
+
+    async def main() -> list[tuple[str, str]]:
+        async with Graph() as graph:
+            names = node_names(await graph.master("getSystemState"))
+            if namespace:
+                prefix = resolve(namespace).rstrip("/") + "/"
+                names = [n for n in names if n.startswith(prefix)]
+            if not (show_uri or show_all):
+                return [(n, "") for n in names]
+            return [(n, await _lookup(graph, n) or "unknown address") for n in names]
+
+    rows = run(main())
+    if show_all:
+        lines = [f"{uri} \t{name}" for name, uri in rows]
+    elif show_uri:
+        lines = sorted({uri for _n, uri in rows})
+    else:
+        lines = [name for name, _u in rows]
+    if lines:
+        click.echo("\n".join(lines))
+
+
+def _describe(name: str, state: list[Any], pub_topics: list[Any]) -> str:
+    types = {t: ty for t, ty in pub_topics}
+
+    def section(title: str, items: list[str], typed: bool) -> str:
+        if not items:
+            return f"\n{title}: None\n"
+        body = "\n".join(f" * {t} [{types.get(t, 'unknown type')}]" if typed else f" * {t}" for t in items)
+        return f"\n{title}: \n{body}\n"
+
+    pubs = sorted(t for t, nodes in state[0] if name in nodes)
+    subs = sorted(t for t, nodes in state[1] if name in nodes)
+    srvs = sorted(t for t, nodes in state[2] if name in nodes)
+    return (
+        f"Node [{name}]"
+        + section("Publications", pubs, True)
+        + section("Subscriptions", subs, True)
+        + section("Services", srvs, False)
+    )
+
+
+@group.command()
+@click.argument("node")
+@click.option("-q", "--quiet", is_flag=True, help="Do not contact the node, only ask the master.")
+def info(node: str, quiet: bool) -> None:
+    """Print a node's publications, subscriptions, services, pid and connections.
+
+    \b
+    Example:
+      mros node info /talker
+    """
+    name = resolve(node)
+
+    async def main() -> tuple[str, str | None, str]:
+        async with Graph() as graph:
+            state = await graph.master("getSystemState")
+            pub_topics = await graph.master("getPublishedTopics", "/")
+            head = _describe(name, state, pub_topics)
+            uri = await _lookup(graph, name)
+            if uri is None or quiet:
+                return head, uri, ""
+            try:
+                pid = await graph.node(uri, "getPid")
+                bus = await graph.node(uri, "getBusInfo")
+            except (XmlRpcError, MasterError) as exc:
+                raise MrosError(f"Communication with node[{uri}] failed! ({exc})") from exc
+            uris: dict[str, str] = {}
+            for section in state[:2]:
+                for _t, nodes in section:
+                    for n in nodes:
+                        if n not in uris:
+                            uris[n] = await _lookup(graph, n) or ""
+            return head, uri, _connections(pid, bus, uris)
+
+    head, uri, conns = run(main())
+    click.echo("-" * 80)
+    click.echo(head)
+    if uri is None:
+        click.echo(f"cannot contact [{name}]: unknown node", err=True)
+        return
+    if not quiet:
+        click.echo(f"\ncontacting node {uri} ...")
+        click.echo(conns)
+
+
+def _connections(pid: Any, bus: list[Any], uris: dict[str, str]) -> str:
+    by_uri = {u: n for n, u in uris.items() if u}
+    text = f"Pid: {pid}\n"
+    if bus:
+        text += "Connections:\n"
+        for entry in bus:
+            dest, direction, transport, topic = entry[1], entry[2], entry[3], entry[4]
+            connected = entry[5] if len(entry) > 5 else True
+            if not connected:
+                continue
+            peer = f"{by_uri[dest]} ({dest})" if dest in by_uri else dest
+            way = {"i": "inbound", "o": "outbound"}.get(direction, "unknown")
+            match = CONNECTION_PATTERN.match(entry[6]) if len(entry) > 6 and isinstance(entry[6], str) else None
+            if match is not None:
+                way += " ({} - {}) [{}]".format(*match.groups())
+            text += f" * topic: {topic}\n    * to: {peer}\n    * direction: {way}\n    * transport: {transport}\n"
+    return text
+
+
+@group.command()
+@click.argument("node", required=False)
+@click.option("-a", "--all", "ping_all", is_flag=True, help="Ping every node.")
+@click.option("-c", "count", type=click.IntRange(min=1), help="Number of pings (default: until Ctrl-C).")
+def ping(node: str | None, ping_all: bool, count: int | None) -> None:
+    """Check that a node's XML-RPC server answers, and how fast.
+
+    Exit code 1 when the node is unknown or does not answer.
+
+    \b
+    Examples:
+      mros node ping /talker -c 1
+      mros node ping --all
+    """
+    if not node and not ping_all:
+        raise click.UsageError("give a NODE or --all")
+
+    async def main() -> bool:
+        async with Graph() as graph:
+            if ping_all:
+                names = node_names(await graph.master("getSystemState"))
+                click.echo("Will ping the following nodes: \n" + "".join(f" * {n}\n" for n in names))
+                dead = [n for n in names if not await _ping(graph, n, 1)]
+                if dead:
+                    click.echo("ERROR: connection refused to " + ", ".join(dead), err=True)
+                return not dead
+            return await _ping(graph, resolve(node or ""), count)
+
+    if not run(main()):
+        sys.exit(1)
+
+
+async def _ping(graph: Graph, name: str, count: int | None) -> bool:
+    import asyncio
+
+    uri = await _lookup(graph, name)
+    if uri is None:
+        click.echo(f"cannot ping [{name}]: unknown node", err=True)
+        return False
+    click.echo(f"pinging {name} with a timeout of {PING_TIMEOUT:g}s")
+    done = 0
+    while count is None or done < count:
+        if done:
+            await asyncio.sleep(1.0)
+        start = time.perf_counter()
+        try:
+            await graph.node(uri, "getPid", timeout=PING_TIMEOUT)
+        except (XmlRpcError, MasterError) as exc:
+            click.echo(f"connection to [{name}] failed: {exc}", err=True)
+            return False
+        click.echo(f"xmlrpc reply from {uri}\ttime={(time.perf_counter() - start) * 1000:f}ms")
+        done += 1
+    return True
+
+
+@group.command()
+@click.argument("nodes", nargs=-1)
+@click.option("-a", "--all", "kill_all", is_flag=True, help="Kill every node.")
+def kill(nodes: tuple[str, ...], kill_all: bool) -> None:
+    """Ask nodes to shut down (slave API ``shutdown``).
+
+    \b
+    Example:
+      mros node kill /talker
+    """
+    if not nodes and not kill_all:
+        raise click.UsageError("give NODE names or --all")
+
+    async def main() -> list[str]:
+        failed: list[str] = []
+        async with Graph() as graph:
+            names = node_names(await graph.master("getSystemState")) if kill_all else [resolve(n) for n in nodes]
+            for name in names:
+                uri = await _lookup(graph, name)
+                click.echo(f"killing {name}")
+                if uri is None:
+                    failed.append(name)
+                    continue
+                # A node may tear down while answering, so a broken reply still counts as killed (as rosnode).
+                with contextlib.suppress(XmlRpcError, MasterError):
+                    await graph.node(uri, "shutdown", "user request")
+        return failed
+
+    failed = run(main())
+    if failed:
+        fail("could not kill " + ", ".join(failed))
+    click.echo("killed")
+
+
+@group.command()
+@click.option("-y", "--yes", is_flag=True, help="Do not ask for confirmation.")
+def cleanup(yes: bool) -> None:
+    """Purge nodes that no longer answer from the master's registrations.
+
+    \b
+    Example:
+      mros node cleanup -y
+    """
+
+    async def dead_nodes(graph: Graph) -> tuple[list[Any], list[tuple[str, str]]]:
+        state = await graph.master("getSystemState")
+        dead: list[tuple[str, str]] = []
+        for name in node_names(state):
+            uri = await _lookup(graph, name)
+            if uri is None:
+                continue
+            try:
+                await graph.node(uri, "getPid", timeout=PING_TIMEOUT)
+            except (XmlRpcError, MasterError):
+                dead.append((name, uri))
+        return state, dead
+
+    async def purge(graph: Graph, state: list[Any], dead: list[tuple[str, str]]) -> None:
+        for name, uri in dead:
+            click.echo(f"Unregistering {name}")
+            for method, section, extra in (
+                ("unregisterPublisher", state[0], True),
+                ("unregisterSubscriber", state[1], True),
+                ("unregisterService", state[2], False),
+            ):
+                for item, nodes in section:
+                    if name not in nodes:
+                        continue
+                    api = uri if extra else await _service_uri(graph, item)
+                    try:
+                        await graph.xmlrpc.call(graph.uri, method, name, item, api)
+                    except XmlRpcError as exc:
+                        click.echo(f"mros: error: {method} {item} for {name}: {exc}", err=True)
+
+    async def main() -> None:
+        async with Graph() as graph:
+            state, dead = await dead_nodes(graph)
+            if not dead:
+                return
+            if not yes:
+                click.echo("Unable to contact the following nodes:")
+                click.echo("\n".join(f" * {n}" for n, _u in dead))
+                click.echo("Cleanup will purge all information about these nodes from the master.")
+                if not click.confirm("Continue?", default=False):
+                    click.echo("aborting")
+                    return
+            await purge(graph, state, dead)
+            click.echo("done")
+
+    run(main())
+
+
+async def _service_uri(graph: Graph, service: str) -> str:
+    try:
+        uri: str = await graph.master("lookupService", service)
+    except MasterError:
+        return ""
+    return uri
+
+
+__all__ = ["CALLER_ID", "group", "node_names"]

@@ -1,0 +1,77 @@
+"""`mros node` and `mros service list` against real rosmaster and a real rospy node match rosnode/rosservice."""
+
+from __future__ import annotations
+
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.interop.cli.cliutil import mros, ros_tool
+from tests.rosenv import Processes, needs_ros, ros_env
+
+pytestmark = [needs_ros, pytest.mark.interop]
+
+TALKER = """
+import rospy
+from std_msgs.msg import String
+rospy.init_node("talker")
+pub = rospy.Publisher("/chatter", String, queue_size=10)
+listener = rospy.Subscriber("/other", String, lambda m: None)
+print("up", flush=True)
+rospy.spin()
+"""
+
+
+def _start_talker(procs: Processes, master: str) -> subprocess.Popen[bytes]:
+    proc = procs.python(TALKER, ros_env(master, procs.tmp))
+    assert proc.stdout is not None
+    assert proc.stdout.readline().strip() == b"up"
+    return proc
+
+
+def test_node_list_info_and_service_list_match_the_ros_tools(procs: Processes, rosmaster: str, tmp_path: Path) -> None:
+    _start_talker(procs, rosmaster)
+    for argv in (["list"], ["list", "-a"], ["info", "/talker"], ["info", "-q", "/talker"]):
+        ours = mros(rosmaster, tmp_path, "node", *argv)
+        theirs = ros_tool(rosmaster, tmp_path, "rosnode", *argv)
+        assert ours.stdout == theirs.stdout, argv
+        assert ours.returncode == theirs.returncode == 0
+    ours = mros(rosmaster, tmp_path, "service", "list")
+    theirs = ros_tool(rosmaster, tmp_path, "rosservice", "list")
+    assert ours.stdout == theirs.stdout
+    assert "/talker/get_loggers" in ours.stdout
+
+
+def test_node_ping_succeeds_for_a_live_node_and_fails_for_an_unknown_one(
+    procs: Processes, rosmaster: str, tmp_path: Path
+) -> None:
+    _start_talker(procs, rosmaster)
+    ok = mros(rosmaster, tmp_path, "node", "ping", "-c", "1", "/talker")
+    assert ok.returncode == 0
+    assert "xmlrpc reply from" in ok.stdout
+    missing = mros(rosmaster, tmp_path, "node", "ping", "-c", "1", "/nobody")
+    assert missing.returncode == 1
+    assert missing.stderr.strip() == "cannot ping [/nobody]: unknown node"
+
+
+def test_node_kill_shuts_a_rospy_node_down_and_cleanup_purges_a_dead_one(
+    procs: Processes, rosmaster: str, tmp_path: Path
+) -> None:
+    talker = _start_talker(procs, rosmaster)
+    out = mros(rosmaster, tmp_path, "node", "kill", "/talker")
+    assert out.returncode == 0
+    assert out.stdout == "killing /talker\nkilled\n"
+    talker.wait(timeout=20)
+    # rospy unregisters on shutdown; a node killed with SIGKILL stays registered until cleanup.
+    second = _start_talker(procs, rosmaster)
+    second.kill()
+    second.wait(timeout=10)
+    assert "/talker" in mros(rosmaster, tmp_path, "node", "list").stdout
+    cleaned = mros(rosmaster, tmp_path, "node", "cleanup", "-y")
+    assert cleaned.returncode == 0, cleaned.stderr
+    deadline = time.monotonic() + 10
+    while "/talker" in mros(rosmaster, tmp_path, "node", "list").stdout:
+        assert time.monotonic() < deadline
+    assert ros_tool(rosmaster, tmp_path, "rosnode", "list").stdout.strip() == ""
