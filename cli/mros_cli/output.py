@@ -112,8 +112,7 @@ class TextRenderer:
         if type_info is not None and "[" in type_info:
             if self.noarr:
                 return quote_string(f"<array type: {type_info.rstrip('[]')}, length: {len(value)}>")
-            if type_info.startswith("uint8[") and isinstance(value, bytes | bytearray | memoryview):
-                return uint8_text(value)
+            return self._field_renderer(type_info)(value, "")
         return self._value(value, "")
 
     # -- internals ---------------------------------------------------------------------------------------
@@ -132,6 +131,12 @@ class TextRenderer:
                 return lambda v, _i: quote_string(f"<array type: {element}, length: {len(v)}>")
             if rostype.startswith("uint8["):
                 return self._uint8_field
+            if rostype.startswith("bool["):
+                # genpy turns bool[] into a list of bools; decoders may hand us 0/1 ints.
+                return lambda v, _i: str([bool(x) for x in v]) if len(v) else "[]"
+            if rostype.startswith("char["):
+                # genpy keeps char[] as bytes and prints their repr.
+                return self._char_field
             return self._value
         if rostype == "string":
             return lambda v, _i: quote_string(v) if isinstance(v, str) else self._value(v, _i)
@@ -142,6 +147,11 @@ class TextRenderer:
     def _uint8_field(self, value: Any, indent: str) -> str:
         if isinstance(value, bytes | bytearray | memoryview):
             return uint8_text(value)
+        return self._value(value, indent)
+
+    def _char_field(self, value: Any, indent: str) -> str:
+        if isinstance(value, bytes | bytearray | memoryview):
+            return str(bytes(value))
         return self._value(value, indent)
 
     def _time(self, value: Any, indent: str) -> str:

@@ -201,3 +201,21 @@ def test_extract_field_follows_a_path_with_indexes_and_names_a_bad_field() -> No
 def test_a_string_message_renders_as_a_single_data_line() -> None:
     assert TextRenderer().render(Text("hello")) == 'data: "hello"'
     assert TextRenderer().render(Text("")) == "data: ''"
+
+
+class Flags(msgspec.Struct):
+    _type: ClassVar[str] = "test/Flags"
+    _field_types: ClassVar[tuple[str, ...]] = ("bool[]", "float32[]", "char[]", "uint8[2]")
+    bits: list[int] = msgspec.field(default_factory=list)
+    values: object = None
+    chars: bytes = b""
+    pair: object = None
+
+
+def test_bool_arrays_print_as_bools_and_numeric_array_objects_as_lists() -> None:
+    from array import array
+
+    msg = Flags(bits=[1, 0], values=array("f", [0.5, 2.0]), chars=b"ab", pair=memoryview(b"\x01\x02"))
+    text = TextRenderer().render(msg)
+    assert text == "bits: [True, False]\nvalues: [0.5, 2.0]\nchars: b'ab'\npair: [1, 2]"
+    assert JsonRenderer().render(msg) == b'{"bits":[1,0],"values":[0.5,2.0],"chars":"YWI=","pair":"AQI="}'
