@@ -1,0 +1,76 @@
+"""`mros` against mrosd's own master: parameters, graph queries and daemon status, over real sockets."""
+
+from __future__ import annotations
+
+import importlib
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.rosenv import Processes, free_port, wait_for_xmlrpc
+
+
+def _master_available() -> bool:
+    try:
+        return hasattr(importlib.import_module("mrosd.master"), "Master")
+    except ImportError:
+        return False
+
+
+pytestmark = pytest.mark.skipif(not _master_available(), reason="mrosd.master.Master is not built yet")
+
+
+@pytest.fixture
+def mrosd_master(procs: Processes) -> str:
+    port = free_port()
+    procs.our_python(["-m", "mrosd.daemon", "--master-only", "--port", str(port)], stderr=subprocess.DEVNULL)
+    uri = f"http://127.0.0.1:{port}/"
+    wait_for_xmlrpc(uri)
+    return uri
+
+
+def mros(uri: str, *args: str, stdin: str | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "mros_cli.main", "--master-uri", uri, *args],
+        input=stdin,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+
+
+def test_parameters_round_trip_through_set_get_list_dump_load_delete(mrosd_master: str, tmp_path: Path) -> None:
+    uri = mrosd_master
+    assert mros(uri, "param", "set", "/robot", "{name: r2, arm: {joints: 6}, gains: [1.5, 2]}").returncode == 0
+    assert mros(uri, "param", "set", "/neg", "-3").returncode == 0
+    assert mros(uri, "param", "get", "/robot/arm/joints").stdout == "6\n\n"
+    assert mros(uri, "param", "get", "/neg").stdout == "-3\n\n"
+    assert mros(uri, "param", "list", "/robot").stdout == "/robot/arm/joints\n/robot/gains\n/robot/name\n"
+    dumped = mros(uri, "param", "dump", "-", "/robot").stdout
+    assert dumped == "arm:\n  joints: 6\ngains:\n- 1.5\n- 2\nname: r2\n"
+    assert mros(uri, "param", "load", "-", "/copy", stdin=dumped).returncode == 0
+    assert mros(uri, "param", "dump", "-", "/copy").stdout == dumped
+    assert mros(uri, "param", "delete", "/robot").returncode == 0
+    missing = mros(uri, "param", "get", "/robot")
+    assert missing.returncode == 1
+    assert missing.stderr.startswith("mros: error: ")
+    assert len(missing.stderr.splitlines()) == 1
+
+
+def test_daemon_status_reports_a_running_master_and_fails_for_a_dead_one(mrosd_master: str, tmp_path: Path) -> None:
+    up = mros(mrosd_master, "daemon", "status", "--ixm-socket", str(tmp_path / "none.sock"))
+    assert up.returncode == 0, up.stderr
+    assert up.stdout.startswith(f"master: running at {mrosd_master} (pid ")
+    down = mros(f"http://127.0.0.1:{free_port()}/", "daemon", "status")
+    assert down.returncode == 1
+    assert down.stderr.startswith("mros: error: cannot reach the ROS master")
+
+
+def test_graph_queries_on_an_empty_master_print_nothing_and_succeed(mrosd_master: str) -> None:
+    for argv in (["node", "list"], ["topic", "list"], ["service", "list"]):
+        out = mros(mrosd_master, *argv)
+        assert out.returncode == 0, (argv, out.stderr)
+        assert out.stdout.strip() == "" or argv == ["node", "list"]
