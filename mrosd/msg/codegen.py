@@ -1,0 +1,570 @@
+"""The one generator: a MsgSpec becomes Python source for a msgspec Struct with inlined (de)serializers.
+
+Used two ways: ``loader.py`` compiles the source for runtime classes, and ``mros msg gen`` writes it to
+files. The source refers to other message classes by symbol (``_T_std_msgs__Header``); the caller binds
+those symbols (a namespace at runtime, imports in files).
+
+Speed comes from flattening: nested messages are inlined, consecutive fixed-size fields (through nested
+messages, time/duration, and the uint32 length prefix of the next string or array) are packed or unpacked
+with one precompiled ``struct.Struct``; uint8[] is copied as bytes (or viewed when large), numeric
+variable arrays go through ``array.array`` without per-element objects, flat fixed-size message arrays
+through ``Struct.iter_unpack``. Decoders check every untrusted length against the bytes that remain
+before they allocate or loop.
+"""
+
+from __future__ import annotations
+
+import keyword
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from mrosd.errors import MsgError
+from mrosd.msg.spec import PRIMITIVE_FORMATS, Field, MsgSpec
+
+#: Bound on the item count of an array of messages that occupy no bytes (an empty message type):
+#: nothing in the buffer limits such a count, so without it a forged header could spin for hours.
+MAX_EMPTY_ITEMS = 1 << 16
+
+Lookup = Callable[[str], MsgSpec]
+
+_BYTE_TYPES = ("uint8", "char")
+_TIME_FORMATS = {"time": "I", "duration": "i"}
+_PY_SCALARS = {"bool": "bool", "float32": "float", "float64": "float", "string": "str"}
+
+
+def symbol(type_name: str) -> str:
+    """The identifier generated code uses for a message class (``pkg/Type`` -> ``_T_pkg__Type``)."""
+    return "_T_" + type_name.replace("/", "__")
+
+
+def class_name(spec: MsgSpec) -> str:
+    """The Python class name of a message (its short name)."""
+    return spec.short_name
+
+
+def min_size(spec: MsgSpec, lookup: Lookup) -> int:
+    """The smallest number of bytes a serialized ``spec`` can take."""
+    total = 0
+    for f in spec.fields:
+        item = _element_min_size(f.base, lookup)
+        if not f.is_array:
+            total += item
+        elif f.length is None:
+            total += 4
+        else:
+            total += item * f.length
+    return total
+
+
+def _element_min_size(base: str, lookup: Lookup) -> int:
+    if base in PRIMITIVE_FORMATS:
+        return PRIMITIVE_FORMATS[base][1]
+    if base in _TIME_FORMATS:
+        return 8
+    if base == "string":
+        return 4
+    return min_size(lookup(base), lookup)
+
+
+def fixed_size(spec: MsgSpec, lookup: Lookup) -> int | None:
+    """The serialized size if every field has a fixed size, else None."""
+    total = 0
+    for f in spec.fields:
+        if f.base == "string" or (f.is_array and f.length is None):
+            return None
+        if f.base in PRIMITIVE_FORMATS or f.base in _TIME_FORMATS:
+            item: int | None = _element_min_size(f.base, lookup)
+        else:
+            item = fixed_size(lookup(f.base), lookup)
+        if item is None:
+            return None
+        total += item * (f.length if f.is_array and f.length is not None else 1)
+    return total
+
+
+def _is_flat(spec: MsgSpec) -> bool:
+    """True if every field is a primitive scalar (so ``Struct.iter_unpack`` yields constructor arguments)."""
+    return bool(spec.fields) and all(not f.is_array and f.base in PRIMITIVE_FORMATS for f in spec.fields)
+
+
+@dataclass
+class _Writer:
+    """Accumulates indented lines, temporaries and precompiled struct formats for one generated class."""
+
+    type_name: str
+    lookup: Lookup
+    lines: list[str] = field(default_factory=list)
+    structs: dict[str, str] = field(default_factory=dict)
+    helpers: dict[str, str] = field(default_factory=dict)
+    counter: int = 0
+
+    def emit(self, indent: int, text: str) -> None:
+        self.lines.append("    " * indent + text)
+
+    def tmp(self, prefix: str = "v") -> str:
+        self.counter += 1
+        return f"_{prefix}{self.counter}"
+
+    def struct(self, fmt: str) -> str:
+        name = self.structs.get(fmt)
+        if name is None:
+            name = self.structs[fmt] = f"_S{len(self.structs)}"
+        return name
+
+    def helper(self, name: str, expr: str) -> str:
+        self.helpers[name] = expr
+        return name
+
+
+def _fmt_size(fmt: str) -> int:
+    return struct.calcsize("<" + fmt)
+
+
+# ---------------------------------------------------------------------------------------------- serialize
+
+
+class _Encoder:
+    """Emits the body of ``serialize``: a pending run of (format, expression) flushed into one pack call."""
+
+    def __init__(self, w: _Writer) -> None:
+        self.w = w
+        self.run: list[tuple[str, str]] = []
+        self.appended = False  #: True once anything other than the final run goes to the parts list
+
+    def flush(self, indent: int) -> None:
+        if not self.run:
+            return
+        fmt = "".join(f for f, _ in self.run)
+        args = ", ".join(e for _, e in self.run)
+        self.w.emit(indent, f"_a({self.w.struct(fmt)}.pack({args}))")
+        self.run = []
+        self.appended = True
+
+    def fields(self, spec: MsgSpec, expr: str, indent: int, path: str) -> None:
+        for f in spec.fields:
+            self.one(f, f"{expr}.{f.name}", indent, f"{path}{f.name}")
+
+    def one(self, f: Field, acc: str, indent: int, path: str) -> None:
+        w = self.w
+        base = f.base
+        if not f.is_array:
+            if base in PRIMITIVE_FORMATS:
+                self.run.append((PRIMITIVE_FORMATS[base][0], acc))
+            elif base == "string":
+                s = w.tmp("s")
+                w.emit(indent, f"{s} = {acc}")
+                w.emit(indent, f"if {s}.__class__ is str:")
+                w.emit(indent + 1, f"{s} = {s}.encode()")
+                self.run.append(("I", f"len({s})"))
+                self.flush(indent)
+                w.emit(indent, f"_a({s})")
+            elif base in _TIME_FORMATS:
+                t = w.tmp("t")
+                w.emit(indent, f"{t} = {acc}")
+                c = _TIME_FORMATS[base]
+                self.run += [(c, f"{t}.secs"), (c, f"{t}.nsecs")]
+            else:
+                v = w.tmp("m")
+                w.emit(indent, f"{v} = {acc}")
+                self.fields(w.lookup(base), v, indent, path + ".")
+            return
+        a = w.tmp("a")
+        w.emit(indent, f"{a} = {acc}")
+        n = f.length
+        if n is not None:
+            w.emit(indent, f"if len({a}) != {n}:")
+            w.emit(indent + 1, f"raise bad_length({w.type_name!r}, {path!r}, {n}, len({a}))")
+        if base in _BYTE_TYPES:
+            w.emit(indent, f"if {a}.__class__ is not bytes:")
+            w.emit(indent + 1, f"{a} = to_bytes({a})")
+            if n is None:
+                self.run.append(("I", f"len({a})"))
+                self.flush(indent)
+                w.emit(indent, f"_a({a})")
+            else:
+                self.run.append((f"{n}s", a))
+            return
+        if base in PRIMITIVE_FORMATS:
+            code = PRIMITIVE_FORMATS[base][0]
+            if n is None:
+                self.run.append(("I", f"len({a})"))
+                self.flush(indent)
+                if code == "?":
+                    w.emit(indent, f"_a(bytes(map(bool, {a})))")
+                else:
+                    enc = w.helper(f"_enc_{code}", f"array_encoder({code!r})")
+                    w.emit(indent, f"_a({enc}({a}))")
+            elif n:
+                self.run.append((f"{n}{code}", f"*{a}"))
+            return
+        if n is None:
+            self.run.append(("I", f"len({a})"))
+        self.flush(indent)
+        item = w.tmp("i")
+        w.emit(indent, f"for {item} in {a}:")
+        inner = _Encoder(w)
+        inner.one(Field(name=f.name, type=base, base=base, line=f.line), item, indent + 1, path + "[]")
+        inner.flush(indent + 1)
+        if not inner.appended:
+            w.emit(indent + 1, "pass")
+        self.appended = True
+
+
+def _serialize_source(spec: MsgSpec, w: _Writer) -> list[str]:
+    enc = _Encoder(w)
+    start = len(w.lines)
+    enc.fields(spec, "self", 2, "")
+    body = w.lines[start:]
+    del w.lines[start:]
+    out = [
+        "    def serialize(self) -> bytes:",
+        '        """The message body (no length prefix), byte-identical to genpy."""',
+    ]
+    out.append("        try:")
+    if not enc.appended:
+        # Fixed-size message without arrays or strings: one pack call.
+        out += ["    " + line for line in body]
+        if enc.run:
+            fmt = "".join(f for f, _ in enc.run)
+            args = ", ".join(e for _, e in enc.run)
+            out.append(f"            return {w.struct(fmt)}.pack({args})  # type: ignore[no-any-return]")
+        else:
+            out.append('            return b""')
+    else:
+        out.append("            _p: list[Any] = []")
+        out.append("            _a = _p.append")
+        out += ["    " + line for line in body]
+        enc.flush(2)
+        out += ["    " + line for line in w.lines[start:]]
+        del w.lines[start:]
+        out.append('            return b"".join(_p)')
+    out.append("        except (struct_error, TypeError, ValueError, AttributeError, OverflowError) as exc:")
+    out.append(f"            raise serialize_failed({spec.full_name!r}, exc) from None")
+    return out
+
+
+# -------------------------------------------------------------------------------------------- deserialize
+
+
+class _Decoder:
+    """Emits the body of ``deserialize``: fields become locals, messages are built by one expression."""
+
+    def __init__(self, w: _Writer) -> None:
+        self.w = w
+        self.run: list[tuple[str, str, int]] = []  #: (format, target local, item count or 0 for a scalar)
+
+    def flush(self, indent: int) -> None:
+        if not self.run:
+            return
+        w = self.w
+        fmt = "".join(f for f, _, _ in self.run)
+        size = _fmt_size(fmt)
+        name = w.struct(fmt)
+        arrays = [r for r in self.run if r[2]]
+        if not arrays:
+            targets = ", ".join(t for _, t, _ in self.run)
+            w.emit(indent, f"{targets}, = {name}.unpack_from(b, o)")
+        elif len(arrays) == 1:
+            targets = ", ".join(("*" + t) if count else t for _, t, count in self.run)
+            w.emit(indent, f"{targets}, = {name}.unpack_from(b, o)")
+        else:
+            u = w.tmp("u")
+            w.emit(indent, f"{u} = {name}.unpack_from(b, o)")
+            pos = 0
+            for _, t, count in self.run:
+                if count:
+                    w.emit(indent, f"{t} = list({u}[{pos}:{pos + count}])")
+                    pos += count
+                else:
+                    w.emit(indent, f"{t} = {u}[{pos}]")
+                    pos += 1
+        w.emit(indent, f"o += {size}")
+        self.run = []
+
+    def fields(self, spec: MsgSpec, indent: int, path: str) -> list[str]:
+        return [self.one(f, indent, f"{path}{f.name}") for f in spec.fields]
+
+    def _span(self, count: str, item_size: int, indent: int, path: str) -> str:
+        """Emit the bounds check for ``count`` items of ``item_size`` bytes; returns the end offset local."""
+        w = self.w
+        e = w.tmp("e")
+        w.emit(indent, f"{e} = o + {count}" + (f" * {item_size}" if item_size != 1 else ""))
+        w.emit(indent, f"if {e} > n:")
+        w.emit(indent + 1, f"raise truncated({w.type_name!r}, {path!r}, {e} - o, n - o)")
+        return e
+
+    def one(self, f: Field, indent: int, path: str) -> str:
+        w = self.w
+        base = f.base
+        if not f.is_array:
+            if base in PRIMITIVE_FORMATS:
+                v = w.tmp()
+                self.run.append((PRIMITIVE_FORMATS[base][0], v, 0))
+                return v
+            if base in _TIME_FORMATS:
+                s, ns = w.tmp(), w.tmp()
+                c = _TIME_FORMATS[base]
+                self.run += [(c, s, 0), (c, ns, 0)]
+                return f"{'Time' if base == 'time' else 'Duration'}({s}, {ns})"
+            if base == "string":
+                ln = w.tmp("n")
+                self.run.append(("I", ln, 0))
+                self.flush(indent)
+                e = self._span(ln, 1, indent, path)
+                v = w.tmp()
+                w.emit(indent, f"{v} = str(b[o:{e}], 'utf-8', 'replace')")
+                w.emit(indent, f"o = {e}")
+                return v
+            sub = w.lookup(base)
+            args = self.fields(sub, indent, path + ".")
+            return f"{symbol(base)}({', '.join(args)})"
+        n = f.length
+        v = w.tmp()
+        if base in _BYTE_TYPES:
+            if n is None:
+                ln = w.tmp("n")
+                self.run.append(("I", ln, 0))
+                self.flush(indent)
+                e = self._span(ln, 1, indent, path)
+                w.emit(indent, f"{v} = blob(b, o, {e})")
+                w.emit(indent, f"o = {e}")
+            else:
+                self.run.append((f"{n}s", v, 0))
+            return v
+        if base in PRIMITIVE_FORMATS:
+            code, size = PRIMITIVE_FORMATS[base]
+            if n is not None:
+                if n == 0:
+                    return "[]"
+                self.run.append((f"{n}{code}", v, n))
+                return v
+            ln = w.tmp("n")
+            self.run.append(("I", ln, 0))
+            self.flush(indent)
+            e = self._span(ln, size, indent, path)
+            if code == "?":
+                w.emit(indent, f"{v} = [x != 0 for x in b[o:{e}]]")
+            else:
+                dec = w.helper(f"_dec_{code}", f"array_decoder({code!r})")
+                w.emit(indent, f"{v} = {dec}(b, o, {e})")
+            w.emit(indent, f"o = {e}")
+            return v
+        # arrays of strings, times and messages: a loop, after checking the count against the bytes left
+        if n is None:
+            count = w.tmp("n")
+            self.run.append(("I", count, 0))
+        else:
+            count = str(n)
+        self.flush(indent)
+        item_min = _element_min_size(base, w.lookup)
+        if item_min:
+            w.emit(indent, f"if {count} * {item_min} > n - o:")
+            w.emit(indent + 1, f"raise truncated({w.type_name!r}, {path!r}, {count} * {item_min}, n - o)")
+        else:
+            w.emit(indent, f"if {count} > {MAX_EMPTY_ITEMS}:")
+            w.emit(indent + 1, f"raise truncated({w.type_name!r}, {path!r}, {count}, {MAX_EMPTY_ITEMS})")
+        if base in _TIME_FORMATS:
+            c = _TIME_FORMATS[base]
+            cls = "Time" if base == "time" else "Duration"
+            e = f"o + {count} * 8"
+            w.emit(indent, f"{v} = list(starmap({cls}, {w.struct(c + c)}.iter_unpack(memoryview(b)[o:{e}])))")
+            w.emit(indent, f"o += {count} * 8")
+            return v
+        if base not in PRIMITIVE_FORMATS and base != "string":
+            sub = w.lookup(base)
+            if _is_flat(sub):
+                fmt = "".join(PRIMITIVE_FORMATS[x.base][0] for x in sub.fields)
+                size = _fmt_size(fmt)
+                w.emit(
+                    indent,
+                    f"{v} = list(starmap({symbol(base)}, "
+                    f"{w.struct(fmt)}.iter_unpack(memoryview(b)[o:o + {count} * {size}])))",
+                )
+                w.emit(indent, f"o += {count} * {size}")
+                return v
+        w.emit(indent, f"{v} = []")
+        ap = w.tmp("ap")
+        w.emit(indent, f"{ap} = {v}.append")
+        w.emit(indent, f"for _ in range({count}):")
+        inner = _Decoder(w)
+        expr = inner.one(Field(name=f.name, type=base, base=base, line=f.line), indent + 1, path + "[]")
+        inner.flush(indent + 1)
+        w.emit(indent + 1, f"{ap}({expr})")
+        return v
+
+
+def _deserialize_source(spec: MsgSpec, w: _Writer) -> list[str]:
+    dec = _Decoder(w)
+    start = len(w.lines)
+    args = dec.fields(spec, 3, "")
+    dec.flush(3)
+    body = w.lines[start:]
+    del w.lines[start:]
+    name = class_name(spec)
+    out = [
+        "    @classmethod",
+        f"    def deserialize(cls, data: bytes | bytearray | memoryview) -> {name!r}:",
+        '        """Decode a message body; raises DeserializationError on truncated, oversized or trailing input."""',
+        "        b = data",
+        "        n = len(b)",
+        "        o = 0",
+        "        try:",
+    ]
+    out += body or ["            pass"]
+    out += [
+        "        except struct_error as exc:",
+        f"            raise truncated_message({spec.full_name!r}, n, exc) from None",
+        "        if o != n:",
+        f"            raise trailing({spec.full_name!r}, o, n)",
+        f"        return cls({', '.join(args)})",
+    ]
+    return out
+
+
+# ------------------------------------------------------------------------------------------------- class
+
+
+def _annotation(f: Field) -> str:
+    base = f.base
+    if base in _BYTE_TYPES and f.is_array:
+        return "bytes"
+    if base in PRIMITIVE_FORMATS:
+        item = _PY_SCALARS.get(base, "int")
+    elif base in _PY_SCALARS:
+        item = _PY_SCALARS[base]
+    elif base in _TIME_FORMATS:
+        item = "Time" if base == "time" else "Duration"
+    else:
+        item = symbol(base)
+    if not f.is_array:
+        return item
+    if base in PRIMITIVE_FORMATS:
+        return f"Sequence[{item}]"
+    return f"list[{item}]"
+
+
+def _default(f: Field) -> str:
+    base = f.base
+    n = f.length
+    if f.is_array:
+        if base in _BYTE_TYPES:
+            return repr(b"\0" * n) if n else 'b""'
+        if n is None and base in PRIMITIVE_FORMATS and base != "bool":
+            return f"msgspec.field(default_factory=partial(array, {PRIMITIVE_FORMATS[base][0]!r}))"
+        if n is None or n == 0:
+            return "msgspec.field(default_factory=list)"
+        if base in PRIMITIVE_FORMATS or base == "string":
+            return f"msgspec.field(default_factory=lambda: [{_scalar_default(base)}] * {n})"
+        return f"msgspec.field(default_factory=lambda: [{_scalar_default(base)} for _ in range({n})])"
+    if base in PRIMITIVE_FORMATS or base == "string":
+        return _scalar_default(base)
+    return f"msgspec.field(default_factory={_scalar_default(base)[:-2]})"
+
+
+def _scalar_default(base: str) -> str:
+    if base == "bool":
+        return "False"
+    if base in ("float32", "float64"):
+        return "0.0"
+    if base in PRIMITIVE_FORMATS:
+        return "0"
+    if base == "string":
+        return '""'
+    if base == "time":
+        return "Time()"
+    if base == "duration":
+        return "Duration()"
+    return f"{symbol(base)}()"
+
+
+@dataclass
+class GeneratedClass:
+    """Source of one message class and the message types (by full name) its symbols refer to."""
+
+    full_name: str
+    class_name: str
+    source: str
+    dependencies: list[str]
+
+
+def generate_class(spec: MsgSpec, md5: str, full_text: str, lookup: Lookup) -> GeneratedClass:
+    """Generate the class for ``spec``; ``lookup`` resolves nested types (already parsed).
+
+    Raises:
+        MsgError: a field name cannot be a Python attribute (a keyword).
+    """
+    for f in spec.fields:
+        if keyword.iskeyword(f.name) or f.name in ("serialize", "deserialize"):
+            raise MsgError(f"{spec.full_name}: field name {f.name!r} cannot be a Python attribute")
+    name = class_name(spec)
+    w = _Writer(type_name=spec.full_name, lookup=lookup)
+    ser = _serialize_source(spec, w)
+    des = _deserialize_source(spec, w)
+    size = fixed_size(spec, lookup)
+    deps = sorted({d for d in _all_deps(spec, lookup)})
+    lines = [f"class {name}(msgspec.Struct, gc=False):"]
+    doc = f"ROS message {spec.full_name} (GENERATED by mrosd.msg.codegen from its definition)."
+    lines.append(f'    """{doc}"""')
+    lines.append("")
+    for f in spec.fields:
+        lines.append(f"    {f.name}: {_annotation(f)} = {_default(f)}")
+    if spec.fields:
+        lines.append("")
+    lines += [
+        f"    _type: ClassVar[str] = {spec.full_name!r}",
+        f"    _md5sum: ClassVar[str] = {md5!r}",
+        f"    _full_text: ClassVar[str] = {full_text!r}",
+        f"    _has_header: ClassVar[bool] = {spec.has_header!r}",
+        f"    _fixed_size: ClassVar[int | None] = {size!r}",
+        f"    _field_types: ClassVar[tuple[str, ...]] = {tuple(f.type for f in spec.fields)!r}",
+        "    _slot_types: ClassVar[tuple[str, ...]] = _field_types",
+    ]
+    for c in spec.constants:
+        lines.append(f"    {c.name}: ClassVar[{type(c.value).__name__}] = {c.value!r}")
+    lines.append("")
+    lines += ser
+    lines.append("")
+    lines += des
+    prelude = [f"{sname} = struct.Struct({'<' + fmt!r})" for fmt, sname in w.structs.items()]
+    prelude += [f"{hname} = {expr}" for hname, expr in sorted(w.helpers.items())]
+    source = "\n".join([*prelude, "", "", *lines]) + "\n"
+    return GeneratedClass(spec.full_name, name, source, deps)
+
+
+def _all_deps(spec: MsgSpec, lookup: Lookup) -> list[str]:
+    out: list[str] = []
+    for f in spec.fields:
+        if not f.is_builtin:
+            out.append(f.base)
+            out += _all_deps(lookup(f.base), lookup)
+    return out
+
+
+#: Imports every generated class needs (files and runtime namespaces alike).
+PRELUDE = """\
+import struct
+from array import array
+from collections.abc import Sequence
+from functools import partial
+from itertools import starmap
+from typing import Any, ClassVar
+
+import msgspec
+
+from mrosd.msg.runtime import (
+    DeserializationError,
+    Duration,
+    Time,
+    array_decoder,
+    array_encoder,
+    bad_length,
+    blob,
+    serialize_failed,
+    struct_error,
+    to_bytes,
+    trailing,
+    truncated,
+    truncated_message,
+)
+"""

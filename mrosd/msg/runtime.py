@@ -1,0 +1,123 @@
+"""What generated message code calls at run time: precompiled structs, array and bytes helpers, errors.
+
+Generated modules (runtime classes and ``mros msg gen`` files alike) import only from here and from
+msgspec, so this module is the stable surface of the codegen. Keep it small and fast.
+"""
+
+from __future__ import annotations
+
+import struct
+import sys
+from array import array
+from collections.abc import Callable, Iterable
+from typing import Any
+
+from mrosd.errors import DeserializationError, SerializationError
+from mrosd.msg.time import Duration, Time
+
+__all__ = [
+    "UINT32",
+    "ZERO_COPY_MIN",
+    "DeserializationError",
+    "Duration",
+    "SerializationError",
+    "Time",
+    "array_decoder",
+    "array_encoder",
+    "bad_length",
+    "blob",
+    "serialize_failed",
+    "struct_error",
+    "to_bytes",
+    "trailing",
+    "truncated",
+    "truncated_message",
+]
+
+struct_error = struct.error
+
+#: The uint32 that prefixes every string and variable-length array on the wire.
+UINT32 = struct.Struct("<I")
+
+#: uint8[]/char[] payloads at least this large are returned as a read-only memoryview over the received
+#: (immutable) bytes instead of a copy: a 1 MB image costs no memcpy to decode. Smaller ones are bytes.
+ZERO_COPY_MIN = 64 * 1024
+
+#: Array typecodes whose item size matches the wire size of each ROS numeric type on every CPython.
+_TYPECODES = {"b": "b", "B": "B", "h": "h", "H": "H", "i": "i", "I": "I", "q": "q", "Q": "Q", "f": "f", "d": "d"}
+_SWAP = sys.byteorder != "little"
+
+
+def blob(b: Any, start: int, end: int) -> bytes | memoryview:
+    """A uint8[] payload: zero-copy view when large and the input cannot change under us, else bytes."""
+    if end - start >= ZERO_COPY_MIN:
+        if b.__class__ is bytes:
+            return memoryview(b)[start:end]
+        if b.__class__ is memoryview and b.readonly and b.obj.__class__ is bytes:
+            return b[start:end]  # type: ignore[no-any-return]
+    return bytes(b[start:end])
+
+
+def to_bytes(value: Any) -> bytes:
+    """Coerce a uint8[]/char[] value (bytes-like, or a sequence of ints as genpy allows) to bytes."""
+    if isinstance(value, bytes | bytearray | memoryview):
+        return bytes(value)
+    if isinstance(value, str):
+        raise SerializationError("uint8[]/char[] needs bytes, not str (encode it first)")
+    try:
+        return bytes(value)
+    except (TypeError, ValueError) as exc:
+        raise SerializationError(f"uint8[]/char[] needs bytes or a sequence of 0..255 ints: {exc}") from None
+
+
+def array_decoder(code: str) -> Callable[[Any, int, int], array[Any]]:
+    """A decoder of a little-endian numeric array slice into ``array.array`` (no per-element objects)."""
+    typecode = _TYPECODES[code]
+
+    def decode(b: Any, start: int, end: int) -> array[Any]:
+        out = array(typecode)
+        out.frombytes(memoryview(b)[start:end])
+        if _SWAP:
+            out.byteswap()
+        return out
+
+    return decode
+
+
+def array_encoder(code: str) -> Callable[[Iterable[Any]], bytes]:
+    """An encoder of a numeric sequence (array.array of the right typecode is copied without a loop)."""
+    typecode = _TYPECODES[code]
+
+    def encode(values: Any) -> bytes:
+        if values.__class__ is array and values.typecode == typecode and not _SWAP:
+            return values.tobytes()  # type: ignore[no-any-return]
+        return struct.pack(f"<{len(values)}{code}", *values)
+
+    return encode
+
+
+def truncated(type_name: str, field: str, need: int, have: int) -> DeserializationError:
+    """The error for a length prefix that points past the end of the buffer (nothing is allocated)."""
+    return DeserializationError(
+        f"{type_name}: field {field!r} needs {need} bytes but only {have} remain (truncated or corrupt message)"
+    )
+
+
+def truncated_message(type_name: str, size: int, exc: Exception) -> DeserializationError:
+    """The error for a buffer that ends inside a fixed-size run of fields."""
+    return DeserializationError(f"{type_name}: truncated message ({size} bytes): {exc}")
+
+
+def trailing(type_name: str, used: int, size: int) -> DeserializationError:
+    """The error for bytes left over after a complete message."""
+    return DeserializationError(f"{type_name}: {size - used} trailing bytes after a {used}-byte message")
+
+
+def bad_length(type_name: str, field: str, expected: int, got: int) -> SerializationError:
+    """The error for a fixed-size array given the wrong number of items."""
+    return SerializationError(f"{type_name}: field {field!r} is a fixed array of {expected} items, got {got}")
+
+
+def serialize_failed(type_name: str, exc: Exception) -> SerializationError:
+    """Translate struct/type errors of a generated encoder into one clear error."""
+    return SerializationError(f"{type_name}: cannot serialize: {exc}")
