@@ -36,7 +36,7 @@ def _mros_proc(procs: Processes, master: str, *args: str) -> subprocess.Popen[by
         ("std_msgs/String", ["data: hello"], ['data: "hello"', "---"]),
         ("std_msgs/String", ["hello"], ['data: "hello"', "---"]),
         ("std_msgs/Int32", ["--", "-5"], ["data: -5", "---"]),
-        ("geometry_msgs/Point", ["[1, 2.5, 3]"], ["x: 1.0", "y: 2.5", "z: 3.0", "---"]),
+        ("geometry_msgs/Point", ["{x: 1, y: 2.5}"], ["x: 1.0", "y: 2.5", "z: 0.0", "---"]),
         ("geometry_msgs/Point", ["1", "2", "3"], ["x: 1.0", "y: 2.0", "z: 3.0", "---"]),
     ],
 )
