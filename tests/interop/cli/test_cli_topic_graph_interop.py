@@ -39,6 +39,8 @@ def test_topic_list_info_and_type_match_rostopic(procs: Processes, rosmaster: st
         ["info", "/robot/cmd"],
         ["type", "/chatter"],
         ["type", "/robot/pose"],
+        ["type", "/robot/pose/pose"],
+        ["type", "/robot/pose/header/stamp"],
     ]
     for argv in cases:
         ours = mros(rosmaster, tmp_path, "topic", *argv)
