@@ -48,18 +48,26 @@ def quote_string(value: str) -> str:
     return yaml.dump(value, default_style='"').rstrip("\n")
 
 
+_TEMPLATE: list[bytes] = [b""]
+
+
+def _separators(n: int) -> bytes:
+    """``n`` five-byte cells ``???, `` (a camera sends the same size every frame, so the last one is cached)."""
+    if len(_TEMPLATE[0]) != 5 * n:
+        _TEMPLATE[0] = b"\0\0\0, " * n
+    return _TEMPLATE[0]
+
+
 def uint8_text(data: bytes | bytearray | memoryview) -> str:
     """``str(list(data))`` for a byte string (``[1, 2, 255]``), without building a million ints."""
     n = len(data)
     if n == 0:
         return "[]"
     raw = bytes(data)
-    out = bytearray(5 * n)
+    out = bytearray(_separators(n))
     out[0::5] = raw.translate(_HUNDREDS)
     out[1::5] = raw.translate(_TENS)
     out[2::5] = raw.translate(_UNITS)
-    out[3::5] = b"," * n
-    out[4::5] = b" " * n
     del out[-2:]
     return "[" + out.translate(None, b"\0").decode("ascii") + "]"
 
