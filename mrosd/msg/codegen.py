@@ -174,10 +174,10 @@ class _Encoder:
         n = f.length
         if n is not None:
             w.emit(indent, f"if len({a}) != {n}:")
-            w.emit(indent + 1, f"raise bad_length({w.type_name!r}, {path!r}, {n}, len({a}))")
+            w.emit(indent + 1, f"raise _bad_length({w.type_name!r}, {path!r}, {n}, len({a}))")
         if base in _BYTE_TYPES:
             w.emit(indent, f"if {a}.__class__ is not bytes:")
-            w.emit(indent + 1, f"{a} = to_bytes({a})")
+            w.emit(indent + 1, f"{a} = _to_bytes({a})")
             if n is None:
                 self.run.append(("I", f"len({a})"))
                 self.flush(indent)
@@ -193,7 +193,7 @@ class _Encoder:
                 if code == "?":
                     w.emit(indent, f"_a(bytes(map(bool, {a})))")
                 else:
-                    enc = w.helper(f"_enc_{code}", f"array_encoder({code!r})")
+                    enc = w.helper(f"_enc_{code}", f"_array_encoder({code!r})")
                     w.emit(indent, f"_a({enc}({a}))")
             elif n:
                 self.run.append((f"{n}{code}", f"*{a}"))
@@ -232,15 +232,15 @@ def _serialize_source(spec: MsgSpec, w: _Writer) -> list[str]:
         else:
             out.append('            return b""')
     else:
-        out.append("            _p: list[Any] = []")
+        out.append("            _p: list[_Any] = []")
         out.append("            _a = _p.append")
         out += ["    " + line for line in body]
         enc.flush(2)
         out += ["    " + line for line in w.lines[start:]]
         del w.lines[start:]
         out.append('            return b"".join(_p)')
-    out.append("        except (struct_error, TypeError, ValueError, AttributeError, OverflowError) as exc:")
-    out.append(f"            raise serialize_failed({spec.full_name!r}, exc) from None")
+    out.append("        except (_struct_error, TypeError, ValueError, AttributeError, OverflowError) as exc:")
+    out.append(f"            raise _serialize_failed({spec.full_name!r}, exc) from None")
     return out
 
 
@@ -291,7 +291,7 @@ class _Decoder:
         e = w.tmp("e")
         w.emit(indent, f"{e} = o + {count}" + (f" * {item_size}" if item_size != 1 else ""))
         w.emit(indent, f"if {e} > n:")
-        w.emit(indent + 1, f"raise truncated({w.type_name!r}, {path!r}, {e} - o, n - o)")
+        w.emit(indent + 1, f"raise _truncated({w.type_name!r}, {path!r}, {e} - o, n - o)")
         return e
 
     def one(self, f: Field, indent: int, path: str) -> str:
@@ -306,7 +306,7 @@ class _Decoder:
                 s, ns = w.tmp(), w.tmp()
                 c = _TIME_FORMATS[base]
                 self.run += [(c, s, 0), (c, ns, 0)]
-                return f"{'Time' if base == 'time' else 'Duration'}({s}, {ns})"
+                return f"{'_Time' if base == 'time' else '_Duration'}({s}, {ns})"
             if base == "string":
                 ln = w.tmp("n")
                 self.run.append(("I", ln, 0))
@@ -327,7 +327,7 @@ class _Decoder:
                 self.run.append(("I", ln, 0))
                 self.flush(indent)
                 e = self._span(ln, 1, indent, path)
-                w.emit(indent, f"{v} = blob(b, o, {e})")
+                w.emit(indent, f"{v} = _blob(b, o, {e})")
                 w.emit(indent, f"o = {e}")
             else:
                 self.run.append((f"{n}s", v, 0))
@@ -346,7 +346,7 @@ class _Decoder:
             if code == "?":
                 w.emit(indent, f"{v} = [x != 0 for x in b[o:{e}]]")
             else:
-                dec = w.helper(f"_dec_{code}", f"array_decoder({code!r})")
+                dec = w.helper(f"_dec_{code}", f"_array_decoder({code!r})")
                 w.emit(indent, f"{v} = {dec}(b, o, {e})")
             w.emit(indent, f"o = {e}")
             return v
@@ -360,15 +360,15 @@ class _Decoder:
         item_min = _element_min_size(base, w.lookup)
         if item_min:
             w.emit(indent, f"if {count} * {item_min} > n - o:")
-            w.emit(indent + 1, f"raise truncated({w.type_name!r}, {path!r}, {count} * {item_min}, n - o)")
+            w.emit(indent + 1, f"raise _truncated({w.type_name!r}, {path!r}, {count} * {item_min}, n - o)")
         else:
             w.emit(indent, f"if {count} > {MAX_EMPTY_ITEMS}:")
-            w.emit(indent + 1, f"raise truncated({w.type_name!r}, {path!r}, {count}, {MAX_EMPTY_ITEMS})")
+            w.emit(indent + 1, f"raise _truncated({w.type_name!r}, {path!r}, {count}, {MAX_EMPTY_ITEMS})")
         if base in _TIME_FORMATS:
             c = _TIME_FORMATS[base]
-            cls = "Time" if base == "time" else "Duration"
+            cls = "_Time" if base == "time" else "_Duration"
             e = f"o + {count} * 8"
-            w.emit(indent, f"{v} = list(starmap({cls}, {w.struct(c + c)}.iter_unpack(memoryview(b)[o:{e}])))")
+            w.emit(indent, f"{v} = list(_starmap({cls}, {w.struct(c + c)}.iter_unpack(memoryview(b)[o:{e}])))")
             w.emit(indent, f"o += {count} * 8")
             return v
         if base not in PRIMITIVE_FORMATS and base != "string":
@@ -378,7 +378,7 @@ class _Decoder:
                 size = _fmt_size(fmt)
                 w.emit(
                     indent,
-                    f"{v} = list(starmap({symbol(base)}, "
+                    f"{v} = list(_starmap({symbol(base)}, "
                     f"{w.struct(fmt)}.iter_unpack(memoryview(b)[o:o + {count} * {size}])))",
                 )
                 w.emit(indent, f"o += {count} * {size}")
@@ -413,10 +413,10 @@ def _deserialize_source(spec: MsgSpec, w: _Writer) -> list[str]:
     ]
     out += body or ["            pass"]
     out += [
-        "        except struct_error as exc:",
-        f"            raise truncated_message({spec.full_name!r}, n, exc) from None",
+        "        except _struct_error as exc:",
+        f"            raise _truncated_message({spec.full_name!r}, n, exc) from None",
         "        if o != n:",
-        f"            raise trailing({spec.full_name!r}, o, n)",
+        f"            raise _trailing({spec.full_name!r}, o, n)",
         f"        return cls({', '.join(args)})",
     ]
     return out
@@ -434,13 +434,13 @@ def _annotation(f: Field) -> str:
     elif base in _PY_SCALARS:
         item = _PY_SCALARS[base]
     elif base in _TIME_FORMATS:
-        item = "Time" if base == "time" else "Duration"
+        item = "_Time" if base == "time" else "_Duration"
     else:
         item = symbol(base)
     if not f.is_array:
         return item
     if base in PRIMITIVE_FORMATS:
-        return f"Sequence[{item}]"
+        return f"_Sequence[{item}]"
     return f"list[{item}]"
 
 
@@ -451,15 +451,15 @@ def _default(f: Field) -> str:
         if base in _BYTE_TYPES:
             return repr(b"\0" * n) if n else 'b""'
         if n is None and base in PRIMITIVE_FORMATS and base != "bool":
-            return f"msgspec.field(default_factory=partial(array, {PRIMITIVE_FORMATS[base][0]!r}))"
+            return f"_msgspec.field(default_factory=_partial(_array, {PRIMITIVE_FORMATS[base][0]!r}))"
         if n is None or n == 0:
-            return "msgspec.field(default_factory=list)"
+            return "_msgspec.field(default_factory=list)"
         if base in PRIMITIVE_FORMATS or base == "string":
-            return f"msgspec.field(default_factory=lambda: [{_scalar_default(base)}] * {n})"
-        return f"msgspec.field(default_factory=lambda: [{_scalar_default(base)} for _ in range({n})])"
+            return f"_msgspec.field(default_factory=lambda: [{_scalar_default(base)}] * {n})"
+        return f"_msgspec.field(default_factory=lambda: [{_scalar_default(base)} for _ in range({n})])"
     if base in PRIMITIVE_FORMATS or base == "string":
         return _scalar_default(base)
-    return f"msgspec.field(default_factory={_scalar_default(base)[:-2]})"
+    return f"_msgspec.field(default_factory={_scalar_default(base)[:-2]})"
 
 
 def _scalar_default(base: str) -> str:
@@ -472,9 +472,9 @@ def _scalar_default(base: str) -> str:
     if base == "string":
         return '""'
     if base == "time":
-        return "Time()"
+        return "_Time()"
     if base == "duration":
-        return "Duration()"
+        return "_Duration()"
     return f"{symbol(base)}()"
 
 
@@ -503,7 +503,7 @@ def generate_class(spec: MsgSpec, md5: str, full_text: str, lookup: Lookup) -> G
     des = _deserialize_source(spec, w)
     size = fixed_size(spec, lookup)
     deps = sorted({d for d in _all_deps(spec, lookup)})
-    lines = [f"class {name}(msgspec.Struct, gc=False):"]
+    lines = [f"class {name}(_msgspec.Struct, gc=False):"]
     doc = f"ROS message {spec.full_name} (GENERATED by mrosd.msg.codegen from its definition)."
     lines.append(f'    """{doc}"""')
     lines.append("")
@@ -512,21 +512,21 @@ def generate_class(spec: MsgSpec, md5: str, full_text: str, lookup: Lookup) -> G
     if spec.fields:
         lines.append("")
     lines += [
-        f"    _type: ClassVar[str] = {spec.full_name!r}",
-        f"    _md5sum: ClassVar[str] = {md5!r}",
-        f"    _full_text: ClassVar[str] = {full_text!r}",
-        f"    _has_header: ClassVar[bool] = {spec.has_header!r}",
-        f"    _fixed_size: ClassVar[int | None] = {size!r}",
-        f"    _field_types: ClassVar[tuple[str, ...]] = {tuple(f.type for f in spec.fields)!r}",
-        "    _slot_types: ClassVar[tuple[str, ...]] = _field_types",
+        f"    _type: _ClassVar[str] = {spec.full_name!r}",
+        f"    _md5sum: _ClassVar[str] = {md5!r}",
+        f"    _full_text: _ClassVar[str] = {full_text!r}",
+        f"    _has_header: _ClassVar[bool] = {spec.has_header!r}",
+        f"    _fixed_size: _ClassVar[int | None] = {size!r}",
+        f"    _field_types: _ClassVar[tuple[str, ...]] = {tuple(f.type for f in spec.fields)!r}",
+        "    _slot_types: _ClassVar[tuple[str, ...]] = _field_types",
     ]
     for c in spec.constants:
-        lines.append(f"    {c.name}: ClassVar[{type(c.value).__name__}] = {c.value!r}")
+        lines.append(f"    {c.name}: _ClassVar[{type(c.value).__name__}] = {c.value!r}")
     lines.append("")
     lines += ser
     lines.append("")
     lines += des
-    prelude = [f"{sname} = struct.Struct({'<' + fmt!r})" for fmt, sname in w.structs.items()]
+    prelude = [f"{sname} = _struct.Struct({'<' + fmt!r})" for fmt, sname in w.structs.items()]
     prelude += [f"{hname} = {expr}" for hname, expr in sorted(w.helpers.items())]
     source = "\n".join([*prelude, "", "", *lines]) + "\n"
     return GeneratedClass(spec.full_name, name, source, deps)
@@ -543,28 +543,27 @@ def _all_deps(spec: MsgSpec, lookup: Lookup) -> list[str]:
 
 #: Imports every generated class needs (files and runtime namespaces alike).
 PRELUDE = """\
-import struct
-from array import array
-from collections.abc import Sequence
-from functools import partial
-from itertools import starmap
-from typing import Any, ClassVar
+import struct as _struct
+from array import array as _array
+from collections.abc import Sequence as _Sequence
+from functools import partial as _partial
+from itertools import starmap as _starmap
+from typing import Any as _Any
+from typing import ClassVar as _ClassVar
 
-import msgspec
+import msgspec as _msgspec
 
-from mrosd.msg.runtime import (
-    DeserializationError,
-    Duration,
-    Time,
-    array_decoder,
-    array_encoder,
-    bad_length,
-    blob,
-    serialize_failed,
-    struct_error,
-    to_bytes,
-    trailing,
-    truncated,
-    truncated_message,
-)
+from mrosd.msg.runtime import DeserializationError as _DeserializationError
+from mrosd.msg.runtime import Duration as _Duration
+from mrosd.msg.runtime import Time as _Time
+from mrosd.msg.runtime import array_decoder as _array_decoder
+from mrosd.msg.runtime import array_encoder as _array_encoder
+from mrosd.msg.runtime import bad_length as _bad_length
+from mrosd.msg.runtime import blob as _blob
+from mrosd.msg.runtime import serialize_failed as _serialize_failed
+from mrosd.msg.runtime import struct_error as _struct_error
+from mrosd.msg.runtime import to_bytes as _to_bytes
+from mrosd.msg.runtime import trailing as _trailing
+from mrosd.msg.runtime import truncated as _truncated
+from mrosd.msg.runtime import truncated_message as _truncated_message
 """
