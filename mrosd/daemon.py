@@ -191,7 +191,12 @@ class Daemon:
             log.warning("rosout aggregator unavailable in this build (%s); continuing without it", exc)
             return
         agg = RosoutAggregator(self.master_uri)
-        await agg.start()
+        try:
+            await agg.start()
+        except (ImportError, MrosError, OSError) as exc:
+            # The master is what clients need first; a missing /rosout_agg is worth a warning, not an outage.
+            log.warning("rosout aggregator did not start (%s); continuing without it", exc)
+            return
         self.rosout = agg
         self._parts.append(("rosout", agg))
         log.info("rosout aggregator running (/rosout -> /rosout_agg)")

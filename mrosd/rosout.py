@@ -1,0 +1,87 @@
+"""The built-in rosout aggregator: every message on ``/rosout`` is republished on ``/rosout_agg``.
+
+roscore runs a ``/rosout`` node that does this; tools such as rqt_console and ``rostopic echo /rosout_agg``
+expect it, so mrosd provides the same node inside the daemon. It is an ordinary user of the public Node API
+and forwards the serialized bytes unchanged (raw mode both ways would need a raw publisher; decoding a
+rosgraph_msgs/Log is cheap and keeps the publisher typed).
+
+Drop policy: the aggregator never blocks a logger. The publisher's per-subscriber queues are bounded
+(``QUEUE_SIZE``, drop-oldest, as documented for ``mrosd.Publisher``); a slow console loses old lines, not
+the daemon its memory. The node name is ``/rosout``, as in roscore, so ``rosnode list`` looks familiar.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+#: Per-subscriber queue on /rosout_agg; a console that falls this far behind loses the oldest lines.
+QUEUE_SIZE = 1000
+
+NODE_NAME = "rosout"
+IN_TOPIC = "/rosout"
+OUT_TOPIC = "/rosout_agg"
+
+
+class RosoutAggregator:
+    """The ``/rosout`` node: subscribes ``/rosout``, republishes on ``/rosout_agg``.
+
+    Args:
+        master_uri: the master to register with (the daemon passes its own).
+    """
+
+    def __init__(self, master_uri: str) -> None:
+        self.master_uri = master_uri
+        self.forwarded = 0
+        self._node: Any = None
+        self._pub: Any = None
+
+    async def start(self) -> None:
+        """Register the node, its subscription and its publication.
+
+        Raises:
+            ImportError: the Node API is missing from this build.
+            MrosError: the master refused a registration.
+        """
+        from mrosd.msg import get_message_class
+
+        # Imported by name: the Node API is a sibling part, and the daemon must start without it.
+        try:
+            node_cls: Any = importlib.import_module("mrosd").Node
+        except AttributeError as exc:
+            raise ImportError("mrosd.Node is not available in this build") from exc
+        log_cls = get_message_class("rosgraph_msgs/Log")
+        node = node_cls(NODE_NAME, master_uri=self.master_uri, argv=[])
+        await node.__aenter__()
+        self._node = node
+        try:
+            self._pub = await node.advertise(OUT_TOPIC, log_cls, queue_size=QUEUE_SIZE)
+            await node.subscribe(IN_TOPIC, log_cls, callback=self._forward)
+        except BaseException:
+            await self.aclose()
+            raise
+
+    async def _forward(self, msg: Any) -> None:
+        try:
+            await self._pub.publish(msg)
+        except Exception:
+            # A bad record or a closing publisher must not end the subscription.
+            log.exception("rosout: could not forward a message to %s", OUT_TOPIC)
+            return
+        self.forwarded += 1
+
+    async def aclose(self) -> None:
+        """Unregister and close the node."""
+        node, self._node = self._node, None
+        if node is not None:
+            await node.__aexit__(None, None, None)
+
+    async def __aenter__(self) -> RosoutAggregator:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.aclose()
