@@ -1,0 +1,205 @@
+"""The control protocol between IXM clients and the daemon: tagged msgpack Structs in length-prefixed frames.
+
+This module owns the message types and the pure framing (``encode``, ``FrameDecoder.feed`` /
+``maybe_next``) in the style of msgspec's asyncio key-value example; it has no socket. File descriptors
+travel beside the bytes (SCM_RIGHTS): a message states how many it carries (``Open.wake``: one eventfd;
+``Opened``: one segment fd; ``WakeList.count``) and the receiver takes them, in order, from the fds that
+arrived with the stream. Data never flows through this protocol: it is only for opening, closing and
+listing keys, and for telling writers whom to wake.
+
+Limits: a request frame is at most ``MAX_REQUEST_SIZE`` bytes (every request is a few names and numbers,
+so anything bigger is an attack or a bug); replies may be up to ``MAX_REPLY_SIZE`` (a listing of every key
+and process). A frame over the limit or a body that does not decode as a known message is a
+``RemoteProtocolError``: the daemon closes only that client's connection and logs why.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import Literal
+
+import msgspec
+
+from mrosd.errors import RemoteProtocolError
+
+__all__ = [
+    "MAX_REPLY_SIZE",
+    "MAX_REQUEST_SIZE",
+    "Close",
+    "Error",
+    "FrameDecoder",
+    "Hello",
+    "List",
+    "Listing",
+    "Ok",
+    "Open",
+    "Opened",
+    "ProcessView",
+    "Reply",
+    "Request",
+    "SegmentView",
+    "WakeList",
+    "decode_reply",
+    "decode_request",
+    "encode",
+]
+
+#: 4 KiB: a request carries a key (<= 256 chars), a type name and a few integers.
+MAX_REQUEST_SIZE = 4096
+#: 16 MiB: a full listing of a busy daemon (thousands of keys and processes) fits easily.
+MAX_REPLY_SIZE = 16 << 20
+
+_LEN = struct.Struct("<I")
+
+
+class Hello(msgspec.Struct, tag_field="op", tag="hello", gc=False):
+    """Optional first message: the client's display name (rules never trust it; they use /proc)."""
+
+    name: str
+
+
+class Open(msgspec.Struct, tag_field="op", tag="open", gc=False, kw_only=True):
+    """IxmInit. ``wake``: an eventfd follows, to be written by writers on each write."""
+
+    key: str
+    type: str | None = None
+    count: int | None = None
+    max_size: int | None = None
+    mode: Literal["r", "w", "rw"] = "r"
+    wake: bool = False
+
+
+class Close(msgspec.Struct, tag_field="op", tag="close", gc=False):
+    """IxmFree."""
+
+    key: str
+
+
+class List(msgspec.Struct, tag_field="op", tag="list", gc=False):
+    """Ask for the process and segment lists (``key`` restricts to one key)."""
+
+    key: str | None = None
+
+
+Request = Hello | Open | Close | List
+
+
+class Ok(msgspec.Struct, tag_field="op", tag="ok", gc=False):
+    """Success without data."""
+
+
+class Error(msgspec.Struct, tag_field="op", tag="error", gc=False):
+    """Failure; ``kind`` is "permission" (IxmPermissionError), "invalid" or "protocol"."""
+
+    kind: str
+    message: str
+
+
+class Opened(msgspec.Struct, tag_field="op", tag="opened", gc=False, kw_only=True):
+    """Open granted; one fd follows: the segment, read-only for a reader."""
+
+    key: str
+    type: str
+    count: int
+    max_size: int
+    capacity: int
+    mode: str
+    shm_name: str
+
+
+class WakeList(msgspec.Struct, tag_field="op", tag="wake", gc=False, kw_only=True):
+    """Pushed to writers: ``count`` reader eventfds follow, replacing the previous list for ``key``."""
+
+    key: str
+    generation: int
+    count: int
+
+
+class ProcessView(msgspec.Struct, gc=False, kw_only=True):
+    name: str
+    pid: int
+    uid: int
+    keys: dict[str, str]
+
+
+class SegmentView(msgspec.Struct, gc=False, kw_only=True):
+    key: str
+    shm_name: str
+    type: str
+    count: int
+    max_size: int
+    capacity: int
+    creator_uid: int
+    readers: list[int]
+    writers: list[int]
+
+
+class Listing(msgspec.Struct, tag_field="op", tag="listing", gc=False, kw_only=True):
+    """Reply to List: readers and writers are pids."""
+
+    processes: list[ProcessView]
+    segments: list[SegmentView]
+
+
+Reply = Ok | Error | Opened | WakeList | Listing
+
+_encoder = msgspec.msgpack.Encoder()
+_request_decoder = msgspec.msgpack.Decoder(Request)
+_reply_decoder = msgspec.msgpack.Decoder(Reply)
+
+
+def encode(message: Request | Reply) -> bytes:
+    """One frame: 4-byte little-endian length, then the msgpack body."""
+    body = _encoder.encode(message)
+    return _LEN.pack(len(body)) + body
+
+
+def decode_request(body: bytes | memoryview) -> Request:
+    """Raises: RemoteProtocolError when the body is not a known request."""
+    try:
+        request: Request = _request_decoder.decode(body)
+    except msgspec.DecodeError as exc:
+        raise RemoteProtocolError(f"malformed IXM request: {exc}") from exc
+    return request
+
+
+def decode_reply(body: bytes | memoryview) -> Reply:
+    """Raises: RemoteProtocolError when the body is not a known reply."""
+    try:
+        reply: Reply = _reply_decoder.decode(body)
+    except msgspec.DecodeError as exc:
+        raise RemoteProtocolError(f"malformed IXM reply: {exc}") from exc
+    return reply
+
+
+class FrameDecoder:
+    """Incremental length-prefixed framing: ``feed`` bytes, then ``maybe_next`` until it returns None."""
+
+    def __init__(self, max_size: int) -> None:
+        self.max_size = max_size
+        self._buf = bytearray()
+
+    def feed(self, data: bytes | memoryview) -> None:
+        self._buf += data
+
+    def maybe_next(self) -> bytes | None:
+        """The next complete frame body, or None while incomplete.
+
+        Raises:
+            RemoteProtocolError: the announced length exceeds ``max_size``.
+        """
+        buf = self._buf
+        if len(buf) < 4:
+            return None
+        (n,) = _LEN.unpack_from(buf, 0)
+        if n > self.max_size:
+            raise RemoteProtocolError(f"IXM frame of {n} bytes exceeds the {self.max_size}-byte limit")
+        if len(buf) < 4 + n:
+            return None
+        body = bytes(buf[4 : 4 + n])
+        del buf[: 4 + n]
+        return body
+
+    @property
+    def buffered(self) -> int:
+        return len(self._buf)

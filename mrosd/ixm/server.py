@@ -1,0 +1,512 @@
+"""The IXM daemon side (the paper's ixmcore): a Unix-socket server that owns every segment's lifetime.
+
+This module owns the I/O around the pure ``Registry``: accepting clients, learning who they are from the
+kernel (SO_PEERCRED, /proc), creating and unlinking segments with posix_ipc, handing them out as file
+descriptors (SCM_RIGHTS; read-only descriptors to readers, so that their mappings cannot be written), and
+telling writers which reader eventfds to signal. It is not in the data path: writes and reads go straight
+to shared memory, and wake-ups go straight from writer to reader.
+
+Lifetime rules: a client's keys are released when its socket closes, whatever the reason (close, exit,
+crash, kill -9); the last release unlinks the segment. Segment names are
+``/mrosd-ixm-<socket hash>-<run id>-<n>``; at start the server removes every segment with its socket's
+hash (an earlier run on the same socket that crashed), and refuses to start if a live daemon answers on
+the socket. Outgoing data to a client is bounded by ``MAX_OUTBOX``: a client that does not read its
+socket is disconnected (and so loses its keys) rather than growing the daemon's memory.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import errno
+import fcntl
+import hashlib
+import logging
+import mmap
+import os
+import secrets
+import socket
+import stat
+import struct
+from collections import deque
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import posix_ipc
+
+from mrosd.errors import IxmError, IxmPermissionError, MrosError, RemoteProtocolError
+from mrosd.ixm.channel import MAX_FDS_PER_MESSAGE, FdReader, send_frame
+from mrosd.ixm.layout import SegmentLayout
+from mrosd.ixm.protocol import (
+    MAX_REQUEST_SIZE,
+    Close,
+    Error,
+    Hello,
+    List,
+    Listing,
+    Ok,
+    Open,
+    Opened,
+    ProcessView,
+    Reply,
+    SegmentView,
+    WakeList,
+    decode_request,
+    encode,
+)
+from mrosd.ixm.registry import CreateSegment, Effect, ReadersChanged, Registry, SegmentInfo, UnlinkSegment
+from mrosd.ixm.rules import AccessRules, Peer, names_of, parse_rules
+
+__all__ = ["SHM_DIR", "SHM_PREFIX", "IxmServer", "segment_prefix"]
+
+log = logging.getLogger("mrosd.ixm")
+
+SHM_DIR = Path("/dev/shm")
+SHM_PREFIX = "mrosd-ixm-"
+#: Bytes queued for one client before it is considered stuck and disconnected.
+MAX_OUTBOX = 32 << 20
+#: Reader eventfds one writer can be handed (one sendmsg); more readers still read, unwoken ones poll-free
+#: wake-ups are refused at open with a clear error.
+MAX_WAKE_READERS = MAX_FDS_PER_MESSAGE
+_PEERCRED = struct.Struct("3i")
+
+
+def segment_prefix(socket_path: str) -> str:
+    """The name prefix of every segment served on ``socket_path`` (without the leading slash)."""
+    digest = hashlib.blake2s(os.path.abspath(socket_path).encode(), digest_size=4).hexdigest()
+    return f"{SHM_PREFIX}{digest}-"
+
+
+def _peer_of(sock: socket.socket) -> Peer:
+    pid, uid, gid = _PEERCRED.unpack(sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, _PEERCRED.size))
+    groups: set[int] = set()
+    comm = ""
+    argv: list[str] = []
+    with contextlib.suppress(OSError):
+        comm = Path(f"/proc/{pid}/comm").read_text().strip()
+    with contextlib.suppress(OSError):
+        argv = [a.decode("utf-8", "replace") for a in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0") if a]
+    with contextlib.suppress(OSError, ValueError):
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("Groups:"):
+                groups = {int(g) for g in line.split()[1:]}
+    return Peer(pid=pid, uid=uid, gid=gid, groups=frozenset(groups), names=names_of(comm, argv))
+
+
+def _is_eventfd(fd: int) -> bool:
+    try:
+        return os.readlink(f"/proc/self/fd/{fd}") == "anon_inode:[eventfd]"
+    except OSError:
+        return False
+
+
+class _Segment:
+    """The daemon's own read-write mapping of a segment (to initialise it and publish generations)."""
+
+    def __init__(self, info: SegmentInfo) -> None:
+        size = SegmentLayout.segment_size(info.type.capacity)
+        shm = posix_ipc.SharedMemory(info.shm_name, posix_ipc.O_CREX, mode=0o600, size=size)
+        try:
+            self.map = mmap.mmap(shm.fd, size)
+        finally:
+            shm.close_fd()
+        self.info = info
+        self.layout = SegmentLayout.initialize(
+            memoryview(self.map), info.type.code, info.type.capacity, info.type.count, info.type.name
+        )
+        #: reader connection -> the daemon's copy of its eventfd
+        self.wake_fds: dict[int, int] = {}
+
+    def open_fd(self, write: bool) -> int:
+        shm = posix_ipc.SharedMemory(self.info.shm_name, 0, read_only=not write)
+        return int(shm.fd)
+
+    def close(self) -> None:
+        for fd in self.wake_fds.values():
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self.wake_fds.clear()
+        self.layout.release()
+        self.map.close()
+        with contextlib.suppress(posix_ipc.ExistentialError):
+            posix_ipc.unlink_shared_memory(self.info.shm_name)
+
+
+class _Client:
+    """One connected process: its socket, its decoder and fds, and what is queued to send to it."""
+
+    def __init__(self, conn_id: int, sock: socket.socket, peer: Peer) -> None:
+        self.id = conn_id
+        self.sock = sock
+        self.peer = peer
+        self.reader = FdReader(sock, MAX_REQUEST_SIZE)
+        #: (frame remainder, fds to attach, fds to close once sent)
+        self.outbox: deque[tuple[memoryview, list[int], list[int]]] = deque()
+        self.queued = 0
+        self.writing = False
+        self.closed = False
+        #: a send failed or the outbox overflowed: dropped on the next loop iteration (never re-entrantly)
+        self.broken = False
+
+
+class IxmServer:
+    """The registry daemon: ``start()``/``aclose()``, ``reload_rules()``; an async context manager."""
+
+    def __init__(self, socket_path: str, rules: AccessRules | Mapping[str, Any] | None = None) -> None:
+        self.socket_path = str(socket_path)
+        self.prefix = segment_prefix(self.socket_path)
+        self.run_id = secrets.token_hex(3)
+        self.registry = Registry(self._resolve_rules(rules), self._name_segment)
+        self._counter = 0
+        self._segments: dict[str, _Segment] = {}
+        self._clients: dict[int, _Client] = {}
+        self._next_conn = 1
+        self._listener: socket.socket | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+
+    @staticmethod
+    def _resolve_rules(rules: AccessRules | Mapping[str, Any] | None) -> AccessRules:
+        parsed = rules if isinstance(rules, AccessRules) else parse_rules(rules)
+        return parsed.with_superuser(os.geteuid())
+
+    def _name_segment(self, key: str) -> str:
+        self._counter += 1
+        return f"/{self.prefix}{self.run_id}-{self._counter}"
+
+    # lifecycle -----------------------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Remove an earlier run's leftovers, bind the socket (mode 0666: the rules decide, not the file).
+
+        Raises:
+            IxmError: another daemon answers on the socket path.
+            OSError: the socket cannot be bound.
+        """
+        self._loop = asyncio.get_running_loop()
+        self._prepare_path()
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            sock.bind(self.socket_path)
+            os.chmod(self.socket_path, 0o666)
+            sock.listen(128)
+            sock.setblocking(False)
+        except BaseException:
+            sock.close()
+            raise
+        self._listener = sock
+        self._loop.add_reader(sock.fileno(), self._on_accept)
+
+    def _prepare_path(self) -> None:
+        path = Path(self.socket_path)
+        if os.path.lexists(self.socket_path):
+            if self._socket_is_live():
+                raise IxmError(f"another IXM daemon is already serving {path}")
+            os.unlink(self.socket_path)
+        removed = self.remove_stale_segments()
+        if removed:
+            log.info("removed %d stale IXM segment(s) of an earlier run on %s", removed, path)
+        os.makedirs(path.parent, exist_ok=True)
+
+    def _socket_is_live(self) -> bool:
+        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        probe.settimeout(1.0)
+        try:
+            probe.connect(self.socket_path)
+        except OSError:
+            return False
+        finally:
+            probe.close()
+        return True
+
+    def remove_stale_segments(self) -> int:
+        """Unlink every segment carrying this socket's prefix and not of this run; returns how many."""
+        count = 0
+        mine = f"{self.prefix}{self.run_id}-"
+        with contextlib.suppress(OSError):
+            for name in os.listdir(SHM_DIR):
+                if name.startswith(self.prefix) and not name.startswith(mine):
+                    with contextlib.suppress(posix_ipc.ExistentialError, posix_ipc.PermissionsError):
+                        posix_ipc.unlink_shared_memory("/" + name)
+                        count += 1
+        return count
+
+    async def aclose(self) -> None:
+        """Disconnect every client, unlink every segment, remove the socket file."""
+        loop = self._loop
+        if self._listener is not None and loop is not None:
+            loop.remove_reader(self._listener.fileno())
+            self._listener.close()
+            self._listener = None
+            with contextlib.suppress(OSError):
+                os.unlink(self.socket_path)
+        for client in list(self._clients.values()):
+            self._drop(client, "daemon shutting down", level=logging.DEBUG)
+        for seg in list(self._segments.values()):
+            seg.close()
+        self._segments.clear()
+
+    async def __aenter__(self) -> IxmServer:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.aclose()
+
+    def reload_rules(self, rules: AccessRules | Mapping[str, Any] | None) -> None:
+        """New access rules apply to later opens; keys already open stay open (as with open files)."""
+        self.registry.rules = self._resolve_rules(rules)
+        log.info("IXM access rules reloaded")
+
+    # connections ---------------------------------------------------------------------------------------
+
+    def _on_accept(self) -> None:
+        assert self._listener is not None and self._loop is not None
+        for _ in range(64):
+            try:
+                sock, _addr = self._listener.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:
+                log.warning("IXM accept failed: %s", exc)
+                return
+            sock.setblocking(False)
+            try:
+                peer = _peer_of(sock)
+            except OSError as exc:
+                log.warning("IXM: cannot read the peer's credentials, closing: %s", exc)
+                sock.close()
+                continue
+            client = _Client(self._next_conn, sock, peer)
+            self._next_conn += 1
+            self._clients[client.id] = client
+            self.registry.connect(client.id, peer)
+            self._loop.add_reader(sock.fileno(), self._on_readable, client)
+            log.debug("IXM client %d connected: pid %d uid %d", client.id, peer.pid, peer.uid)
+
+    def _on_readable(self, client: _Client) -> None:
+        try:
+            if not client.reader.recv():
+                self._drop(client, "closed its connection", level=logging.DEBUG)
+                return
+            while not client.closed:
+                body = client.reader.decoder.maybe_next()
+                if body is None:
+                    break
+                self._handle(client, decode_request(body))
+        except (BlockingIOError, InterruptedError):
+            return
+        except RemoteProtocolError as exc:
+            self._drop(client, f"protocol error: {exc}", level=logging.WARNING)
+        except OSError as exc:
+            self._drop(client, f"socket error: {exc}", level=logging.DEBUG)
+
+    def _drop(self, client: _Client, reason: str, level: int) -> None:
+        if client.closed:
+            return
+        client.closed = True
+        log.log(level, "IXM client %d (pid %d, uid %d) %s", client.id, client.peer.pid, client.peer.uid, reason)
+        loop = self._loop
+        if loop is not None:
+            loop.remove_reader(client.sock.fileno())
+            if client.writing:
+                loop.remove_writer(client.sock.fileno())
+        for _frame, _fds, to_close in client.outbox:
+            for fd in to_close:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        client.outbox.clear()
+        client.reader.close()
+        client.sock.close()
+        del self._clients[client.id]
+        self._apply(self.registry.disconnect(client.id), client.id)
+
+    # requests ------------------------------------------------------------------------------------------
+
+    def _handle(self, client: _Client, request: Any) -> None:
+        match request:
+            case Open():
+                self._open(client, request)
+            case Close(key=key):
+                try:
+                    effects = self.registry.close(client.id, key)
+                except IxmError as exc:
+                    self._send(client, Error("invalid", str(exc)))
+                    return
+                self._send(client, Ok())
+                self._apply(effects, client.id)
+            case List(key=key):
+                self._send(client, self._listing(key))
+            case Hello(name=name):
+                self.registry.rename(client.id, name)
+                self._send(client, Ok())
+            case _:  # pragma: no cover - the decoder only yields the types above
+                raise RemoteProtocolError(f"unexpected request {type(request).__name__}")
+
+    def _open(self, client: _Client, req: Open) -> None:
+        wake_fd = client.reader.take_fds(1)[0] if req.wake else None
+        try:
+            if wake_fd is not None:
+                if not _is_eventfd(wake_fd):
+                    raise IxmError("the wake-up descriptor sent with open is not an eventfd")
+                flags = fcntl.fcntl(wake_fd, fcntl.F_GETFL)
+                fcntl.fcntl(wake_fd, fcntl.F_SETFL, flags | os.O_NONBLOCK)
+                if "r" not in req.mode:
+                    raise IxmError("a wake-up eventfd only makes sense when opening for reading")
+                existing = self.registry.segments.get(req.key)
+                if existing is not None and len(existing.readers) >= MAX_WAKE_READERS:
+                    raise IxmError(
+                        f"{req.key} already has {MAX_WAKE_READERS} woken readers, the most one writer can signal"
+                    )
+            info, effects = self.registry.open(client.id, req.key, req.type, req.count, req.max_size, req.mode)
+        except IxmPermissionError as exc:
+            self._close_fd(wake_fd)
+            log.info("IXM: refused %s of %s to pid %d uid %d", req.mode, req.key, client.peer.pid, client.peer.uid)
+            self._send(client, Error("permission", str(exc)))
+            return
+        except MrosError as exc:
+            self._close_fd(wake_fd)
+            self._send(client, Error("invalid", str(exc)))
+            return
+        try:
+            for effect in effects:
+                if isinstance(effect, CreateSegment):
+                    self._segments[effect.segment.key] = _Segment(effect.segment)
+            seg = self._segments[req.key]
+            fd = seg.open_fd(write="w" in req.mode)
+        except (OSError, posix_ipc.Error, MrosError) as exc:
+            self._close_fd(wake_fd)
+            self._apply(self.registry.close(client.id, req.key), client.id)
+            log.warning("IXM: cannot create the segment for %s: %s", req.key, exc)
+            self._send(client, Error("invalid", f"cannot create shared memory for {req.key}: {exc}"))
+            return
+        if wake_fd is not None:
+            seg.wake_fds[client.id] = wake_fd
+        t = info.type
+        reply = Opened(
+            key=req.key, type=t.name, count=t.count, max_size=t.max_size, capacity=t.capacity,
+            mode=req.mode, shm_name=info.shm_name,
+        )
+        self._send(client, reply, fds=[fd], close_after=[fd])
+        if "w" in req.mode:
+            self._send_wake_list(client, seg, seg.layout.generation)
+        self._apply(effects, client.id)
+
+    @staticmethod
+    def _close_fd(fd: int | None) -> None:
+        if fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+    def _apply(self, effects: list[Effect], origin: int) -> None:
+        for effect in effects:
+            match effect:
+                case UnlinkSegment(key=key):
+                    seg = self._segments.pop(key, None)
+                    if seg is not None:
+                        seg.close()
+                case ReadersChanged(key=key):
+                    seg = self._segments.get(key)
+                    if seg is None:
+                        continue
+                    for conn in list(seg.wake_fds):
+                        if conn not in seg.info.readers:
+                            self._close_fd(seg.wake_fds.pop(conn))
+                    gen = (seg.layout.generation + 1) & 0xFFFFFFFF
+                    for conn in sorted(seg.info.writers):
+                        writer = self._clients.get(conn)
+                        if writer is not None:
+                            self._send_wake_list(writer, seg, gen)
+                    # published after the lists are queued: a writer that sees the new generation finds its list
+                    if self._segments.get(key) is seg:
+                        seg.layout.bump_generation()
+                case CreateSegment():
+                    pass
+
+    def _send_wake_list(self, writer: _Client, seg: _Segment, gen: int) -> None:
+        fds = [fd for conn, fd in sorted(seg.wake_fds.items()) if conn != writer.id]
+        self._send(writer, WakeList(key=seg.info.key, generation=gen, count=len(fds)), fds=fds)
+
+    def _listing(self, key: str | None) -> Listing:
+        pid_of = {c: p.peer.pid for c, p in self.registry.processes.items()}
+        segments = [
+            SegmentView(
+                key=s.key, shm_name=s.shm_name, type=s.type.name, count=s.type.count, max_size=s.type.max_size,
+                capacity=s.type.capacity, creator_uid=s.creator_uid,
+                readers=sorted(pid_of[c] for c in s.readers if c in pid_of),
+                writers=sorted(pid_of[c] for c in s.writers if c in pid_of),
+            )
+            for s in sorted(self.registry.segments.values(), key=lambda s: s.key)
+            if key is None or s.key == key
+        ]
+        processes = [
+            ProcessView(name=p.name, pid=p.peer.pid, uid=p.peer.uid, keys=dict(p.keys))
+            for p in self.registry.processes.values()
+            if key is None or key in p.keys
+        ]
+        return Listing(processes=processes, segments=segments)
+
+    # output --------------------------------------------------------------------------------------------
+
+    def _send(
+        self, client: _Client, message: Reply, fds: list[int] | None = None, close_after: list[int] | None = None
+    ) -> None:
+        if client.closed or client.broken:
+            for fd in close_after or ():
+                self._close_fd(fd)
+            return
+        frame = memoryview(encode(message))
+        client.outbox.append((frame, fds or [], close_after or []))
+        client.queued += len(frame)
+        if client.queued > MAX_OUTBOX:
+            self._break(client, f"does not read its socket ({client.queued} bytes queued)", logging.WARNING)
+            return
+        if not client.writing:
+            self._flush(client)
+
+    def _flush(self, client: _Client) -> None:
+        while client.outbox and not client.closed:
+            frame, fds, to_close = client.outbox[0]
+            try:
+                sent = send_frame(client.sock, frame, fds)
+            except (BlockingIOError, InterruptedError):
+                sent = 0
+            except OSError as exc:
+                quiet = exc.errno in (errno.EPIPE, errno.ECONNRESET)
+                self._break(client, f"send failed: {exc}", logging.DEBUG if quiet else logging.WARNING)
+                return
+            if sent == 0 and len(frame):
+                if not client.writing and self._loop is not None:
+                    client.writing = True
+                    self._loop.add_writer(client.sock.fileno(), self._on_writable, client)
+                return
+            client.queued -= sent
+            if sent < len(frame):
+                client.outbox[0] = (frame[sent:], [], to_close)  # fds went with the first byte
+                continue
+            client.outbox.popleft()
+            for fd in to_close:
+                self._close_fd(fd)
+        if client.writing and self._loop is not None and not client.closed:
+            client.writing = False
+            self._loop.remove_writer(client.sock.fileno())
+
+    def _break(self, client: _Client, reason: str, level: int) -> None:
+        client.broken = True
+        for _frame, _fds, to_close in client.outbox:
+            for fd in to_close:
+                self._close_fd(fd)
+        client.outbox.clear()
+        if self._loop is not None:
+            self._loop.call_soon(self._drop, client, reason, level)
+
+    def _on_writable(self, client: _Client) -> None:
+        self._flush(client)
+
+
+def socket_mode_ok(path: str) -> bool:
+    """Whether ``path`` is a Unix socket (used by the CLI to give a clear error)."""
+    try:
+        return stat.S_ISSOCK(os.stat(path).st_mode)
+    except OSError:
+        return False
