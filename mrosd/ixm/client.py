@@ -289,17 +289,28 @@ class IxmKey(_KeyBase):
             TimeoutError: nothing new within ``timeout`` seconds.
             IxmError: the key was not opened for reading.
         """
+        self.wait_written(timeout)
+        return self._state.read()
+
+    def wait_written(self, timeout: float | None = None) -> None:
+        """Block until a value newer than the last one read here is written, without reading it.
+
+        For large values: follow with ``read_into`` (one copy) or ``view``.
+
+        Raises:
+            TimeoutError: nothing new within ``timeout`` seconds.
+        """
         st = self._state
         if self._poll is None:
             raise IxmError(f"{st.key} is open for writing only; open it with mode 'r' or 'rw' to wait")
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
             if st.fresh():
-                return st.read()
+                return
             remaining = -1 if deadline is None else max(0, int((deadline - time.monotonic()) * 1000))
             if not self._poll.poll(remaining) and deadline is not None and time.monotonic() >= deadline:
                 if st.fresh():
-                    return st.read()
+                    return
                 raise TimeoutError(f"no write to {st.key} within {timeout} s")
             st.drain_wake()
 

@@ -1,0 +1,385 @@
+"""IXM benchmark: the paper's experiment (float64, 1000 exchanges) against our TCPROS, plus 8 MB throughput.
+
+One-way latency is measured as the paper does: the writer reads CLOCK_MONOTONIC just before the write
+API and writes that time as the float64 value; the reader takes the clock right after its read API
+returns (woken by the writer, no polling) and keeps the difference. The reader then answers on a second
+key so that the next exchange starts only when the previous one is done. Both runs happen in the same
+invocation: unpinned, then both processes pinned to one CPU (the paper's ``taskset`` condition).
+
+The TCPROS comparison uses ``mrosd.Node`` publisher/subscriber of std_msgs/Float64 on loopback when
+``mrosd.Node`` is available; otherwise a plain asyncio TCP length-prefixed stream (said in the output).
+
+Usage: ``python -m bench.ixm [--n 1000] [--image-mb 8]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import multiprocessing as mp
+import os
+import statistics
+import struct
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from typing import Any
+
+from mrosd.ixm.client import IxmClient
+from mrosd.ixm.server import IxmServer
+
+CLOCK = time.CLOCK_MONOTONIC
+
+
+def _now() -> int:
+    return time.clock_gettime_ns(CLOCK)
+
+
+def _pin(cpu: int | None) -> None:
+    if cpu is not None:
+        os.sched_setaffinity(0, {cpu})
+
+
+def _run_server(sock: str, ready: Any, stop: Any) -> None:
+    async def main() -> None:
+        async with IxmServer(sock):
+            ready.set()
+            await asyncio.to_thread(stop.wait)
+
+    asyncio.run(main())
+
+
+def _ixm_reader(sock: str, n: int, cpu: int | None, out: Any) -> None:
+    _pin(cpu)
+    with IxmClient(sock, name="bench-reader") as ixm:
+        data = ixm.open("/bench/value", "float64", mode="r")
+        ack = ixm.open("/bench/ack", "int64", mode="w")
+        ack.write(-1)
+        lat: list[int] = []
+        for i in range(n):
+            value = data.wait(10.0)
+            t1 = _now()
+            lat.append(t1 - int(value))
+            ack.write(i)
+        out.send(lat)
+
+
+def _ixm_writer(sock: str, n: int, cpu: int | None) -> None:
+    _pin(cpu)
+    with IxmClient(sock, name="bench-writer") as ixm:
+        data = ixm.open("/bench/value", "float64", mode="w")
+        ack = ixm.open("/bench/ack", "int64", mode="r")
+        ack.wait(10.0)  # the reader is ready
+        for _ in range(n):
+            data.write(float(_now()))
+            ack.wait(10.0)
+
+
+def ixm_latency(sock: str, n: int, cpu: int | None) -> list[int]:
+    ctx = mp.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+    reader = ctx.Process(target=_ixm_reader, args=(sock, n, cpu, send))
+    reader.start()
+    # the writer must open after the reader created the keys: wait until /bench/ack exists
+    with IxmClient(sock, name="bench-probe") as probe:
+        deadline = time.monotonic() + 10
+        while not any(s.key == "/bench/ack" for s in probe.list().segments):
+            if time.monotonic() > deadline:
+                raise RuntimeError("the reader did not start")
+            time.sleep(0.01)
+    writer = ctx.Process(target=_ixm_writer, args=(sock, n, cpu))
+    writer.start()
+    lat: list[int] = recv.recv()
+    writer.join(10)
+    reader.join(10)
+    return lat
+
+
+# the TCP comparison ---------------------------------------------------------------------------------------
+
+
+def _tcp_reader(port_out: Any, n: int, cpu: int | None, out: Any) -> None:
+    _pin(cpu)
+
+    async def main() -> None:
+        done = asyncio.get_running_loop().create_future()
+        lat: list[int] = []
+
+        async def handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            for i in range(n):
+                head = await reader.readexactly(4)
+                body = await reader.readexactly(struct.unpack("<I", head)[0])
+                t1 = _now()
+                lat.append(t1 - int(struct.unpack("<d", body)[0]))
+                writer.write(struct.pack("<Iq", 8, i))
+            done.set_result(None)
+
+        server = await asyncio.start_server(handle, "127.0.0.1", 0)
+        port_out.send(server.sockets[0].getsockname()[1])
+        await done
+        server.close()
+        out.send(lat)
+
+    asyncio.run(main())
+
+
+def _tcp_writer(port: int, n: int, cpu: int | None) -> None:
+    _pin(cpu)
+
+    async def main() -> None:
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        sock = writer.get_extra_info("socket")
+        import socket
+
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        for _ in range(n):
+            writer.write(struct.pack("<Id", 8, float(_now())))
+            await reader.readexactly(12)
+        writer.close()
+
+    asyncio.run(main())
+
+
+def tcp_latency(n: int, cpu: int | None) -> list[int]:
+    ctx = mp.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+    port_recv, port_send = ctx.Pipe(duplex=False)
+    reader = ctx.Process(target=_tcp_reader, args=(port_send, n, cpu, send))
+    reader.start()
+    port = port_recv.recv()
+    writer = ctx.Process(target=_tcp_writer, args=(port, n, cpu))
+    writer.start()
+    lat: list[int] = recv.recv()
+    writer.join(10)
+    reader.join(10)
+    return lat
+
+
+def _node_available() -> bool:
+    try:
+        import mrosd
+
+        return hasattr(mrosd, "Node")
+    except ImportError:
+        return False
+
+
+def _node_reader(uri: str, n: int, cpu: int | None, out: Any) -> None:
+    _pin(cpu)
+
+    async def main() -> None:
+        import mrosd
+        from mrosd.msg import get_message_class
+
+        Float64 = get_message_class("std_msgs/Float64")
+        Int64 = get_message_class("std_msgs/Int64")
+        async with mrosd.Node("bench_ixm_reader", master_uri=uri) as node:
+            ack = await node.advertise("/bench_ixm/ack", Int64)
+            sub = await node.subscribe("/bench_ixm/value", Float64)
+            lat: list[int] = []
+            await ack.publish(Int64(data=-1))
+            it = sub.__aiter__()
+            # announce readiness until the writer's first value arrives
+            first: Any = None
+            while first is None:
+                try:
+                    first = await asyncio.wait_for(it.__anext__(), 0.2)
+                except TimeoutError:
+                    await ack.publish(Int64(data=-1))
+            msg = first
+            for i in range(n):
+                if i:
+                    msg = await asyncio.wait_for(it.__anext__(), 10)
+                t1 = _now()
+                lat.append(t1 - int(msg.data))
+                await ack.publish(Int64(data=i))
+            out.send(lat)
+
+    asyncio.run(main())
+
+
+def _node_writer(uri: str, n: int, cpu: int | None) -> None:
+    _pin(cpu)
+
+    async def main() -> None:
+        import mrosd
+        from mrosd.msg import get_message_class
+
+        Float64 = get_message_class("std_msgs/Float64")
+        Int64 = get_message_class("std_msgs/Int64")
+        async with mrosd.Node("bench_ixm_writer", master_uri=uri) as node:
+            pub = await node.advertise("/bench_ixm/value", Float64)
+            sub = await node.subscribe("/bench_ixm/ack", Int64)
+            it = sub.__aiter__()
+            while True:  # ready handshake: the reader answers -1 until it sees values
+                msg = await asyncio.wait_for(it.__anext__(), 20)
+                if msg.data == -1:
+                    break
+            i = 0
+            while i < n:
+                await pub.publish(Float64(data=float(_now())))
+                while True:
+                    msg = await asyncio.wait_for(it.__anext__(), 10)
+                    if msg.data == i:
+                        break
+                i += 1
+
+    asyncio.run(main())
+
+
+def node_latency(n: int, cpu: int | None) -> list[int]:
+    """TCPROS through mrosd.Node (needs mrosd.master.Master); raises if unavailable."""
+    from mrosd.master import Master  # type: ignore[attr-defined]
+
+    ctx = mp.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+    ready = ctx.Event()
+    stop = ctx.Event()
+
+    def run_master(port_out: Any) -> None:
+        async def main() -> None:
+            master = Master(host="127.0.0.1", port=0)
+            await master.start()
+            port_out.send(master.port)
+            await asyncio.to_thread(stop.wait)
+            await master.aclose()
+
+        asyncio.run(main())
+
+    port_recv, port_send = ctx.Pipe(duplex=False)
+    master = ctx.Process(target=run_master, args=(port_send,))
+    master.start()
+    uri = f"http://127.0.0.1:{port_recv.recv()}/"
+    ready.set()
+    reader = ctx.Process(target=_node_reader, args=(uri, n, cpu, send))
+    writer = ctx.Process(target=_node_writer, args=(uri, n, cpu))
+    reader.start()
+    writer.start()
+    try:
+        if not recv.poll(120):
+            raise RuntimeError("TCPROS run did not finish")
+        lat: list[int] = recv.recv()
+    finally:
+        for p in (writer, reader):
+            p.join(5)
+            if p.is_alive():
+                p.kill()
+        stop.set()
+        master.join(5)
+    return lat
+
+
+# throughput ----------------------------------------------------------------------------------------------
+
+
+def _image_reader(sock: str, size: int, rounds: int, out: Any) -> None:
+    with IxmClient(sock, name="bench-img-reader") as ixm:
+        img = ixm.open("/bench/image", "uint8", max_size=size, mode="r")
+        ack = ixm.open("/bench/image_ack", "int64", mode="w")
+        buf = bytearray(size)
+        ack.write(-1)
+        img.wait_written(10.0)
+        img.read_into(buf)
+        ack.write(-2)
+        for i in range(rounds):
+            img.wait_written(10.0)
+            img.read_into(buf)
+            ack.write(i)
+        out.send(True)
+
+
+def image_throughput(sock: str, size: int, rounds: int) -> float:
+    ctx = mp.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+    with IxmClient(sock, name="bench-img-writer") as ixm:
+        img = ixm.open("/bench/image", "uint8", max_size=size, mode="w")
+        ack = ixm.open("/bench/image_ack", "int64", mode="rw")
+        reader = ctx.Process(target=_image_reader, args=(sock, size, rounds, send))
+        reader.start()
+        ack.wait(10.0)
+        payload = os.urandom(size)
+        img.write_bytes(payload)  # warm-up: fault in the pages on both sides
+        ack.wait(10.0)
+        t0 = time.perf_counter()
+        for i in range(rounds):
+            img.write_bytes(payload)
+            while True:
+                if ack.wait(10.0) == i:
+                    break
+        elapsed = time.perf_counter() - t0
+        recv.recv()
+        reader.join(10)
+    return size * rounds / elapsed / 1e6
+
+
+# report --------------------------------------------------------------------------------------------------
+
+
+def summary(lat_ns: list[int]) -> dict[str, float]:
+    us = sorted(x / 1000 for x in lat_ns)
+    return {
+        "median": statistics.median(us),
+        "mean": statistics.fmean(us),
+        "p99": us[min(len(us) - 1, int(len(us) * 0.99))],
+        "max": us[-1],
+    }
+
+
+def _row(name: str, s: dict[str, float]) -> str:
+    return f"  {name:<34} median {s['median']:8.1f}  mean {s['mean']:8.1f}  p99 {s['p99']:8.1f}  max {s['max']:8.1f} us"
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.ixm")
+    parser.add_argument("--n", type=int, default=1000, help="exchanges per condition (the paper: 1000)")
+    parser.add_argument("--image-mb", type=int, default=8)
+    parser.add_argument("--image-rounds", type=int, default=50)
+    args = parser.parse_args(argv)
+    ctx = mp.get_context("fork")
+    with tempfile.TemporaryDirectory(prefix="mrosd-bench-ixm-") as tmp:
+        sock = os.path.join(tmp, "ixm.sock")
+        ready, stop = ctx.Event(), ctx.Event()
+        server = ctx.Process(target=_run_server, args=(sock, ready, stop))
+        server.start()
+        if not ready.wait(10):
+            print("IXM server did not start", file=sys.stderr)
+            return 1
+        try:
+            cpu = sorted(os.sched_getaffinity(0))[0]
+            results: dict[str, dict[str, float]] = {}
+            use_node = _node_available()
+            base_name = "TCPROS (mrosd.Node)" if use_node else "asyncio TCP stream"
+            tcp: Callable[[int, int | None], list[int]] = node_latency if use_node else tcp_latency
+            print(f"IXM one-way latency, float64, {args.n} exchanges (writer clock -> reader after read)")
+            for label, pin in (("not pinned", None), (f"pinned to CPU {cpu}", cpu)):
+                results[f"ixm {label}"] = summary(ixm_latency(sock, args.n, pin))
+                try:
+                    results[f"{base_name} {label}"] = summary(tcp(args.n, pin))
+                except Exception as exc:  # the Node stack may be unfinished: fall back, and say so
+                    if tcp is tcp_latency:
+                        raise
+                    print(f"  ({base_name} failed: {exc!r}; falling back to a plain asyncio TCP stream)")
+                    base_name, tcp = "asyncio TCP stream", tcp_latency
+                    results[f"{base_name} {label}"] = summary(tcp(args.n, pin))
+                print(_row(f"IXM, {label}", results[f"ixm {label}"]))
+                print(_row(f"{base_name}, {label}", results[f"{base_name} {label}"]))
+                ratio = results[f"{base_name} {label}"]["median"] / results[f"ixm {label}"]["median"]
+                print(f"  -> IXM median is {ratio:.1f}x lower than {base_name} ({label})")
+            ok_median = all(v["median"] <= 30 for k, v in results.items() if k.startswith("ixm"))
+            ok_p99 = all(v["p99"] <= 100 for k, v in results.items() if k.startswith("ixm"))
+            print(
+                f"  bar: median <= 30 us {'met' if ok_median else 'MISSED'}, p99 <= 100 us {'met' if ok_p99 else 'MISSED'}"
+            )
+            size = args.image_mb << 20
+            mbps = image_throughput(sock, size, args.image_rounds)
+            what = f"IXM {args.image_mb} MB image, write + woken reader copy-out, {args.image_rounds} rounds"
+            print(f"{what}: {mbps:,.0f} MB/s")
+        finally:
+            stop.set()
+            server.join(10)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
