@@ -95,17 +95,14 @@ def _import_attr(module: str, name: str) -> Any:
         raise ImportError(f"{module}.{name} is missing") from exc
 
 
-def _load_ixm_rules(raw: dict[str, Any]) -> Any:
-    """Turn the opaque ``[ixm.rules]`` table into what IxmServer expects, via the IXM part's parser if any."""
+def _load_ixm_rules(raw: dict[str, Any], source: str = "") -> Any:
+    """Parse the opaque ``[ixm.rules]`` table with the IXM part's parser (ConfigError naming the key)."""
     try:
         rules_mod = importlib.import_module("mrosd.ixm.rules")
     except ImportError:
         return raw
-    for name in ("parse_rules", "load_rules", "rules_from_dict"):
-        parser = getattr(rules_mod, name, None)
-        if callable(parser):
-            return parser(raw)
-    return raw
+    where = f"{source}: ixm.rules" if source else "ixm.rules"
+    return rules_mod.parse_rules(raw, where)
 
 
 class Daemon:
@@ -178,7 +175,7 @@ class Daemon:
             return
         path = Path(self.cfg.ixm.socket)
         path.parent.mkdir(parents=True, exist_ok=True)
-        server = IxmServer(str(path), _load_ixm_rules(self.cfg.ixm.rules))
+        server = IxmServer(str(path), _load_ixm_rules(self.cfg.ixm.rules, self.cfg.source))
         await server.start()
         self.ixm = server
         self._parts.append(("ixm", server))
@@ -225,7 +222,7 @@ class Daemon:
         if (cfg.master, cfg.rosout) != (self.cfg.master, self.cfg.rosout) or cfg.ixm.socket != self.cfg.ixm.socket:
             log.warning("SIGHUP: only [ixm.rules] is reloaded; restart mrosd to apply the other changes")
         if self.ixm is not None:
-            result = self.ixm.reload_rules(_load_ixm_rules(cfg.ixm.rules))
+            result = self.ixm.reload_rules(_load_ixm_rules(cfg.ixm.rules, cfg.source))
             if inspect.isawaitable(result):
                 await result
             log.info("SIGHUP: IXM access rules reloaded from %s", cfg.source or "defaults")
@@ -356,6 +353,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         cfg = load_config(args.config)
+        if cfg.ixm.enabled:
+            _load_ixm_rules(cfg.ixm.rules, cfg.source)  # validate [ixm.rules] now, not at the first client
     except ConfigError as exc:
         print(f"mrosd: configuration error: {exc}", file=sys.stderr)
         return _exit(EXIT_USAGE, argv)

@@ -127,3 +127,18 @@ def test_check_config_accepts_the_packaged_example(tmp_path: Path) -> None:
     )
     assert out.returncode == 0, out.stderr
     assert "configuration OK" in out.stdout
+
+
+def test_check_config_validates_the_ixm_access_rules_naming_the_key(tmp_path: Path) -> None:
+    bad = tmp_path / "rules.toml"
+    bad.write_text('[ixm.rules.keys."/cam"]\nread_uids = ["no-such-user-here"]\n')
+    out = subprocess.run(
+        [sys.executable, "-m", "mrosd.daemon", "--config", str(bad), "--check-config"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert out.returncode == 2
+    assert str(bad) in out.stderr
+    assert 'ixm.rules.keys."/cam".read_uids' in out.stderr
