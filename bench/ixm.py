@@ -368,9 +368,8 @@ def main(argv: list[str]) -> int:
                 print(f"  -> IXM median is {ratio:.1f}x lower than {base_name} ({label})")
             ok_median = all(v["median"] <= 30 for k, v in results.items() if k.startswith("ixm"))
             ok_p99 = all(v["p99"] <= 100 for k, v in results.items() if k.startswith("ixm"))
-            print(
-                f"  bar: median <= 30 us {'met' if ok_median else 'MISSED'}, p99 <= 100 us {'met' if ok_p99 else 'MISSED'}"
-            )
+            med, p99 = ("met" if ok else "MISSED" for ok in (ok_median, ok_p99))
+            print(f"  bar: median <= 30 us {med}, p99 <= 100 us {p99}")
             size = args.image_mb << 20
             mbps = image_throughput(sock, size, args.image_rounds)
             what = f"IXM {args.image_mb} MB image, write + woken reader copy-out, {args.image_rounds} rounds"
