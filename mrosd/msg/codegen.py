@@ -95,7 +95,7 @@ class _Writer:
     type_name: str
     lookup: Lookup
     lines: list[str] = field(default_factory=list)
-    structs: dict[str, str] = field(default_factory=dict)
+    structs: dict[str, int] = field(default_factory=dict)
     helpers: dict[str, str] = field(default_factory=dict)
     counter: int = 0
 
@@ -106,15 +106,36 @@ class _Writer:
         self.counter += 1
         return f"_{prefix}{self.counter}"
 
+    def _index(self, fmt: str) -> int:
+        index = self.structs.get(fmt)
+        if index is None:
+            index = self.structs[fmt] = len(self.structs)
+        return index
+
     def struct(self, fmt: str) -> str:
-        name = self.structs.get(fmt)
-        if name is None:
-            name = self.structs[fmt] = f"_S{len(self.structs)}"
-        return name
+        """The module-level ``struct.Struct`` for ``fmt`` (little-endian)."""
+        return f"_S{self._index(fmt)}"
+
+    def pack(self, fmt: str) -> str:
+        """The prebound ``pack`` of that struct (saves an attribute lookup per call)."""
+        return f"_P{self._index(fmt)}"
+
+    def unpack(self, fmt: str) -> str:
+        """The prebound ``unpack_from`` of that struct."""
+        return f"_U{self._index(fmt)}"
 
     def helper(self, name: str, expr: str) -> str:
         self.helpers[name] = expr
         return name
+
+    def prelude(self) -> list[str]:
+        out = []
+        for fmt, index in self.structs.items():
+            out.append(f"_S{index} = _struct.Struct({'<' + fmt!r})")
+            out.append(f"_P{index} = _S{index}.pack")
+            out.append(f"_U{index} = _S{index}.unpack_from")
+        out += [f"{name} = {expr}" for name, expr in sorted(self.helpers.items())]
+        return out
 
 
 def _fmt_size(fmt: str) -> int:
@@ -125,21 +146,39 @@ def _fmt_size(fmt: str) -> int:
 
 
 class _Encoder:
-    """Emits the body of ``serialize``: a pending run of (format, expression) flushed into one pack call."""
+    """Emits the body of ``serialize``: a pending run of (format, expression) flushed into one pack call.
 
-    def __init__(self, w: _Writer) -> None:
+    Until the first loop the parts are kept as expressions and joined once at the end (no list, no
+    appends); a loop switches to appending to ``_p``.
+    """
+
+    def __init__(self, w: _Writer, parts: list[str] | None = None) -> None:
         self.w = w
         self.run: list[tuple[str, str]] = []
-        self.appended = False  #: True once anything other than the final run goes to the parts list
+        self.parts = parts  #: expression mode while not None
+        self.appended = False  #: True once anything was appended to ``_p``
+
+    def add(self, indent: int, expr: str) -> None:
+        if self.parts is not None:
+            self.parts.append(expr)
+        else:
+            self.w.emit(indent, f"_a({expr})")
+            self.appended = True
 
     def flush(self, indent: int) -> None:
         if not self.run:
             return
         fmt = "".join(f for f, _ in self.run)
         args = ", ".join(e for _, e in self.run)
-        self.w.emit(indent, f"_a({self.w.struct(fmt)}.pack({args}))")
         self.run = []
-        self.appended = True
+        self.add(indent, f"{self.w.pack(fmt)}({args})")
+
+    def to_append_mode(self, indent: int) -> None:
+        if self.parts is not None:
+            self.w.emit(indent, f"_p: list[_Any] = [{', '.join(self.parts)}]")
+            self.w.emit(indent, "_a = _p.append")
+            self.parts = None
+            self.appended = True
 
     def fields(self, spec: MsgSpec, expr: str, indent: int, path: str) -> None:
         for f in spec.fields:
@@ -158,7 +197,7 @@ class _Encoder:
                 w.emit(indent + 1, f"{s} = {s}.encode()")
                 self.run.append(("I", f"len({s})"))
                 self.flush(indent)
-                w.emit(indent, f"_a({s})")
+                self.add(indent, s)
             elif base in _TIME_FORMATS:
                 t = w.tmp("t")
                 w.emit(indent, f"{t} = {acc}")
@@ -181,7 +220,7 @@ class _Encoder:
             if n is None:
                 self.run.append(("I", f"len({a})"))
                 self.flush(indent)
-                w.emit(indent, f"_a({a})")
+                self.add(indent, a)
             else:
                 self.run.append((f"{n}s", a))
             return
@@ -191,16 +230,17 @@ class _Encoder:
                 self.run.append(("I", f"len({a})"))
                 self.flush(indent)
                 if code == "?":
-                    w.emit(indent, f"_a(bytes(map(bool, {a})))")
+                    self.add(indent, f"bytes(map(bool, {a}))")
                 else:
                     enc = w.helper(f"_enc_{code}", f"_array_encoder({code!r})")
-                    w.emit(indent, f"_a({enc}({a}))")
+                    self.add(indent, f"{enc}({a})")
             elif n:
                 self.run.append((f"{n}{code}", f"*{a}"))
             return
         if n is None:
             self.run.append(("I", f"len({a})"))
         self.flush(indent)
+        self.to_append_mode(indent)
         item = w.tmp("i")
         w.emit(indent, f"for {item} in {a}:")
         inner = _Encoder(w)
@@ -208,37 +248,32 @@ class _Encoder:
         inner.flush(indent + 1)
         if not inner.appended:
             w.emit(indent + 1, "pass")
-        self.appended = True
 
 
 def _serialize_source(spec: MsgSpec, w: _Writer) -> list[str]:
-    enc = _Encoder(w)
+    parts: list[str] = []
+    enc = _Encoder(w, parts)
     start = len(w.lines)
-    enc.fields(spec, "self", 2, "")
+    enc.fields(spec, "self", 3, "")
+    enc.flush(3)
     body = w.lines[start:]
     del w.lines[start:]
     out = [
         "    def serialize(self) -> bytes:",
         '        """The message body (no length prefix), byte-identical to genpy."""',
+        "        try:",
+        *body,
     ]
-    out.append("        try:")
-    if not enc.appended:
-        # Fixed-size message without arrays or strings: one pack call.
-        out += ["    " + line for line in body]
-        if enc.run:
-            fmt = "".join(f for f, _ in enc.run)
-            args = ", ".join(e for _, e in enc.run)
-            out.append(f"            return {w.struct(fmt)}.pack({args})  # type: ignore[no-any-return]")
-        else:
-            out.append('            return b""')
-    else:
-        out.append("            _p: list[_Any] = []")
-        out.append("            _a = _p.append")
-        out += ["    " + line for line in body]
-        enc.flush(2)
-        out += ["    " + line for line in w.lines[start:]]
-        del w.lines[start:]
+    if enc.parts is None:
         out.append('            return b"".join(_p)')
+    elif not parts:
+        out.append('            return b""')
+    elif len(parts) == 1:
+        out.append(f"            return {parts[0]}  # type: ignore[no-any-return]")
+    elif len(parts) == 2:
+        out.append(f"            return {parts[0]} + {parts[1]}  # type: ignore[no-any-return]")
+    else:
+        out.append(f'            return b"".join(({", ".join(parts)}))')
     out.append("        except (_struct_error, TypeError, ValueError, AttributeError, OverflowError) as exc:")
     out.append(f"            raise _serialize_failed({spec.full_name!r}, exc) from None")
     return out
@@ -246,31 +281,50 @@ def _serialize_source(spec: MsgSpec, w: _Writer) -> list[str]:
 
 # -------------------------------------------------------------------------------------------- deserialize
 
+#: Placeholder for the string decode call; the strict variant is tried first, the lenient one (invalid
+#: UTF-8 replaced by U+FFFD, as genpy does) only after a UnicodeDecodeError.
+_DECODE = "\x00DECODE\x00"
+
 
 class _Decoder:
-    """Emits the body of ``deserialize``: fields become locals, messages are built by one expression."""
+    """Emits the body of ``deserialize``: fields become locals, messages are built by one expression.
 
-    def __init__(self, w: _Writer) -> None:
+    The read offset is tracked symbolically as ``base + pending`` (``base`` a local holding an offset,
+    or the constant 0), so fixed runs need no ``o += k`` statements; ``o`` is only materialized for loops.
+    """
+
+    def __init__(self, w: _Writer, base: str = "") -> None:
         self.w = w
         self.run: list[tuple[str, str, int]] = []  #: (format, target local, item count or 0 for a scalar)
+        self.base = base
+        self.pending = 0
+
+    def off(self) -> str:
+        if not self.base:
+            return str(self.pending)
+        return self.base if not self.pending else f"{self.base} + {self.pending}"
+
+    def rebase(self, var: str) -> None:
+        self.base, self.pending = var, 0
+
+    def materialize(self, indent: int) -> None:
+        if self.base != "o" or self.pending:
+            self.w.emit(indent, f"o = {self.off()}")
+            self.rebase("o")
 
     def flush(self, indent: int) -> None:
         if not self.run:
             return
         w = self.w
         fmt = "".join(f for f, _, _ in self.run)
-        size = _fmt_size(fmt)
-        name = w.struct(fmt)
+        call = f"{w.unpack(fmt)}(b)" if self.off() == "0" else f"{w.unpack(fmt)}(b, {self.off()})"
         arrays = [r for r in self.run if r[2]]
-        if not arrays:
-            targets = ", ".join(t for _, t, _ in self.run)
-            w.emit(indent, f"{targets}, = {name}.unpack_from(b, o)")
-        elif len(arrays) == 1:
+        if len(arrays) <= 1:
             targets = ", ".join(("*" + t) if count else t for _, t, count in self.run)
-            w.emit(indent, f"{targets}, = {name}.unpack_from(b, o)")
+            w.emit(indent, f"{targets}, = {call}")
         else:
             u = w.tmp("u")
-            w.emit(indent, f"{u} = {name}.unpack_from(b, o)")
+            w.emit(indent, f"{u} = {call}")
             pos = 0
             for _, t, count in self.run:
                 if count:
@@ -279,7 +333,7 @@ class _Decoder:
                 else:
                     w.emit(indent, f"{t} = {u}[{pos}]")
                     pos += 1
-        w.emit(indent, f"o += {size}")
+        self.pending += _fmt_size(fmt)
         self.run = []
 
     def fields(self, spec: MsgSpec, indent: int, path: str) -> list[str]:
@@ -289,10 +343,17 @@ class _Decoder:
         """Emit the bounds check for ``count`` items of ``item_size`` bytes; returns the end offset local."""
         w = self.w
         e = w.tmp("e")
-        w.emit(indent, f"{e} = o + {count}" + (f" * {item_size}" if item_size != 1 else ""))
+        start = self.off()
+        w.emit(indent, f"{e} = {start} + {count}" + (f" * {item_size}" if item_size != 1 else ""))
         w.emit(indent, f"if {e} > n:")
-        w.emit(indent + 1, f"raise _truncated({w.type_name!r}, {path!r}, {e} - o, n - o)")
+        w.emit(indent + 1, f"raise _truncated({w.type_name!r}, {path!r}, {e} - ({start}), n - ({start}))")
         return e
+
+    def _length(self, indent: int) -> str:
+        ln = self.w.tmp("n")
+        self.run.append(("I", ln, 0))
+        self.flush(indent)
+        return ln
 
     def one(self, f: Field, indent: int, path: str) -> str:
         w = self.w
@@ -308,13 +369,11 @@ class _Decoder:
                 self.run += [(c, s, 0), (c, ns, 0)]
                 return f"{'_Time' if base == 'time' else '_Duration'}({s}, {ns})"
             if base == "string":
-                ln = w.tmp("n")
-                self.run.append(("I", ln, 0))
-                self.flush(indent)
+                ln = self._length(indent)
                 e = self._span(ln, 1, indent, path)
                 v = w.tmp()
-                w.emit(indent, f"{v} = str(b[o:{e}], 'utf-8', 'replace')")
-                w.emit(indent, f"o = {e}")
+                w.emit(indent, f"{v} = b[{self.off()}:{e}]{_DECODE}")
+                self.rebase(e)
                 return v
             sub = w.lookup(base)
             args = self.fields(sub, indent, path + ".")
@@ -323,12 +382,10 @@ class _Decoder:
         v = w.tmp()
         if base in _BYTE_TYPES:
             if n is None:
-                ln = w.tmp("n")
-                self.run.append(("I", ln, 0))
-                self.flush(indent)
+                ln = self._length(indent)
                 e = self._span(ln, 1, indent, path)
-                w.emit(indent, f"{v} = _blob(b, o, {e})")
-                w.emit(indent, f"o = {e}")
+                w.emit(indent, f"{v} = _blob(b, {self.off()}, {e})")
+                self.rebase(e)
             else:
                 self.run.append((f"{n}s", v, 0))
             return v
@@ -339,59 +396,53 @@ class _Decoder:
                     return "[]"
                 self.run.append((f"{n}{code}", v, n))
                 return v
-            ln = w.tmp("n")
-            self.run.append(("I", ln, 0))
-            self.flush(indent)
+            ln = self._length(indent)
             e = self._span(ln, size, indent, path)
             if code == "?":
-                w.emit(indent, f"{v} = [x != 0 for x in b[o:{e}]]")
+                w.emit(indent, f"{v} = [x != 0 for x in b[{self.off()}:{e}]]")
             else:
                 dec = w.helper(f"_dec_{code}", f"_array_decoder({code!r})")
-                w.emit(indent, f"{v} = {dec}(b, o, {e})")
-            w.emit(indent, f"o = {e}")
+                w.emit(indent, f"{v} = {dec}(b, {self.off()}, {e})")
+            self.rebase(e)
             return v
-        # arrays of strings, times and messages: a loop, after checking the count against the bytes left
-        if n is None:
-            count = w.tmp("n")
-            self.run.append(("I", count, 0))
-        else:
-            count = str(n)
+        # arrays of strings, times and messages: check the count against the bytes left before looping
+        count = self._length(indent) if n is None else str(n)
         self.flush(indent)
+        if base in _TIME_FORMATS or (base != "string" and _is_flat(w.lookup(base))):
+            if base in _TIME_FORMATS:
+                fmt = _TIME_FORMATS[base] * 2
+                ctor = "_Time" if base == "time" else "_Duration"
+            else:
+                fmt = "".join(PRIMITIVE_FORMATS[x.base][0] for x in w.lookup(base).fields)
+                ctor = symbol(base)
+            e = self._span(count, _fmt_size(fmt), indent, path)
+            iterator = f"{w.struct(fmt)}.iter_unpack(memoryview(b)[{self.off()}:{e}])"
+            w.emit(indent, f"{v} = list(_starmap({ctor}, {iterator}))")
+            self.rebase(e)
+            return v
         item_min = _element_min_size(base, w.lookup)
+        start = self.off()
         if item_min:
-            w.emit(indent, f"if {count} * {item_min} > n - o:")
-            w.emit(indent + 1, f"raise _truncated({w.type_name!r}, {path!r}, {count} * {item_min}, n - o)")
+            w.emit(indent, f"if {count} * {item_min} > n - ({start}):")
+            w.emit(indent + 1, f"raise _truncated({w.type_name!r}, {path!r}, {count} * {item_min}, n - ({start}))")
         else:
             w.emit(indent, f"if {count} > {MAX_EMPTY_ITEMS}:")
             w.emit(indent + 1, f"raise _truncated({w.type_name!r}, {path!r}, {count}, {MAX_EMPTY_ITEMS})")
-        if base in _TIME_FORMATS:
-            c = _TIME_FORMATS[base]
-            cls = "_Time" if base == "time" else "_Duration"
-            e = f"o + {count} * 8"
-            w.emit(indent, f"{v} = list(_starmap({cls}, {w.struct(c + c)}.iter_unpack(memoryview(b)[o:{e}])))")
-            w.emit(indent, f"o += {count} * 8")
-            return v
-        if base not in PRIMITIVE_FORMATS and base != "string":
-            sub = w.lookup(base)
-            if _is_flat(sub):
-                fmt = "".join(PRIMITIVE_FORMATS[x.base][0] for x in sub.fields)
-                size = _fmt_size(fmt)
-                w.emit(
-                    indent,
-                    f"{v} = list(_starmap({symbol(base)}, "
-                    f"{w.struct(fmt)}.iter_unpack(memoryview(b)[o:o + {count} * {size}])))",
-                )
-                w.emit(indent, f"o += {count} * {size}")
-                return v
+        self.materialize(indent)
         w.emit(indent, f"{v} = []")
         ap = w.tmp("ap")
         w.emit(indent, f"{ap} = {v}.append")
         w.emit(indent, f"for _ in range({count}):")
-        inner = _Decoder(w)
+        inner = _Decoder(w, "o")
         expr = inner.one(Field(name=f.name, type=base, base=base, line=f.line), indent + 1, path + "[]")
         inner.flush(indent + 1)
+        inner.materialize(indent + 1)
         w.emit(indent + 1, f"{ap}({expr})")
         return v
+
+
+def _has_strings(spec: MsgSpec, lookup: Lookup) -> bool:
+    return any(f.base == "string" or (not f.is_builtin and _has_strings(lookup(f.base), lookup)) for f in spec.fields)
 
 
 def _deserialize_source(spec: MsgSpec, w: _Writer) -> list[str]:
@@ -402,23 +453,40 @@ def _deserialize_source(spec: MsgSpec, w: _Writer) -> list[str]:
     body = w.lines[start:]
     del w.lines[start:]
     name = class_name(spec)
-    out = [
-        "    @classmethod",
-        f"    def deserialize(cls, data: bytes | bytearray | memoryview) -> {name!r}:",
-        '        """Decode a message body; raises DeserializationError on truncated, oversized or trailing input."""',
-        "        b = data",
-        "        n = len(b)",
-        "        o = 0",
-        "        try:",
-    ]
-    out += body or ["            pass"]
-    out += [
-        "        except _struct_error as exc:",
-        f"            raise _truncated_message({spec.full_name!r}, n, exc) from None",
-        "        if o != n:",
-        f"            raise _trailing({spec.full_name!r}, o, n)",
-        f"        return cls({', '.join(args)})",
-    ]
+    end = dec.off()
+    lenient = _has_strings(spec, w.lookup)
+
+    def variant(method: str, decode: str, doc: str, fallback: bool) -> list[str]:
+        # A staticmethod (not a classmethod): looking it up allocates no bound method on every call.
+        out = [
+            "    @staticmethod",
+            f"    def {method}(data: bytes | bytearray | memoryview) -> {name!r}:",
+            f'        """{doc}"""',
+            "        b = data",
+            "        n = len(b)",
+            "        try:",
+        ]
+        out += [line.replace(_DECODE, decode) for line in body] or ["            pass"]
+        if fallback:
+            out += ["        except UnicodeDecodeError:", f"            return {name}._deserialize_lenient(b)"]
+        out += [
+            "        except AttributeError:",
+            "            if data.__class__ is bytes:",
+            "                raise",
+            f"            return {name}.{method}(_as_bytes(data))  # a memoryview: decode from bytes",
+            "        except _struct_error as exc:",
+            f"            raise _truncated_message({spec.full_name!r}, n, exc) from None",
+            f"        if {end} != n:",
+            f"            raise _trailing({spec.full_name!r}, {end}, n)",
+            f"        return {name}({', '.join(args)})",
+        ]
+        return out
+
+    doc = "Decode a message body; raises DeserializationError on truncated, oversized or trailing input."
+    out = variant("deserialize", ".decode()", doc, lenient)
+    if lenient:
+        out.append("")
+        out += variant("_deserialize_lenient", ".decode('utf-8', 'replace')", "Decode, replacing invalid UTF-8.", False)
     return out
 
 
@@ -526,8 +594,7 @@ def generate_class(spec: MsgSpec, md5: str, full_text: str, lookup: Lookup) -> G
     lines += ser
     lines.append("")
     lines += des
-    prelude = [f"{sname} = _struct.Struct({'<' + fmt!r})" for fmt, sname in w.structs.items()]
-    prelude += [f"{hname} = {expr}" for hname, expr in sorted(w.helpers.items())]
+    prelude = w.prelude()
     source = "\n".join([*prelude, "", "", *lines]) + "\n"
     return GeneratedClass(spec.full_name, name, source, deps)
 
@@ -558,6 +625,7 @@ from mrosd.msg.runtime import Duration as _Duration
 from mrosd.msg.runtime import Time as _Time
 from mrosd.msg.runtime import array_decoder as _array_decoder
 from mrosd.msg.runtime import array_encoder as _array_encoder
+from mrosd.msg.runtime import as_bytes as _as_bytes
 from mrosd.msg.runtime import bad_length as _bad_length
 from mrosd.msg.runtime import blob as _blob
 from mrosd.msg.runtime import serialize_failed as _serialize_failed

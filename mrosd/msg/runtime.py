@@ -24,6 +24,7 @@ __all__ = [
     "Time",
     "array_decoder",
     "array_encoder",
+    "as_bytes",
     "bad_length",
     "blob",
     "serialize_failed",
@@ -58,9 +59,28 @@ def blob(b: Any, start: int, end: int) -> bytes | memoryview:
     return bytes(b[start:end])
 
 
-def to_bytes(value: Any) -> bytes:
-    """Coerce a uint8[]/char[] value (bytes-like, or a sequence of ints as genpy allows) to bytes."""
-    if isinstance(value, bytes | bytearray | memoryview):
+def as_bytes(data: Any) -> bytes:
+    """The input of a decoder as bytes: a whole-buffer view of bytes is unwrapped, anything else copied.
+
+    Decoders work on immutable bytes so that the zero-copy views they hand out can never change later.
+    """
+    if data.__class__ is memoryview:
+        obj = data.obj
+        if obj.__class__ is bytes and data.c_contiguous and data.nbytes == len(obj):
+            return obj  # type: ignore[no-any-return]
+    try:
+        return bytes(memoryview(data).cast("B"))
+    except TypeError:
+        raise TypeError(f"messages decode from bytes-like objects, not {type(data).__name__}") from None
+
+
+def to_bytes(value: Any) -> bytes | bytearray | memoryview:
+    """A uint8[]/char[] value ready to write: byte buffers pass through, sequences of ints become bytes."""
+    if value.__class__ is bytearray:
+        return value  # type: ignore[no-any-return]
+    if value.__class__ is memoryview:
+        return value if value.c_contiguous and value.itemsize == 1 else value.tobytes()  # type: ignore[no-any-return]
+    if isinstance(value, bytes):
         return bytes(value)
     if isinstance(value, str):
         raise SerializationError("uint8[]/char[] needs bytes, not str (encode it first)")
