@@ -1,0 +1,84 @@
+"""Length-prefixed TCPROS framing: an incremental decoder and the frame encoder.
+
+Bytes go in with ``feed()``; ``maybe_next_frame()`` returns one complete frame body or None while
+incomplete. The length prefix is checked against the decoder's limit before any byte of the body is
+buffered, so a 4 GB claim is refused at once instead of allocating. No sockets, no asyncio.
+"""
+
+from __future__ import annotations
+
+import struct
+
+from mrosd.errors import RemoteProtocolError
+
+#: Largest message frame accepted. roscpp refuses messages over 1 GB as well ("a message of over a
+#: gigabyte was predicted"); an 8 MB image or a large point cloud is far below it.
+MAX_FRAME_SIZE = 1024 * 1024 * 1024
+
+_U32 = struct.Struct("<I")
+
+#: Compact the buffer once this many consumed bytes sit at its front (amortises the memmove).
+_COMPACT_AT = 64 * 1024
+
+
+def encode_frame(body: bytes | bytearray | memoryview) -> bytes:
+    """Prefix a serialized body with its 4-byte little-endian length."""
+    return _U32.pack(len(body)) + bytes(body)
+
+
+class FrameDecoder:
+    """Incremental decoder of ``<uint32 length><body>`` frames with a size limit."""
+
+    __slots__ = ("_buf", "_pos", "max_size")
+
+    def __init__(self, max_size: int = MAX_FRAME_SIZE) -> None:
+        self._buf = bytearray()
+        self._pos = 0
+        self.max_size = max_size
+
+    @property
+    def buffered(self) -> int:
+        """Bytes received and not yet returned as frames."""
+        return len(self._buf) - self._pos
+
+    def feed(self, data: bytes | bytearray | memoryview) -> None:
+        """Append received bytes."""
+        self._buf += data
+
+    def take(self, count: int) -> bytes | None:
+        """Return exactly ``count`` raw bytes (e.g. a service ok byte), or None while fewer are buffered."""
+        if len(self._buf) - self._pos < count:
+            return None
+        out = bytes(self._buf[self._pos : self._pos + count])
+        self._advance(count)
+        return out
+
+    def maybe_next_frame(self) -> bytes | None:
+        """The next complete frame body, or None while incomplete.
+
+        Raises:
+            RemoteProtocolError: the length prefix exceeds ``max_size``; the connection must be closed.
+        """
+        buf = self._buf
+        pos = self._pos
+        avail = len(buf) - pos
+        if avail < 4:
+            return None
+        (length,) = _U32.unpack_from(buf, pos)
+        if length > self.max_size:
+            raise RemoteProtocolError(f"frame of {length} bytes announced, the limit is {self.max_size}")
+        if avail < 4 + length:
+            return None
+        start = pos + 4
+        body = bytes(buf[start : start + length])
+        self._advance(4 + length)
+        return body
+
+    def _advance(self, count: int) -> None:
+        self._pos += count
+        if self._pos == len(self._buf):
+            self._buf.clear()
+            self._pos = 0
+        elif self._pos >= _COMPACT_AT and self._pos * 2 >= len(self._buf):
+            del self._buf[: self._pos]
+            self._pos = 0

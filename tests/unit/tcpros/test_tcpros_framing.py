@@ -1,0 +1,96 @@
+"""Frame decoder: incremental feeding, limits checked before buffering, property round-trips."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from mrosd.errors import RemoteProtocolError
+from mrosd.tcpros.framing import MAX_FRAME_SIZE, FrameDecoder, encode_frame
+
+
+def test_a_frame_is_its_length_then_its_body() -> None:
+    assert encode_frame(b"\x02\x00\x00\x00hi") == b"\x06\x00\x00\x00\x02\x00\x00\x00hi"
+
+
+def test_incomplete_input_yields_none_until_the_frame_is_whole() -> None:
+    dec = FrameDecoder()
+    data = encode_frame(b"hello")
+    for i in range(len(data) - 1):
+        dec.feed(data[i : i + 1])
+        assert dec.maybe_next_frame() is None
+    dec.feed(data[-1:])
+    assert dec.maybe_next_frame() == b"hello"
+    assert dec.maybe_next_frame() is None
+    assert dec.buffered == 0
+
+
+def test_an_empty_frame_is_a_frame() -> None:
+    dec = FrameDecoder()
+    dec.feed(encode_frame(b""))
+    assert dec.maybe_next_frame() == b""
+
+
+def test_a_four_gigabyte_length_is_refused_before_any_body_arrives() -> None:
+    dec = FrameDecoder()
+    dec.feed(b"\xff\xff\xff\xff")
+    with pytest.raises(RemoteProtocolError, match="limit"):
+        dec.maybe_next_frame()
+    assert dec.buffered == 4
+
+
+def test_the_limit_is_per_decoder() -> None:
+    dec = FrameDecoder(max_size=10)
+    dec.feed(encode_frame(b"x" * 10))
+    assert dec.maybe_next_frame() == b"x" * 10
+    dec.feed(encode_frame(b"x" * 11))
+    with pytest.raises(RemoteProtocolError):
+        dec.maybe_next_frame()
+    assert MAX_FRAME_SIZE == 1 << 30
+
+
+def test_take_reads_raw_bytes_between_frames() -> None:
+    dec = FrameDecoder()
+    dec.feed(b"\x01" + encode_frame(b"ok"))
+    assert dec.take(1) == b"\x01"
+    assert dec.maybe_next_frame() == b"ok"
+    assert dec.take(1) is None
+
+
+def test_many_frames_survive_buffer_compaction() -> None:
+    dec = FrameDecoder()
+    bodies = [bytes([i % 256]) * 1000 for i in range(300)]
+    dec.feed(b"".join(encode_frame(b) for b in bodies))
+    out = []
+    while (frame := dec.maybe_next_frame()) is not None:
+        out.append(frame)
+    assert out == bodies
+
+
+@given(st.lists(st.binary(max_size=200), max_size=20), st.lists(st.integers(1, 50), min_size=1, max_size=30))
+def test_frames_split_anywhere_come_out_whole_and_in_order(bodies: list[bytes], cuts: list[int]) -> None:
+    stream = b"".join(encode_frame(b) for b in bodies)
+    dec = FrameDecoder()
+    out: list[bytes] = []
+    pos = 0
+    i = 0
+    while pos < len(stream):
+        step = cuts[i % len(cuts)]
+        dec.feed(stream[pos : pos + step])
+        pos += step
+        i += 1
+        while (frame := dec.maybe_next_frame()) is not None:
+            out.append(frame)
+    assert out == bodies
+
+
+@given(st.binary(max_size=400))
+def test_arbitrary_bytes_never_break_the_decoder(data: bytes) -> None:
+    dec = FrameDecoder(max_size=100)
+    dec.feed(data)
+    try:
+        while dec.maybe_next_frame() is not None:
+            pass
+    except RemoteProtocolError:
+        pass
