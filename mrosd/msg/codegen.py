@@ -98,6 +98,7 @@ class _Writer:
     structs: dict[str, int] = field(default_factory=dict)
     helpers: dict[str, str] = field(default_factory=dict)
     counter: int = 0
+    tag: str = ""  #: distinguishes the structs of several classes generated into one module
 
     def emit(self, indent: int, text: str) -> None:
         self.lines.append("    " * indent + text)
@@ -114,15 +115,15 @@ class _Writer:
 
     def struct(self, fmt: str) -> str:
         """The module-level ``struct.Struct`` for ``fmt`` (little-endian)."""
-        return f"_S{self._index(fmt)}"
+        return f"_S{self.tag}{self._index(fmt)}"
 
     def pack(self, fmt: str) -> str:
         """The prebound ``pack`` of that struct (saves an attribute lookup per call)."""
-        return f"_P{self._index(fmt)}"
+        return f"_P{self.tag}{self._index(fmt)}"
 
     def unpack(self, fmt: str) -> str:
         """The prebound ``unpack_from`` of that struct."""
-        return f"_U{self._index(fmt)}"
+        return f"_U{self.tag}{self._index(fmt)}"
 
     def helper(self, name: str, expr: str) -> str:
         self.helpers[name] = expr
@@ -130,10 +131,10 @@ class _Writer:
 
     def prelude(self) -> list[str]:
         out = []
-        for fmt, index in self.structs.items():
-            out.append(f"_S{index} = _struct.Struct({'<' + fmt!r})")
-            out.append(f"_P{index} = _S{index}.pack")
-            out.append(f"_U{index} = _S{index}.unpack_from")
+        for fmt in self.structs:
+            out.append(f"{self.struct(fmt)} = _struct.Struct({'<' + fmt!r})")
+            out.append(f"{self.pack(fmt)} = {self.struct(fmt)}.pack")
+            out.append(f"{self.unpack(fmt)} = {self.struct(fmt)}.unpack_from")
         out += [f"{name} = {expr}" for name, expr in sorted(self.helpers.items())]
         return out
 
@@ -556,7 +557,7 @@ class GeneratedClass:
     dependencies: list[str]
 
 
-def generate_class(spec: MsgSpec, md5: str, full_text: str, lookup: Lookup) -> GeneratedClass:
+def generate_class(spec: MsgSpec, md5: str, full_text: str, lookup: Lookup, tag: str = "") -> GeneratedClass:
     """Generate the class for ``spec``; ``lookup`` resolves nested types (already parsed).
 
     Raises:
@@ -566,7 +567,7 @@ def generate_class(spec: MsgSpec, md5: str, full_text: str, lookup: Lookup) -> G
         if keyword.iskeyword(f.name) or f.name in ("serialize", "deserialize"):
             raise MsgError(f"{spec.full_name}: field name {f.name!r} cannot be a Python attribute")
     name = class_name(spec)
-    w = _Writer(type_name=spec.full_name, lookup=lookup)
+    w = _Writer(type_name=spec.full_name, lookup=lookup, tag=tag)
     ser = _serialize_source(spec, w)
     des = _deserialize_source(spec, w)
     size = fixed_size(spec, lookup)
