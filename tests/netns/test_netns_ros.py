@@ -1,0 +1,136 @@
+"""Master, publisher and subscriber on three hosts (network namespaces), with ROS_HOSTNAME / ROS_IP per host.
+
+Real Debian ROS first (proves the fixture and the addressing), then mrosd's master and nodes as they land.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.netns.nsutil import NetnsLab
+from tests.rosenv import ROS_PYTHON, Processes, iter_lines_until, needs_ros, ros_env
+
+pytestmark = pytest.mark.root
+
+MASTER_PORT = 11311
+
+TALKER = textwrap.dedent(
+    """
+    import rospy
+    from std_msgs.msg import String
+    rospy.init_node("talker", disable_signals=True)
+    pub = rospy.Publisher("/chatter", String, queue_size=10)
+    rate = rospy.Rate(20)
+    i = 0
+    while not rospy.is_shutdown():
+        pub.publish(String(data="hello %d" % i))
+        i += 1
+        rate.sleep()
+    """
+)
+
+
+def host_env(lab: NetnsLab, host: int, tmp: Path, *, use_ip: bool = False) -> dict[str, str]:
+    """Environment of a ROS process on ``host``: the master on host 0, its own address advertised."""
+    env = ros_env(f"http://{lab.addrs[0]}:{MASTER_PORT}/", tmp / f"h{host}")
+    env.pop("ROS_HOSTNAME")
+    env["ROS_IP" if use_ip else "ROS_HOSTNAME"] = lab.addrs[host]
+    return env
+
+
+def wait_for_xmlrpc_from(lab: NetnsLab, host: int, uri: str, timeout: float = 20.0) -> None:
+    """Block until ``uri`` answers getPid when called from inside host namespace ``host``."""
+    probe = textwrap.dedent(
+        f"""
+        import sys, time, xmlrpc.client
+        deadline = time.monotonic() + {timeout}
+        while time.monotonic() < deadline:
+            try:
+                with xmlrpc.client.ServerProxy({uri!r}) as p:
+                    p.getPid("/probe")
+                sys.exit(0)
+            except Exception:
+                time.sleep(0.05)
+        sys.exit(1)
+        """
+    )
+    done = subprocess.run(lab.argv(host, [sys.executable, "-c", probe]), timeout=timeout + 10, check=False)
+    assert done.returncode == 0, f"{uri} did not answer from {lab.hosts[host]} within {timeout} s"
+
+
+def lookup_node_from(lab: NetnsLab, host: int, node: str) -> str:
+    code = (
+        "import xmlrpc.client\n"
+        f"with xmlrpc.client.ServerProxy('http://{lab.addrs[0]}:{MASTER_PORT}/') as p:\n"
+        f"    print(p.lookupNode('/probe', {node!r})[2])\n"
+    )
+    return lab.exec_ok(lab.hosts[host], [sys.executable, "-c", code]).strip()
+
+
+def echo_three(lab: NetnsLab, procs: Processes, tmp: Path, argv: list[str], env: dict[str, str]) -> list[str]:
+    echo = procs.start(lab.argv(2, argv), env)
+    lines = [line for line in iter_lines_until(echo, 6, timeout=30.0) if line.startswith("data:")]
+    return lines
+
+
+@needs_ros
+def test_real_rosmaster_rospy_talker_and_rostopic_echo_talk_across_three_namespaces(
+    netns_lab: NetnsLab, procs: Processes, tmp_path: Path
+) -> None:
+    lab = netns_lab
+    master_env = host_env(lab, 0, tmp_path)
+    procs.start(
+        lab.argv(0, ["rosmaster", "--core", "-p", str(MASTER_PORT)]),
+        master_env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    wait_for_xmlrpc_from(lab, 1, f"http://{lab.addrs[0]}:{MASTER_PORT}/")
+
+    procs.start(lab.argv(1, [ROS_PYTHON, "-c", TALKER]), host_env(lab, 1, tmp_path))
+    echo_env = host_env(lab, 2, tmp_path, use_ip=True)
+    lines = echo_three(lab, procs, tmp_path, ["rostopic", "echo", "-n", "3", "/chatter"], echo_env)
+
+    assert len(lines) == 3 and all(line.startswith("data: \"hello ") for line in lines), lines
+    # each node advertised the address of its own host, as set by ROS_HOSTNAME / ROS_IP
+    assert lookup_node_from(lab, 2, "/talker").startswith(f"http://{lab.addrs[1]}:")
+
+
+def test_the_namespaces_are_removed_even_when_processes_still_run_inside(procs: Processes) -> None:
+    from tests.netns.nsutil import netns_unavailable
+
+    why = netns_unavailable()
+    if why is not None:
+        pytest.skip(why)
+    lab = NetnsLab()
+    try:
+        lab.setup()
+        procs.start(lab.argv(1, ["sleep", "300"]))
+        # hosts see each other over the bridge, and the caller's namespace has no address of the lab's /24
+        lab.exec_ok(lab.hosts[0], [sys.executable, "-c", _CONNECT.format(addr=lab.addrs[1])])
+        routes = subprocess.run(["ip", "route", "get", lab.addrs[1]], capture_output=True, check=False).stdout
+        assert f"src {lab.net}.".encode() not in routes
+    finally:
+        lab.teardown()
+    assert lab.leftovers() == []
+    deadline = time.monotonic() + 5
+    while time.monotonic() < deadline and lab.tag.encode() in subprocess.check_output(["ip", "link"]):
+        time.sleep(0.05)
+    assert lab.tag.encode() not in subprocess.check_output(["ip", "link"])
+
+
+# a TCP connect to a closed port answers RST: proves the path without needing ping
+_CONNECT = (
+    "import socket\n"
+    "s = socket.socket(); s.settimeout(5)\n"
+    "try:\n"
+    "    s.connect(('{addr}', 9))\n"
+    "except ConnectionRefusedError:\n"
+    "    pass\n"
+)
