@@ -34,7 +34,7 @@ import select
 import socket
 import sys
 import time
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator, Callable, Iterator
 from typing import Any, Literal
 
 from mrosd.config import default_ixm_socket
@@ -105,6 +105,8 @@ class _KeyState:
         self.wake_fd = wake_fd
         self.targets: list[int] = []
         self.generation = -1
+        #: set by the owning client: reads pending WakeList pushes without blocking
+        self.refresh_targets: Callable[[], None] = lambda: None
         self.last_seq = 0
         self.closed = False
 
@@ -119,6 +121,10 @@ class _KeyState:
             seq = self.layout.write(data)
         finally:
             fcntl.flock(fd, fcntl.LOCK_UN)
+        if self.layout.generation != self.generation:
+            # checked after the data is in place: a reader whose open completed before this point is
+            # already announced by the daemon, and its eventfd is in our socket buffer
+            self.refresh_targets()
         self.signal()
         return seq
 
@@ -147,6 +153,8 @@ class _KeyState:
                 self.layout.end_write(seq, self.type.capacity)
         finally:
             fcntl.flock(self.fd, fcntl.LOCK_UN)
+        if self.layout.generation != self.generation:
+            self.refresh_targets()
         self.signal()
 
     def set_targets(self, generation: int, fds: list[int]) -> None:
@@ -249,7 +257,6 @@ class _KeyBase:
 
     def write_bytes(self, data: bytes | bytearray | memoryview) -> None:
         """Write an already-encoded payload (e.g. a serialized message) as it is."""
-        self._before_write()
         self._state.write_bytes(data)
 
     def write(self, value: Any) -> None:
@@ -258,12 +265,8 @@ class _KeyBase:
         Raises:
             IxmError: the key is read-only here, or the value does not match the key's type or size.
         """
-        self._before_write()
         st = self._state
         st.write_bytes(st.encode(value))
-
-    def _before_write(self) -> None:
-        pass
 
 
 class IxmKey(_KeyBase):
@@ -276,11 +279,6 @@ class IxmKey(_KeyBase):
         if state.wake_fd is not None:
             self._poll = select.poll()
             self._poll.register(state.wake_fd, select.POLLIN)
-
-    def _before_write(self) -> None:
-        st = self._state
-        if st.layout.generation != st.generation:
-            self._client._drain_pushes()
 
     def wait(self, timeout: float | None = None) -> Any:
         """Block until a value newer than the last one read here is written, and return it.
@@ -453,10 +451,12 @@ class IxmClient:
         if not isinstance(reply, Opened):
             raise RemoteProtocolError(f"unexpected {type_name(reply)} in answer to open")
         fd = self._reader.take_fds(1)[0]
-        handle = IxmKey(self, _KeyState(reply, fd, efd))
+        targets = self._reader.take_fds(reply.wake)
+        state = _KeyState(reply, fd, efd)
+        state.set_targets(reply.generation, targets)
+        state.refresh_targets = self._drain_pushes
+        handle = IxmKey(self, state)
         self._keys[key] = handle
-        if "w" in mode:  # the daemon sent the wake list right after Opened
-            self._drain_pushes()
         return handle
 
     def list(self, key: str | None = None) -> Listing:
@@ -584,7 +584,6 @@ class AsyncIxmClient:
         self._keys: dict[str, AsyncIxmKey] = {}
         self._lock = asyncio.Lock()
         self._pending: asyncio.Future[Reply] | None = None
-        self._early_wake: dict[str, tuple[int, list[int]]] = {}
         self._closed = False
 
     async def connect(self) -> AsyncIxmClient:
@@ -618,10 +617,8 @@ class AsyncIxmClient:
                     fds = self._reader.take_fds(reply.count)
                     key = self._keys.get(reply.key)
                     if key is None or key._state.closed:
-                        # the list that follows Opened arrives before open() has made the handle
-                        for fd in self._early_wake.pop(reply.key, (0, []))[1]:
+                        for fd in fds:
                             os.close(fd)
-                        self._early_wake[reply.key] = (reply.generation, fds)
                     else:
                         key._state.set_targets(reply.generation, fds)
                 elif self._pending is not None and not self._pending.done():
@@ -645,11 +642,6 @@ class AsyncIxmClient:
             self._sock.close()
         if self._reader is not None:
             self._reader.close()
-        for _gen, fds in self._early_wake.values():
-            for fd in fds:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-        self._early_wake.clear()
         self._closed = True
 
     async def _request(self, request: Request, fds: list[int] | None = None) -> Reply:
@@ -695,11 +687,11 @@ class AsyncIxmClient:
             raise RemoteProtocolError(f"unexpected {type_name(reply)} in answer to open")
         assert self._reader is not None
         fd = self._reader.take_fds(1)[0]
-        handle = AsyncIxmKey(self, _KeyState(reply, fd, efd))
+        state = _KeyState(reply, fd, efd)
+        state.set_targets(reply.generation, self._reader.take_fds(reply.wake))
+        state.refresh_targets = self._on_readable
+        handle = AsyncIxmKey(self, state)
         self._keys[key] = handle
-        early = self._early_wake.pop(key, None)
-        if early is not None:
-            handle._state.set_targets(*early)
         return handle
 
     async def list(self, key: str | None = None) -> Listing:

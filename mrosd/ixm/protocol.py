@@ -96,7 +96,8 @@ class Error(msgspec.Struct, tag_field="op", tag="error", gc=False):
 
 
 class Opened(msgspec.Struct, tag_field="op", tag="opened", gc=False, kw_only=True):
-    """Open granted; one fd follows: the segment, read-only for a reader."""
+    """Open granted; 1 + ``wake`` fds follow: the segment (read-only for a reader), then, for a writer, the
+    eventfds of the key's current readers (generation ``generation``); later changes come as WakeList."""
 
     key: str
     type: str
@@ -105,6 +106,8 @@ class Opened(msgspec.Struct, tag_field="op", tag="opened", gc=False, kw_only=Tru
     capacity: int
     mode: str
     shm_name: str
+    wake: int = 0
+    generation: int = 0
 
 
 class WakeList(msgspec.Struct, tag_field="op", tag="wake", gc=False, kw_only=True):

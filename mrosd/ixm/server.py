@@ -333,8 +333,8 @@ class IxmServer:
                 except IxmError as exc:
                     self._send(client, Error("invalid", str(exc)))
                     return
+                self._apply(effects, client.id)  # unlinked before the client hears Ok
                 self._send(client, Ok())
-                self._apply(effects, client.id)
             case List(key=key):
                 self._send(client, self._listing(key))
             case Hello(name=name):
@@ -382,15 +382,16 @@ class IxmServer:
             return
         if wake_fd is not None:
             seg.wake_fds[client.id] = wake_fd
+        # writers learn of a new reader (list sent, generation bumped) before the reader hears Opened, so
+        # that every write that starts after the reader's open returns will wake it
+        self._apply(effects, client.id)
         t = info.type
+        wake = [f for conn, f in sorted(seg.wake_fds.items()) if conn != client.id] if "w" in req.mode else []
         reply = Opened(
             key=req.key, type=t.name, count=t.count, max_size=t.max_size, capacity=t.capacity,
-            mode=req.mode, shm_name=info.shm_name,
+            mode=req.mode, shm_name=info.shm_name, wake=len(wake), generation=seg.layout.generation,
         )
-        self._send(client, reply, fds=[fd], close_after=[fd])
-        if "w" in req.mode:
-            self._send_wake_list(client, seg, seg.layout.generation)
-        self._apply(effects, client.id)
+        self._send(client, reply, fds=[fd, *wake], close_after=[fd])
 
     @staticmethod
     def _close_fd(fd: int | None) -> None:
@@ -414,6 +415,8 @@ class IxmServer:
                             self._close_fd(seg.wake_fds.pop(conn))
                     gen = (seg.layout.generation + 1) & 0xFFFFFFFF
                     for conn in sorted(seg.info.writers):
+                        if conn == origin:  # an opening "rw" client gets its list with Opened
+                            continue
                         writer = self._clients.get(conn)
                         if writer is not None:
                             self._send_wake_list(writer, seg, gen)

@@ -1,0 +1,82 @@
+"""IXM integration fixtures: a real daemon process, and a guard that no segment leaks into /dev/shm."""
+
+from __future__ import annotations
+
+import os
+import select
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.rosenv import Processes
+
+SHM = Path("/dev/shm")
+
+
+def ixm_segments() -> set[str]:
+    return {n for n in os.listdir(SHM) if n.startswith("mrosd-ixm-")}
+
+
+def wait_line(proc: subprocess.Popen[bytes], expected: str, timeout: float = 10.0) -> None:
+    """Read stdout lines until ``expected`` (bounded); fail with stderr if the process dies first."""
+    assert proc.stdout is not None
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([proc.stdout], [], [], max(0.0, deadline - time.monotonic()))
+        if not ready:
+            break
+        line = proc.stdout.readline().decode().strip()
+        if line == expected:
+            return
+        if not line and proc.poll() is not None:
+            err = proc.stderr.read().decode() if proc.stderr else ""
+            raise AssertionError(f"process exited ({proc.returncode}) before {expected!r}: {err}")
+    raise AssertionError(f"no {expected!r} line within {timeout} s")
+
+
+def start_daemon(procs: Processes, socket_path: str, config: str | None = None) -> subprocess.Popen[bytes]:
+    argv = ["-m", "mrosd.ixm", "--socket", socket_path, "--log-level", "debug"]
+    if config:
+        argv += ["--config", config]
+    proc = procs.our_python(argv, stderr=subprocess.DEVNULL)
+    wait_line(proc, "ready")
+    return proc
+
+
+@pytest.fixture
+def shm_guard() -> Iterator[None]:
+    """Fails the test if it leaves a new mrosd IXM segment in /dev/shm (checked after the daemon stopped)."""
+    before = ixm_segments()
+    yield
+    leaked = ixm_segments() - before
+    assert not leaked, f"leaked shared memory segments: {sorted(leaked)}"
+
+
+@pytest.fixture
+def ixm_socket(shm_guard: None, tmp_path: Path) -> Iterator[str]:
+    """Socket path of a running ``python -m mrosd.ixm`` daemon (stopped, and its segments checked, at the end)."""
+    procs = Processes(tmp_path)
+    path = str(tmp_path / "ixm.sock")
+    try:
+        start_daemon(procs, path)
+        yield path
+    finally:
+        procs.close()
+
+
+def until(condition: Callable[[], bool], timeout: float = 10.0) -> None:
+    """Re-check ``condition`` (each check is a round trip to the daemon) until true, bounded by ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"condition not met within {timeout} s")
+        time.sleep(0.005)
+
+
+def python_child(procs: Processes, code: str) -> subprocess.Popen[bytes]:
+    """Run ``code`` in a fresh interpreter of ours (a separate process for the other side of a key)."""
+    return procs.start([sys.executable, "-c", code], stdin=subprocess.PIPE)
