@@ -1,0 +1,76 @@
+"""The asyncio client against an in-process IxmServer: async for woken on each write, zero-copy views."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+
+import pytest
+
+from mrosd.errors import IxmError, IxmPermissionError
+from mrosd.ixm import AccessRules, AsyncIxmClient
+from mrosd.ixm.server import IxmServer
+
+
+async def test_async_for_yields_each_write_without_polling(shm_guard: None, tmp_path: Path) -> None:
+    sock = str(tmp_path / "ixm.sock")
+    async with IxmServer(sock), AsyncIxmClient(sock) as a, AsyncIxmClient(sock) as b:
+        reader = await b.open("/speed", "float32")
+        writer = await a.open("/speed", "float32", mode="w")
+        got: list[float] = []
+
+        async def consume() -> None:
+            async for value in reader:
+                got.append(value)
+                if len(got) == 3:
+                    return
+
+        task = asyncio.create_task(consume())
+        for v in (1.0, 2.0, 3.0):
+            await asyncio.sleep(0)  # let the reader wait before each write
+            writer.write(v)
+            async with asyncio.timeout(5):
+                while len(got) < int(v) and not task.done():
+                    await asyncio.sleep(0)
+        async with asyncio.timeout(5):
+            await task
+        assert got == [1.0, 2.0, 3.0]
+        with pytest.raises(TimeoutError):
+            await reader.wait(timeout=0.05)
+        listing = await a.list("/speed")
+        assert [s.key for s in listing.segments] == ["/speed"]
+        await reader.close()
+        await writer.close()
+
+
+async def test_a_raw_array_is_written_and_read_through_zero_copy_views(shm_guard: None, tmp_path: Path) -> None:
+    sock = str(tmp_path / "ixm.sock")
+    async with IxmServer(sock), AsyncIxmClient(sock) as a:
+        img = await a.open("/image", "uint8", max_size=1024, mode="rw")
+        with img.writing() as view:
+            view[:4] = b"\x01\x02\x03\x04"
+        assert img.seq == 2
+        view = img.view()
+        assert (view.readonly, view.format, len(view), bytes(view[:4])) == (True, "B", 1024, b"\x01\x02\x03\x04")
+        view.release()
+        out = bytearray(1024)
+        assert img.read_into(out) == 1024
+        joints = await a.open("/joints", "float64", count=3, mode="w")
+        with joints.writing() as jv:
+            jv[1] = 2.5
+        assert joints.view().tolist() == [0.0, 2.5, 0.0]
+        with pytest.raises(IxmError, match="zero-copy"):
+            (await a.open("/scalar", "float64", mode="w")).view()
+
+
+async def test_reloaded_rules_apply_to_later_opens(shm_guard: None, tmp_path: Path) -> None:
+    sock = str(tmp_path / "ixm.sock")
+    async with IxmServer(sock, {"default": "deny"}) as server, AsyncIxmClient(sock) as a:
+        # this test runs as the daemon's own uid, which is always allowed: take that away for the check
+        server.registry.rules = AccessRules(default="deny", superusers=frozenset())
+        with pytest.raises(IxmPermissionError, match="may not read /x"):
+            await a.open("/x", "float64")
+        server.reload_rules({"default": "allow"})
+        key = await a.open("/x", "float64", mode="rw")
+        key.write(1.0)
+        assert key.read() == 1.0
