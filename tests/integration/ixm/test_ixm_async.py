@@ -17,24 +17,23 @@ async def test_async_for_yields_each_write_without_polling(shm_guard: None, tmp_
     async with IxmServer(sock), AsyncIxmClient(sock) as a, AsyncIxmClient(sock) as b:
         reader = await b.open("/speed", "float32")
         writer = await a.open("/speed", "float32", mode="w")
-        got: list[float] = []
+        got: asyncio.Queue[float] = asyncio.Queue(maxsize=10)
+        waiting = asyncio.Event()
 
         async def consume() -> None:
+            waiting.set()
             async for value in reader:
-                got.append(value)
-                if len(got) == 3:
+                await got.put(value)
+                if value == 3.0:
                     return
 
         task = asyncio.create_task(consume())
-        for v in (1.0, 2.0, 3.0):
-            await asyncio.sleep(0)  # let the reader wait before each write
-            writer.write(v)
-            async with asyncio.timeout(5):
-                while len(got) < int(v) and not task.done():
-                    await asyncio.sleep(0)
         async with asyncio.timeout(5):
+            await waiting.wait()
+            for v in (1.0, 2.0, 3.0):
+                writer.write(v)
+                assert await got.get() == v
             await task
-        assert got == [1.0, 2.0, 3.0]
         with pytest.raises(TimeoutError):
             await reader.wait(timeout=0.05)
         listing = await a.list("/speed")
