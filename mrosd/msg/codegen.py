@@ -299,6 +299,7 @@ class _Decoder:
         self.run: list[tuple[str, str, int]] = []  #: (format, target local, item count or 0 for a scalar)
         self.base = base
         self.pending = 0
+        self.last_check: tuple[int, str] = (-1, "")  #: (line index of the latest bounds check, its end local)
 
     def off(self) -> str:
         if not self.base:
@@ -346,6 +347,7 @@ class _Decoder:
         e = w.tmp("e")
         start = self.off()
         w.emit(indent, f"{e} = {start} + {count}" + (f" * {item_size}" if item_size != 1 else ""))
+        self.last_check = (len(w.lines), e)
         w.emit(indent, f"if {e} > n:")
         w.emit(indent + 1, f"raise _truncated({w.type_name!r}, {path!r}, {e} - ({start}), n - ({start}))")
         return e
@@ -456,6 +458,11 @@ def _deserialize_source(spec: MsgSpec, w: _Writer) -> list[str]:
     name = class_name(spec)
     end = dec.off()
     lenient = _has_strings(spec, w.lookup)
+    check_at, check_end = dec.last_check
+    if check_end == end and check_at - start == len(body) - 3 and "_dec_" not in body[-1]:
+        # The last field is a string or uint8[] ending the message: the final ``end != n`` check covers
+        # truncation too (a short slice allocates nothing beyond the buffer), so skip the separate check.
+        del body[-3:-1]
 
     def variant(method: str, decode: str, doc: str, fallback: bool) -> list[str]:
         # A staticmethod (not a classmethod): looking it up allocates no bound method on every call.

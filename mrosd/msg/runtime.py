@@ -129,7 +129,9 @@ def truncated_message(type_name: str, size: int, exc: Exception) -> Deserializat
 
 
 def trailing(type_name: str, used: int, size: int) -> DeserializationError:
-    """The error for bytes left over after a complete message."""
+    """The error for bytes left over after a complete message (or missing, when ``used > size``)."""
+    if used > size:
+        return DeserializationError(f"{type_name}: truncated message: needs {used} bytes, got {size}")
     return DeserializationError(f"{type_name}: {size - used} trailing bytes after a {used}-byte message")
 
 
