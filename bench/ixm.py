@@ -228,30 +228,69 @@ def _node_writer(uri: str, n: int, cpu: int | None) -> None:
     asyncio.run(main())
 
 
-def node_latency(n: int, cpu: int | None) -> list[int]:
-    """TCPROS through mrosd.Node (needs mrosd.master.Master); raises if unavailable."""
-    from mrosd.master import Master  # type: ignore[attr-defined]
+def _start_master(ctx: Any, stop: Any) -> tuple[str, Callable[[], None]]:
+    """mrosd's own master when it exists, else Debian's rosmaster; returns (uri, stopper)."""
+    try:
+        from mrosd.master import Master  # type: ignore[attr-defined]
+    except ImportError:
+        Master = None
+    if Master is not None:
+        port_recv, port_send = ctx.Pipe(duplex=False)
 
+        def run_master() -> None:
+            async def main() -> None:
+                master = Master(host="127.0.0.1", port=0)
+                await master.start()
+                port_send.send(master.port)
+                await asyncio.to_thread(stop.wait)
+                await master.aclose()
+
+            asyncio.run(main())
+
+        proc = ctx.Process(target=run_master)
+        proc.start()
+        uri = f"http://127.0.0.1:{port_recv.recv()}/"
+
+        def stop_mrosd() -> None:
+            stop.set()
+            proc.join(5)
+
+        return uri, stop_mrosd
+    import socket
+    import subprocess
+    import xmlrpc.client
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    rosmaster = subprocess.Popen(
+        ["rosmaster", "--core", "-p", str(port)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    uri = f"http://127.0.0.1:{port}/"
+    deadline = time.monotonic() + 20
+    while True:
+        try:
+            xmlrpc.client.ServerProxy(uri).getPid("/bench")
+            break
+        except OSError:
+            if time.monotonic() > deadline:
+                rosmaster.kill()
+                raise RuntimeError("rosmaster did not start") from None
+            time.sleep(0.05)
+
+    def stop_rosmaster() -> None:
+        rosmaster.terminate()
+        rosmaster.wait(10)
+
+    return uri, stop_rosmaster
+
+
+def node_latency(n: int, cpu: int | None) -> list[int]:
+    """TCPROS through mrosd.Node publisher/subscriber of std_msgs/Float64 on loopback."""
     ctx = mp.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
-    ready = ctx.Event()
     stop = ctx.Event()
-
-    def run_master(port_out: Any) -> None:
-        async def main() -> None:
-            master = Master(host="127.0.0.1", port=0)
-            await master.start()
-            port_out.send(master.port)
-            await asyncio.to_thread(stop.wait)
-            await master.aclose()
-
-        asyncio.run(main())
-
-    port_recv, port_send = ctx.Pipe(duplex=False)
-    master = ctx.Process(target=run_master, args=(port_send,))
-    master.start()
-    uri = f"http://127.0.0.1:{port_recv.recv()}/"
-    ready.set()
+    uri, stop_master = _start_master(ctx, stop)
     reader = ctx.Process(target=_node_reader, args=(uri, n, cpu, send))
     writer = ctx.Process(target=_node_writer, args=(uri, n, cpu))
     reader.start()
@@ -265,8 +304,7 @@ def node_latency(n: int, cpu: int | None) -> list[int]:
             p.join(5)
             if p.is_alive():
                 p.kill()
-        stop.set()
-        master.join(5)
+        stop_master()
     return lat
 
 
