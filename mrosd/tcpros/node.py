@@ -1,0 +1,413 @@
+"""Node: a ROS 1 node living in the caller's event loop.
+
+The node owns its identity (resolved name, remappings), the master connection (thin typed calls over the
+shared XML-RPC client), the slave API server, the TCPROS listener that serves publishers and services,
+and the watchdog that notices a restarted master and registers everything again. It never owns the loop:
+``async with Node(...)`` starts it and ``aclose()`` unregisters and closes everything it opened.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import ipaddress
+import logging
+import os
+import socket
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+from mrosd.errors import LocalProtocolError, MasterError, MasterUnreachableError, MrosError, XmlRpcError
+from mrosd.names import NodeNames, parse_argv
+from mrosd.tcpros.handshake import error_header
+from mrosd.tcpros.header import ConnectionHeader, encode_header
+from mrosd.tcpros.publisher import DEFAULT_QUEUE_SIZE, Publisher, PublisherProtocol
+from mrosd.tcpros.service import Service, ServiceProtocol, ServiceProxy
+from mrosd.tcpros.slave import SlaveApi
+from mrosd.tcpros.subscriber import Subscriber
+from mrosd.xmlrpc import Fault, XmlRpcClient, XmlRpcServer
+
+log = logging.getLogger(__name__)
+
+DEFAULT_MASTER_URI = "http://localhost:11311/"
+#: How often the watchdog asks the master whether it still knows us (lookupNode, one cheap call).
+WATCHDOG_INTERVAL = 1.0
+#: Upper bound of the watchdog's backoff while the master is unreachable.
+WATCHDOG_MAX_INTERVAL = 5.0
+#: Timeout of registration calls, and the shorter one for unregistering on exit.
+MASTER_TIMEOUT = 10.0
+UNREGISTER_TIMEOUT = 2.0
+
+
+def _is_ipv6(host: str) -> bool:
+    try:
+        return isinstance(ipaddress.ip_address(host.strip("[]")), ipaddress.IPv6Address)
+    except ValueError:
+        return False
+
+
+def _default_host() -> str:
+    name = socket.gethostname()
+    try:
+        socket.getaddrinfo(name, None)
+    except OSError:
+        return "127.0.0.1"
+    return name
+
+
+class InboundProtocol(ServiceProtocol, PublisherProtocol):
+    """A connection accepted by the node's TCPROS server, routed by its header to a publisher or service."""
+
+    def __init__(self, node: Node) -> None:
+        super().__init__()
+        self.node = node
+
+    def _refuse(self, reason: str) -> None:
+        log.warning("%s: refusing TCPROS connection from %s: %s", self.node.name, self.peer, reason)
+        self.write(encode_header(error_header(reason)))
+        self.close()
+
+    def header_received(self, header: ConnectionHeader) -> None:
+        if header.service is not None:
+            service = self.node.services.get(header.service)
+            if service is None:
+                self._refuse(f"no service [{header.service}] on node [{self.node.name}]")
+            else:
+                service.accept(self, header)
+        elif header.topic is not None:
+            pub = self.node.publishers.get(header.topic)
+            if pub is None:
+                self._refuse(f"no topic with name [{header.topic}] on node [{self.node.name}]")
+            else:
+                pub.accept(self, header)
+        else:
+            self._refuse("connection header has neither 'topic' nor 'service'")
+
+    def connection_closed(self, exc: BaseException | None) -> None:
+        ServiceProtocol.connection_closed(self, exc)
+        PublisherProtocol.connection_closed(self, exc)
+
+
+class Node:
+    """A ROS node: ``async with Node("talker") as node: pub = await node.advertise(...)``.
+
+    Args:
+        name: base node name; ``__name:=`` in ``argv`` overrides it, ``__ns:=``/ROS_NAMESPACE place it.
+        master_uri: the master; default ``__master:=``, then ROS_MASTER_URI, then http://localhost:11311/.
+        argv: command-line arguments with remappings (``from:=to``); default ``sys.argv[1:]``.
+        host: the address advertised to peers; default ``__hostname:=``/``__ip:=``, ROS_HOSTNAME, ROS_IP,
+            then this machine's hostname. It is advertised exactly as given (IPv6 literals too).
+        environ: the environment to read instead of ``os.environ``.
+        watchdog_interval: seconds between the checks that the master still knows this node (0 disables).
+    """
+
+    def __init__(
+        self,
+        name: str,
+        master_uri: str | None = None,
+        argv: Sequence[str] | None = None,
+        *,
+        host: str | None = None,
+        environ: Mapping[str, str] | None = None,
+        watchdog_interval: float = WATCHDOG_INTERVAL,
+    ) -> None:
+        env = os.environ if environ is None else environ
+        args = list(sys.argv[1:] if argv is None else argv)
+        special, _, _ = parse_argv(args)
+        self.names = NodeNames.from_argv(name, args, env)
+        self.name = self.names.name
+        self.master_uri = master_uri or special.get("__master") or env.get("ROS_MASTER_URI") or DEFAULT_MASTER_URI
+        self.host = (
+            host
+            or special.get("__hostname")
+            or special.get("__ip")
+            or env.get("ROS_HOSTNAME")
+            or env.get("ROS_IP")
+            or _default_host()
+        ).strip("[]")
+        self.watchdog_interval = watchdog_interval
+        self.publishers: dict[str, Publisher] = {}
+        self.subscribers: dict[str, Subscriber] = {}
+        self.services: dict[str, Service] = {}
+        self.param_callbacks: list[Callable[[str, Any], None]] = []
+        self.shutdown_event = asyncio.Event()
+        self.xmlrpc = XmlRpcClient(timeout=MASTER_TIMEOUT)
+        self.uri = ""
+        self.tcpros_port = 0
+        self._server: asyncio.Server | None = None
+        self._slave: XmlRpcServer | None = None
+        self._watchdog: asyncio.Task[None] | None = None
+        self._started = False
+
+    # --- lifecycle -------------------------------------------------------------------------------
+
+    @property
+    def _bind_host(self) -> str:
+        return "::" if _is_ipv6(self.host) else "0.0.0.0"
+
+    def _format_host(self) -> str:
+        return f"[{self.host}]" if _is_ipv6(self.host) else self.host
+
+    async def start(self) -> None:
+        """Open the TCPROS listener and the slave API, and check that the master answers.
+
+        Raises:
+            MasterUnreachableError: no master answers at ``master_uri``.
+        """
+        loop = asyncio.get_running_loop()
+        try:
+            self._server = await loop.create_server(lambda: InboundProtocol(self), self._bind_host, 0, backlog=1024)
+            self.tcpros_port = int(self._server.sockets[0].getsockname()[1])
+            self._slave = XmlRpcServer(
+                SlaveApi(self).methods(), host=self._bind_host, port=0, name=f"slave {self.name}"
+            )
+            await self._slave.start()
+            self.uri = f"http://{self._format_host()}:{self._slave.port}/"
+            await self.master_call("getUri")
+        except BaseException:
+            await self._close_servers()
+            raise
+        self._started = True
+        if self.watchdog_interval > 0:
+            self._watchdog = loop.create_task(self._watch(), name=f"watchdog {self.name}")
+        log.debug("node %s up: %s (TCPROS port %d)", self.name, self.uri, self.tcpros_port)
+
+    async def aclose(self) -> None:
+        """Unregister every topic and service (best effort, bounded) and close every connection."""
+        if self._watchdog is not None:
+            self._watchdog.cancel()
+            self._watchdog = None
+        parts: list[Any] = [*self.subscribers.values(), *self.publishers.values(), *self.services.values()]
+        await asyncio.gather(*(p.aclose() for p in parts), return_exceptions=True)
+        await self._close_servers()
+
+    async def _close_servers(self) -> None:
+        if self._server is not None:
+            self._server.close()
+            self._server = None
+        if self._slave is not None:
+            await self._slave.aclose()
+            self._slave = None
+        await self.xmlrpc.aclose()
+
+    async def __aenter__(self) -> Node:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.aclose()
+
+    # --- master ----------------------------------------------------------------------------------
+
+    async def master_call(self, method: str, *args: Any, timeout: float = MASTER_TIMEOUT) -> Any:
+        """Call a Master/Parameter Server API method with our caller id; return its value.
+
+        Raises:
+            MasterError: the master answered with a failure code.
+            MasterUnreachableError: the master could not be reached.
+        """
+        try:
+            reply = await self.xmlrpc.call(self.master_uri, method, self.name, *args, timeout=timeout)
+        except Fault as exc:
+            raise MasterError(method, exc.code, exc.message) from exc
+        except XmlRpcError as exc:
+            raise MasterUnreachableError(self.master_uri, str(exc)) from exc
+        if not isinstance(reply, list) or len(reply) != 3:
+            raise MasterError(method, -1, f"malformed reply {reply!r}")
+        code, status, value = reply
+        if code != 1:
+            raise MasterError(method, code, str(status))
+        return value
+
+    async def get_param(self, key: str) -> Any:
+        """A parameter's value (name resolved for this node).
+
+        Raises:
+            MasterError: the parameter is not set.
+        """
+        return await self.master_call("getParam", self.resolve_name(key))
+
+    async def set_param(self, key: str, value: Any) -> None:
+        """Set a parameter (name resolved for this node)."""
+        await self.master_call("setParam", self.resolve_name(key), value)
+
+    def resolve_name(self, name: str) -> str:
+        """Resolve a graph name for this node, remappings applied.
+
+        Raises:
+            InvalidNameError: the name is not legal.
+        """
+        return self.names.resolve(name)
+
+    async def _unregister(self, method: str, *args: Any) -> None:
+        if not self._started:
+            return
+        try:
+            await self.master_call(method, *args, timeout=UNREGISTER_TIMEOUT)
+        except MrosError as exc:
+            log.info("%s: %s%r failed: %s", self.name, method, args, exc)
+
+    async def _watch(self) -> None:
+        delay = self.watchdog_interval
+        down = False
+        while True:
+            await asyncio.sleep(delay)
+            if not (self.publishers or self.subscribers or self.services):
+                continue
+            try:
+                uri = await self.master_call("lookupNode", self.name, timeout=max(1.0, delay * 2))
+                if down:
+                    log.warning("%s: the master at %s is back", self.name, self.master_uri)
+                    down = False
+                    await self._reregister()
+                elif uri != self.uri:
+                    log.warning("%s: the master maps our name to %s, not %s", self.name, uri, self.uri)
+                delay = self.watchdog_interval
+            except MasterUnreachableError as exc:
+                if not down:
+                    log.warning("%s: master unreachable, will re-register when it returns: %s", self.name, exc)
+                down = True
+                delay = min(delay * 2, WATCHDOG_MAX_INTERVAL)
+            except MasterError:
+                log.warning("%s: the master does not know this node (restarted?); registering again", self.name)
+                down = False
+                await self._reregister()
+            except Exception:
+                log.exception("%s: watchdog check failed", self.name)
+
+    async def _reregister(self) -> None:
+        for pub in list(self.publishers.values()):
+            try:
+                await self.master_call("registerPublisher", pub.topic, pub.type, self.uri)
+            except MrosError as exc:
+                log.warning("%s: re-registering publisher %s failed: %s", self.name, pub.topic, exc)
+        for sub in list(self.subscribers.values()):
+            try:
+                uris = await self.master_call("registerSubscriber", sub.topic, sub.type, self.uri)
+                sub.update_publishers(list(uris))
+            except MrosError as exc:
+                log.warning("%s: re-registering subscriber %s failed: %s", self.name, sub.topic, exc)
+        for srv in list(self.services.values()):
+            try:
+                await self.master_call("registerService", srv.name, self.service_uri, self.uri)
+            except MrosError as exc:
+                log.warning("%s: re-registering service %s failed: %s", self.name, srv.name, exc)
+
+    def _shutdown_requested(self, reason: str) -> None:
+        # The master gave our name to another node: stop the watchdog so we never fight over it.
+        if self._watchdog is not None:
+            self._watchdog.cancel()
+            self._watchdog = None
+        self.shutdown_reason = reason
+        self.shutdown_event.set()
+
+    def _param_update(self, key: str, value: Any) -> None:
+        for cb in list(self.param_callbacks):
+            try:
+                cb(key, value)
+            except Exception:
+                log.exception("%s: paramUpdate callback failed", self.name)
+
+    @property
+    def service_uri(self) -> str:
+        return f"rosrpc://{self._format_host()}:{self.tcpros_port}"
+
+    # --- topics and services ---------------------------------------------------------------------
+
+    def _check_started(self) -> None:
+        if not self._started:
+            raise LocalProtocolError(f"node {self.name} is not started: use 'async with Node(...)' or await start()")
+
+    async def advertise(
+        self, topic: str, msg_class: Any, *, latch: bool = False, queue_size: int = DEFAULT_QUEUE_SIZE
+    ) -> Publisher:
+        """Publish ``topic`` with type ``msg_class``; registers with the master.
+
+        Raises:
+            LocalProtocolError: the topic is already advertised by this node with another type.
+            MasterError: the master refused the registration.
+        """
+        self._check_started()
+        name = self.resolve_name(topic)
+        existing = self.publishers.get(name)
+        if existing is not None:
+            if existing.md5sum != getattr(msg_class, "_md5sum", None):
+                raise LocalProtocolError(f"{name} is already advertised by {self.name} as {existing.type}")
+            return existing
+        pub = Publisher(self, name, msg_class, latch=latch, queue_size=queue_size)
+        self.publishers[name] = pub
+        try:
+            await self.master_call("registerPublisher", name, pub.type, self.uri)
+        except BaseException:
+            self.publishers.pop(name, None)
+            raise
+        return pub
+
+    async def subscribe(
+        self,
+        topic: str,
+        msg_class: Any,
+        callback: Callable[[Any], Any] | None = None,
+        *,
+        queue_size: int = DEFAULT_QUEUE_SIZE,
+        tcp_nodelay: bool = True,
+    ) -> Subscriber:
+        """Subscribe to ``topic``: iterate the result, or pass ``callback`` (sync or async).
+
+        Raises:
+            LocalProtocolError: this node already subscribes to the topic.
+            MasterError: the master refused the registration.
+        """
+        self._check_started()
+        name = self.resolve_name(topic)
+        if name in self.subscribers:
+            raise LocalProtocolError(f"{self.name} already subscribes to {name}; share that Subscriber")
+        sub = Subscriber(self, name, msg_class, callback=callback, queue_size=queue_size, tcp_nodelay=tcp_nodelay)
+        self.subscribers[name] = sub
+        try:
+            uris = await self.master_call("registerSubscriber", name, sub.type, self.uri)
+        except BaseException:
+            self.subscribers.pop(name, None)
+            sub.closed = True
+            raise
+        sub.update_publishers(list(uris) if isinstance(uris, list) else [])
+        return sub
+
+    async def advertise_service(self, service: str, srv_class: Any, handler: Callable[[Any], Any]) -> Service:
+        """Provide ``service``; ``handler(request)`` returns the response (sync or async) or raises.
+
+        Raises:
+            LocalProtocolError: this node already provides the service.
+            MasterError: the master refused the registration.
+        """
+        self._check_started()
+        name = self.resolve_name(service)
+        if name in self.services:
+            raise LocalProtocolError(f"{self.name} already provides {name}")
+        srv = Service(self, name, srv_class, handler)
+        self.services[name] = srv
+        try:
+            await self.master_call("registerService", name, self.service_uri, self.uri)
+        except BaseException:
+            self.services.pop(name, None)
+            raise
+        return srv
+
+    def service_proxy(self, service: str, srv_class: Any, *, persistent: bool = False) -> ServiceProxy:
+        """A client for ``service``; close it with ``aclose()`` when persistent."""
+        return ServiceProxy(self, self.resolve_name(service), srv_class, persistent=persistent)
+
+    async def _remove_publisher(self, pub: Publisher) -> None:
+        if self.publishers.get(pub.topic) is pub:
+            del self.publishers[pub.topic]
+            await self._unregister("unregisterPublisher", pub.topic, self.uri)
+
+    async def _remove_subscriber(self, sub: Subscriber) -> None:
+        if self.subscribers.get(sub.topic) is sub:
+            del self.subscribers[sub.topic]
+            await self._unregister("unregisterSubscriber", sub.topic, self.uri)
+
+    async def _remove_service(self, srv: Service) -> None:
+        if self.services.get(srv.name) is srv:
+            del self.services[srv.name]
+            await self._unregister("unregisterService", srv.name, self.service_uri)

@@ -1,0 +1,147 @@
+"""The thin asyncio layer over the sans-IO cores: one ``asyncio.Protocol`` per TCPROS connection.
+
+``TcprosProtocol`` feeds received bytes to a ``FrameDecoder``; the first frame is the peer's connection
+header, every later one goes to ``frame_received``. Malformed or oversized input closes this connection
+with a logged reason and touches nothing else. Writes are plain ``transport.write`` calls; flow control
+(pause/resume_writing) is exposed as ``paused`` and ``drain()`` so the publisher can queue and coalesce.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import socket
+from typing import Any
+
+from mrosd.errors import RemoteProtocolError
+from mrosd.tcpros.framing import MAX_FRAME_SIZE, FrameDecoder
+from mrosd.tcpros.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header
+
+log = logging.getLogger(__name__)
+
+#: Transport write buffer above which a connection counts as slow and the publisher queues instead of
+#: writing (asyncio's pause_writing). 1 MiB keeps a burst of small messages in the kernel's hands while
+#: a stalled peer costs at most this plus its bounded message queue.
+WRITE_HIGH_WATER = 1024 * 1024
+
+
+class TcprosProtocol(asyncio.Protocol):
+    """A TCPROS connection: header first, then length-prefixed frames."""
+
+    def __init__(self) -> None:
+        self.transport: asyncio.Transport | None = None
+        self.decoder = FrameDecoder(MAX_HEADER_SIZE)
+        self.header: ConnectionHeader | None = None
+        self.peer = "?"
+        self.paused = False
+        self._drain: asyncio.Future[None] | None = None
+        self.closed: asyncio.Future[BaseException | None] = asyncio.get_running_loop().create_future()
+
+    # --- hooks for subclasses ---------------------------------------------------------------
+
+    def header_received(self, header: ConnectionHeader) -> None:
+        """Called once with the peer's connection header."""
+
+    def frame_received(self, body: bytes) -> None:
+        """Called for every complete frame after the header."""
+
+    def raw_received(self) -> bool:
+        """Called before frame decoding after the header; return False to stop for now (service replies)."""
+        return True
+
+    def connection_closed(self, exc: BaseException | None) -> None:
+        """Called once when the connection is gone."""
+
+    # --- asyncio.Protocol ------------------------------------------------------------------------
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+        transport.set_write_buffer_limits(high=WRITE_HIGH_WATER)
+        peer = transport.get_extra_info("peername")
+        if peer:
+            self.peer = f"{peer[0]}:{peer[1]}"
+
+    def data_received(self, data: bytes) -> None:
+        decoder = self.decoder
+        decoder.feed(data)
+        try:
+            if self.header is None:
+                body = decoder.maybe_next_frame()
+                if body is None:
+                    return
+                self.header = decode_connection_header(body)
+                decoder.max_size = MAX_FRAME_SIZE
+                self.header_received(self.header)
+            while self.transport is not None and not self.transport.is_closing():
+                if not self.raw_received():
+                    return
+                body = decoder.maybe_next_frame()
+                if body is None:
+                    return
+                self.frame_received(body)
+        except RemoteProtocolError as exc:
+            self.abort(f"protocol error from {self.peer}: {exc}")
+
+    def eof_received(self) -> bool | None:
+        return None
+
+    def pause_writing(self) -> None:
+        self.paused = True
+
+    def resume_writing(self) -> None:
+        self.paused = False
+        if self._drain is not None and not self._drain.done():
+            self._drain.set_result(None)
+        self._drain = None
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.transport = None
+        if self._drain is not None and not self._drain.done():
+            self._drain.set_exception(ConnectionResetError("connection lost"))
+            self._drain.exception()  # mark retrieved
+        if not self.closed.done():
+            self.closed.set_result(exc)
+        self.connection_closed(exc)
+
+    # --- helpers ----------------------------------------------------------------------------------
+
+    async def drain(self) -> None:
+        """Wait until the transport accepts writes again.
+
+        Raises:
+            ConnectionResetError: the connection closed while waiting.
+        """
+        if self.transport is None:
+            raise ConnectionResetError("connection closed")
+        if not self.paused:
+            return
+        if self._drain is None:
+            self._drain = asyncio.get_running_loop().create_future()
+        await asyncio.shield(self._drain)
+
+    def write(self, data: bytes) -> None:
+        if self.transport is not None:
+            self.transport.write(data)
+
+    def set_nodelay(self, enabled: bool) -> None:
+        """Set TCP_NODELAY on the socket as the peer asked (tcp_nodelay header)."""
+        if self.transport is None:
+            return
+        sock: Any = self.transport.get_extra_info("socket")
+        if sock is None:
+            return
+        try:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1 if enabled else 0)
+        except OSError:
+            pass
+
+    def abort(self, reason: str) -> None:
+        """Close this connection at once, logging why."""
+        log.warning("closing TCPROS connection: %s", reason)
+        if self.transport is not None:
+            self.transport.abort()
+
+    def close(self) -> None:
+        if self.transport is not None:
+            self.transport.close()

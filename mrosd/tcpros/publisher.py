@@ -1,0 +1,250 @@
+"""Publisher: one serialization per message, fanned out to per-subscriber bounded queues.
+
+Each subscriber connection is a ``SubscriberLink``. While its socket keeps up, a frame is written at once
+(one ``transport.write``). When the transport pushes back (pause_writing), frames wait in that link's
+queue of at most ``queue_size`` frames, dropping the OLDEST when full and counting the drop (reported in
+getBusStats); once the socket drains, everything waiting goes out as ONE coalesced write. A slow
+subscriber therefore never delays the others and costs at most WRITE_HIGH_WATER plus its queue.
+Latching keeps the serialized bytes, never the live message object.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import itertools
+import logging
+import struct
+from typing import TYPE_CHECKING, Any
+
+from mrosd.errors import HandshakeError, LocalProtocolError
+from mrosd.tcpros.handshake import error_header, publisher_reply
+from mrosd.tcpros.header import ConnectionHeader, encode_header
+from mrosd.tcpros.protocol import TcprosProtocol
+
+if TYPE_CHECKING:
+    from mrosd.tcpros.node import Node
+
+log = logging.getLogger(__name__)
+
+_U32 = struct.Struct("<I")
+_connection_ids = itertools.count(1)
+
+#: Default per-subscriber queue length (frames), as rospy's and roscpp's usual queue_size choices.
+DEFAULT_QUEUE_SIZE = 100
+
+
+class SubscriberLink:
+    """One subscriber's connection to a publisher: bounded drop-oldest queue, coalesced writes."""
+
+    def __init__(self, publisher: Publisher, proto: TcprosProtocol, callerid: str, queue_size: int) -> None:
+        self.publisher = publisher
+        self.proto = proto
+        self.callerid = callerid
+        self.queue_size = max(1, queue_size)
+        self.queue: collections.deque[bytes] = collections.deque()
+        self.id = next(_connection_ids)
+        self.bytes_sent = 0
+        self.messages_sent = 0
+        self.dropped = 0
+        self._flusher: asyncio.Task[None] | None = None
+
+    @property
+    def connected(self) -> bool:
+        return self.proto.transport is not None
+
+    def send(self, frame: bytes) -> None:
+        """Write ``frame`` now, or queue it (drop-oldest) while the socket is backed up."""
+        proto = self.proto
+        if proto.transport is None:
+            return
+        if not self.queue and not proto.paused:
+            proto.transport.write(frame)
+            self.bytes_sent += len(frame)
+            self.messages_sent += 1
+            return
+        if len(self.queue) >= self.queue_size:
+            self.queue.popleft()
+            self.dropped += 1
+            if self.dropped == 1 or self.dropped % 1000 == 0:
+                log.warning(
+                    "%s: subscriber %s is slow; dropped %d oldest message(s) so far (queue_size=%d)",
+                    self.publisher.topic,
+                    self.callerid,
+                    self.dropped,
+                    self.queue_size,
+                )
+        self.queue.append(frame)
+        if self._flusher is None:
+            self._flusher = asyncio.get_running_loop().create_task(self._flush())
+
+    async def _flush(self) -> None:
+        try:
+            while self.queue:
+                await self.proto.drain()
+                if self.proto.transport is None:
+                    break
+                batch = list(self.queue)
+                self.queue.clear()
+                data = batch[0] if len(batch) == 1 else b"".join(batch)
+                self.proto.transport.write(data)
+                self.bytes_sent += len(data)
+                self.messages_sent += len(batch)
+        except ConnectionResetError:
+            self.queue.clear()
+        finally:
+            self._flusher = None
+
+    def close(self) -> None:
+        """Close now; bytes a stalled subscriber never read are discarded, not waited for."""
+        self.queue.clear()
+        if self._flusher is not None:
+            self._flusher.cancel()
+        transport = self.proto.transport
+        if transport is not None:
+            if transport.get_write_buffer_size():
+                transport.abort()
+            else:
+                transport.close()
+
+
+class PublisherProtocol(TcprosProtocol):
+    """Inbound connection after its header said it subscribes to one of our topics."""
+
+    link: SubscriberLink | None = None
+
+    def connection_closed(self, exc: BaseException | None) -> None:
+        if self.link is not None:
+            self.link.publisher._drop(self.link)
+
+    def frame_received(self, body: bytes) -> None:
+        """Subscribers send nothing after their header; ignore stray bytes."""
+
+
+class Publisher:
+    """A topic we publish. Create it with ``await node.advertise(topic, Type)``."""
+
+    def __init__(
+        self, node: Node, topic: str, msg_class: Any, *, latch: bool = False, queue_size: int = DEFAULT_QUEUE_SIZE
+    ) -> None:
+        for attr in ("_type", "_md5sum", "_full_text"):
+            if not hasattr(msg_class, attr):
+                raise LocalProtocolError(f"{msg_class!r} is not a message class (no {attr}); use mrosd.msg")
+        self.node = node
+        self.topic = topic
+        self.msg_class = msg_class
+        self.type: str = msg_class._type
+        self.md5sum: str = msg_class._md5sum
+        self.message_definition: str = msg_class._full_text
+        self.latch = latch
+        self.queue_size = queue_size
+        self.links: list[SubscriberLink] = []
+        self.latched: bytes | None = None
+        self.messages_published = 0
+        self.closed = False
+        self._subscriber_change = asyncio.Event()
+
+    # --- publishing ------------------------------------------------------------------------------
+
+    async def publish(self, msg: Any) -> None:
+        """Serialize once and send to every subscriber; never waits for a slow one.
+
+        Raises:
+            LocalProtocolError: the publisher was closed, or ``msg`` is not of the advertised type.
+            SerializationError: a field value cannot be serialized.
+        """
+        if type(msg) is not self.msg_class and getattr(msg, "_md5sum", None) != self.md5sum:
+            raise LocalProtocolError(f"{self.topic} publishes {self.type}, got {type(msg).__name__}")
+        self.publish_serialized(msg.serialize())
+
+    def publish_serialized(self, body: bytes | bytearray | memoryview) -> None:
+        """Send an already serialized message body (no length prefix), e.g. from a bridge.
+
+        Raises:
+            LocalProtocolError: the publisher was closed.
+        """
+        if self.closed:
+            raise LocalProtocolError(f"publisher of {self.topic} is closed")
+        frame = _U32.pack(len(body)) + body
+        if self.latch:
+            self.latched = frame
+        self.messages_published += 1
+        for link in self.links:
+            link.send(frame)
+
+    # --- connections -----------------------------------------------------------------------------
+
+    def accept(self, proto: PublisherProtocol, header: ConnectionHeader) -> None:
+        """Handshake with a new subscriber connection (called by the node's TCPROS server)."""
+        try:
+            reply = publisher_reply(
+                header,
+                topic=self.topic,
+                msg_type=self.type,
+                md5sum=self.md5sum,
+                message_definition=self.message_definition,
+                callerid=self.node.name,
+                latching=self.latch,
+            )
+        except HandshakeError as exc:
+            log.warning("%s: refusing subscriber %s: %s", self.topic, header.callerid, exc)
+            proto.write(encode_header(error_header(str(exc))))
+            proto.close()
+            return
+        proto.set_nodelay(header.flag("tcp_nodelay"))
+        link = SubscriberLink(self, proto, header.callerid or "?", self.queue_size)
+        proto.link = link
+        data = encode_header(reply)
+        if self.latched is not None:
+            data += self.latched
+            link.messages_sent += 1
+        proto.write(data)
+        link.bytes_sent += len(data)
+        self.links.append(link)
+        self._subscriber_change.set()
+
+    def _drop(self, link: SubscriberLink) -> None:
+        if link in self.links:
+            self.links.remove(link)
+            self._subscriber_change.set()
+
+    def get_num_connections(self) -> int:
+        """How many subscribers are connected now."""
+        return len(self.links)
+
+    async def wait_for_subscribers(self, count: int = 1, timeout: float = 10.0) -> None:
+        """Wait until at least ``count`` subscribers are connected.
+
+        Raises:
+            TimeoutError: they did not connect within ``timeout`` seconds.
+        """
+        async with asyncio.timeout(timeout):
+            while len(self.links) < count:
+                self._subscriber_change.clear()
+                await self._subscriber_change.wait()
+
+    def stats(self) -> list[Any]:
+        """getBusStats publishStats entry: [topic, bytes, [[id, bytes, msgs, connected, dropped], ...]]."""
+        conns = [[lk.id, lk.bytes_sent, lk.messages_sent, lk.connected, lk.dropped] for lk in self.links]
+        return [self.topic, sum(lk.bytes_sent for lk in self.links), conns]
+
+    def bus_info(self) -> list[list[Any]]:
+        return [[lk.id, lk.callerid, "o", "TCPROS", self.topic, lk.connected, lk.proto.peer] for lk in self.links]
+
+    # --- lifecycle -------------------------------------------------------------------------------
+
+    async def aclose(self) -> None:
+        """Unregister from the master and close every subscriber connection."""
+        if self.closed:
+            return
+        self.closed = True
+        for link in list(self.links):
+            link.close()
+        self.links.clear()
+        await self.node._remove_publisher(self)
+
+    async def __aenter__(self) -> Publisher:
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.aclose()

@@ -1,0 +1,360 @@
+"""Subscriber: follows the master's publisher list, one connection task per publisher, typed or raw.
+
+Each publisher URI gets one ``PublisherLink`` task that asks the publisher's slave API for a TCPROS
+endpoint (requestTopic), connects, handshakes and then receives frames through ``SubscriberProtocol``.
+A lost connection is retried with capped exponential backoff (0.1 s doubling to 10 s); each distinct
+failure is logged once. A publisher that refuses us (md5/type mismatch) is reported with its own error
+text in the log and in ``Subscriber.errors``. Messages go to a callback, or into a bounded drop-oldest
+queue read with ``async for``. With ``AnyMsg`` the subscriber yields ``RawMessage(data, header)``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import inspect
+import itertools
+import logging
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import msgspec
+
+from mrosd.errors import HandshakeError, LocalProtocolError, MrosError, XmlRpcError
+from mrosd.tcpros.handshake import check_publisher_reply
+from mrosd.tcpros.header import ConnectionHeader, encode_header
+from mrosd.tcpros.protocol import TcprosProtocol
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from mrosd.tcpros.node import Node
+
+log = logging.getLogger(__name__)
+_connection_ids = itertools.count(1)
+
+#: Reconnection backoff bounds (seconds), as DESIGN.md fixes them.
+BACKOFF_MIN = 0.1
+BACKOFF_MAX = 10.0
+#: Time allowed for requestTopic, TCP connect and the publisher's header.
+CONNECT_TIMEOUT = 10.0
+DEFAULT_QUEUE_SIZE = 100
+
+
+class AnyMsg:
+    """Subscribe with this type to receive every message as ``RawMessage`` (md5/type wildcard ``*``)."""
+
+    _type: ClassVar[str] = "*"
+    _md5sum: ClassVar[str] = "*"
+    _full_text: ClassVar[str] = ""
+
+
+class RawMessage(msgspec.Struct, gc=False):
+    """A message body as received (no length prefix) and the publisher's connection header.
+
+    Decode it with ``mrosd.msg.load_type(header.type, header.message_definition).deserialize(data)``.
+    """
+
+    data: bytes
+    header: ConnectionHeader
+
+
+class SubscriberProtocol(TcprosProtocol):
+    """Our end of one publisher connection."""
+
+    def __init__(self, link: PublisherLink) -> None:
+        super().__init__()
+        self.link = link
+        self.handshake: asyncio.Future[ConnectionHeader] = asyncio.get_running_loop().create_future()
+
+    def header_received(self, header: ConnectionHeader) -> None:
+        # Checked here, synchronously: a latched frame may follow in the same read.
+        sub = self.link.subscriber
+        try:
+            self.link.header = check_publisher_reply(header, topic=sub.topic, msg_type=sub.type, md5sum=sub.md5sum)
+        except HandshakeError as exc:
+            if not self.handshake.done():
+                self.handshake.set_exception(exc)
+            self.close()
+            return
+        if not self.handshake.done():
+            self.handshake.set_result(header)
+
+    def frame_received(self, body: bytes) -> None:
+        self.link.bytes_received += len(body) + 4
+        self.link.messages_received += 1
+        self.link.subscriber._deliver(body, self.link)
+
+    def connection_closed(self, exc: BaseException | None) -> None:
+        if not self.handshake.done():
+            self.handshake.set_exception(ConnectionResetError("publisher closed the connection during the handshake"))
+
+
+class PublisherLink:
+    """Our connection to one publisher (by slave URI), kept up by one task."""
+
+    def __init__(self, subscriber: Subscriber, uri: str) -> None:
+        self.subscriber = subscriber
+        self.uri = uri
+        self.id = next(_connection_ids)
+        self.header: ConnectionHeader | None = None
+        self.proto: SubscriberProtocol | None = None
+        self.bytes_received = 0
+        self.messages_received = 0
+        self.task = asyncio.get_running_loop().create_task(self._run(), name=f"sub {subscriber.topic} <- {uri}")
+
+    @property
+    def connected(self) -> bool:
+        return self.proto is not None and self.proto.transport is not None and self.header is not None
+
+    async def _run(self) -> None:
+        sub = self.subscriber
+        delay = BACKOFF_MIN
+        last_reason = ""
+        while not sub.closed:
+            try:
+                await self._connect_once()
+                delay = BACKOFF_MIN
+                last_reason = ""
+                assert self.proto is not None
+                await self.proto.closed
+                log.info("%s: publisher %s closed the connection", sub.topic, self.uri)
+            except HandshakeError as exc:
+                sub.errors.append(str(exc))
+                if str(exc) != last_reason:
+                    log.error("%s: %s", sub.topic, exc)
+                last_reason = str(exc)
+                delay = BACKOFF_MAX
+            except (OSError, TimeoutError, XmlRpcError, MrosError) as exc:
+                reason = f"{type(exc).__name__}: {exc}"
+                if reason != last_reason:
+                    log.warning(
+                        "%s: cannot connect to publisher %s (%s); retrying with backoff", sub.topic, self.uri, reason
+                    )
+                else:
+                    log.debug("%s: retry to %s failed again: %s", sub.topic, self.uri, reason)
+                last_reason = reason
+            finally:
+                if self.proto is not None:
+                    self.proto.close()
+                self.proto = None
+                self.header = None
+                sub._changed.set()
+            if sub.closed:
+                return
+            await asyncio.sleep(delay)
+            delay = min(delay * 2, BACKOFF_MAX)
+
+    async def _connect_once(self) -> None:
+        sub = self.subscriber
+        node = sub.node
+        async with asyncio.timeout(CONNECT_TIMEOUT):
+            reply = await node.xmlrpc.call(self.uri, "requestTopic", node.name, sub.topic, [["TCPROS"]])
+            if not isinstance(reply, list) or len(reply) != 3 or reply[0] != 1:
+                raise MrosError(f"requestTopic refused by {self.uri}: {reply!r}")
+            params = reply[2]
+            if not isinstance(params, list) or len(params) < 3 or params[0] != "TCPROS":
+                raise MrosError(f"{self.uri} offers no TCPROS endpoint: {params!r}")
+            host, port = str(params[1]), int(params[2])
+            loop = asyncio.get_running_loop()
+            _, proto = await loop.create_connection(lambda: SubscriberProtocol(self), host, port)
+            self.proto = proto
+            proto.set_nodelay(True)
+            proto.write(
+                encode_header(
+                    ConnectionHeader(
+                        callerid=node.name,
+                        topic=sub.topic,
+                        md5sum=sub.md5sum,
+                        type=sub.type,
+                        message_definition=sub.message_definition,
+                        tcp_nodelay="1" if sub.tcp_nodelay else "0",
+                    )
+                )
+            )
+            await proto.handshake
+        sub._changed.set()
+
+    async def aclose(self) -> None:
+        self.task.cancel()
+        if self.proto is not None:
+            self.proto.close()
+        try:
+            await self.task
+        except asyncio.CancelledError:
+            pass
+
+
+class Subscriber:
+    """A topic subscription. Create it with ``await node.subscribe(topic, Type)``; iterate it or give a callback."""
+
+    def __init__(
+        self,
+        node: Node,
+        topic: str,
+        msg_class: Any,
+        *,
+        callback: Callable[[Any], Any] | None = None,
+        queue_size: int = DEFAULT_QUEUE_SIZE,
+        tcp_nodelay: bool = True,
+    ) -> None:
+        for attr in ("_type", "_md5sum", "_full_text"):
+            if not hasattr(msg_class, attr):
+                raise LocalProtocolError(f"{msg_class!r} is not a message class (no {attr}); use mrosd.msg or AnyMsg")
+        self.node = node
+        self.topic = topic
+        self.msg_class = msg_class
+        self.raw = msg_class is AnyMsg
+        self.type: str = msg_class._type
+        self.md5sum: str = msg_class._md5sum
+        self.message_definition: str = msg_class._full_text
+        self.callback = callback
+        self.queue_size = max(1, queue_size)
+        self.tcp_nodelay = tcp_nodelay
+        self.links: dict[str, PublisherLink] = {}
+        self.errors: collections.deque[str] = collections.deque(maxlen=20)
+        self.dropped = 0
+        self.closed = False
+        self._queue: collections.deque[Any] = collections.deque()
+        self._waiter: asyncio.Future[None] | None = None
+        self._changed = asyncio.Event()
+        self._async_callback = callback is not None and inspect.iscoroutinefunction(callback)
+        self._consumer: asyncio.Task[None] | None = None
+        if self._async_callback:
+            self._consumer = asyncio.get_running_loop().create_task(self._consume())
+
+    # --- publishers ------------------------------------------------------------------------------
+
+    def update_publishers(self, uris: list[str]) -> None:
+        """Follow the master's current publisher list (registerSubscriber reply or publisherUpdate)."""
+        if self.closed:
+            return
+        wanted = {u for u in uris if isinstance(u, str) and u}
+        for uri in list(self.links):
+            if uri not in wanted:
+                link = self.links.pop(uri)
+                asyncio.get_running_loop().create_task(link.aclose())
+        for uri in wanted:
+            if uri not in self.links:
+                self.links[uri] = PublisherLink(self, uri)
+        self._changed.set()
+
+    def get_num_connections(self) -> int:
+        """Publishers we are connected to now."""
+        return sum(1 for lk in self.links.values() if lk.connected)
+
+    async def wait_for_publishers(self, count: int = 1, timeout: float = 10.0) -> None:
+        """Wait until connected to at least ``count`` publishers.
+
+        Raises:
+            TimeoutError: not connected within ``timeout`` seconds.
+        """
+        async with asyncio.timeout(timeout):
+            while self.get_num_connections() < count:
+                self._changed.clear()
+                await self._changed.wait()
+
+    # --- delivery --------------------------------------------------------------------------------
+
+    def _deliver(self, body: bytes, link: PublisherLink) -> None:
+        if self.raw:
+            assert link.header is not None
+            msg: Any = RawMessage(body, link.header)
+        else:
+            try:
+                msg = self.msg_class.deserialize(body)
+            except MrosError as exc:
+                log.warning("%s: dropping a message from %s that does not decode: %s", self.topic, link.uri, exc)
+                return
+        if self.callback is not None and not self._async_callback:
+            try:
+                self.callback(msg)
+            except Exception:
+                log.exception("%s: subscriber callback failed", self.topic)
+            return
+        if len(self._queue) >= self.queue_size:
+            self._queue.popleft()
+            self.dropped += 1
+        self._queue.append(msg)
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
+
+    async def _next(self) -> Any:
+        while not self._queue:
+            if self.closed:
+                raise StopAsyncIteration
+            self._waiter = asyncio.get_running_loop().create_future()
+            await self._waiter
+        return self._queue.popleft()
+
+    async def _consume(self) -> None:
+        assert self.callback is not None
+        while True:
+            try:
+                msg = await self._next()
+            except StopAsyncIteration:
+                return
+            try:
+                await self.callback(msg)
+            except Exception:
+                log.exception("%s: subscriber callback failed", self.topic)
+
+    def __aiter__(self) -> Subscriber:
+        return self
+
+    async def __anext__(self) -> Any:
+        """The next message (drop-oldest queue of ``queue_size``); stops when the subscriber closes."""
+        return await self._next()
+
+    async def next(self, timeout: float | None = None) -> Any:
+        """The next message, waiting at most ``timeout`` seconds.
+
+        Raises:
+            TimeoutError: nothing arrived in time.
+        """
+        async with asyncio.timeout(timeout):
+            return await self._next()
+
+    # --- introspection ---------------------------------------------------------------------------
+
+    def stats(self) -> list[Any]:
+        """getBusStats subscribeStats entry: [topic, [[id, bytes, msgs, drops, connected], ...]]."""
+        return [
+            self.topic,
+            [
+                [lk.id, lk.bytes_received, lk.messages_received, self.dropped, lk.connected]
+                for lk in self.links.values()
+            ],
+        ]
+
+    def bus_info(self) -> list[list[Any]]:
+        return [
+            [lk.id, lk.uri, "i", "TCPROS", self.topic, lk.connected, lk.proto.peer if lk.proto else ""]
+            for lk in self.links.values()
+        ]
+
+    # --- lifecycle -------------------------------------------------------------------------------
+
+    async def _close_links(self) -> None:
+        links = list(self.links.values())
+        self.links.clear()
+        await asyncio.gather(*(lk.aclose() for lk in links), return_exceptions=True)
+
+    async def aclose(self) -> None:
+        """Unregister from the master and close every publisher connection; iteration stops."""
+        if self.closed:
+            return
+        self.closed = True
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
+        await self._close_links()
+        if self._consumer is not None:
+            self._consumer.cancel()
+        await self.node._remove_subscriber(self)
+
+    async def __aenter__(self) -> Subscriber:
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.aclose()
