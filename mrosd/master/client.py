@@ -1,0 +1,174 @@
+"""Typed async client of the ROS 1 Master API and Parameter Server.
+
+``MasterClient`` owns nothing but a caller id and a reference to an ``XmlRpcClient``; every method
+is one XML-RPC call that unwraps rosmaster's ``[code, statusMessage, value]`` triple: the value on
+code 1, ``MasterError`` on code 0/-1 (or a fault), ``MasterUnreachableError`` when no answer came.
+Used by ``mrosd.tcpros`` nodes and by the CLI; it works against any ROS master, ours or rosmaster.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from mrosd.errors import MasterError, MasterUnreachableError, XmlRpcError
+from mrosd.xmlrpc import Fault, XmlRpcClient
+
+#: One topic as getPublishedTopics/getTopicTypes report it: ``[name, type]``.
+TopicType = tuple[str, str]
+#: ``[[name, [node, ...]], ...]`` for publishers, subscribers or services.
+GraphList = list[tuple[str, list[str]]]
+
+
+class MasterClient:
+    """One caller id talking to one master URI.
+
+    Args:
+        master_uri: ``http://host:port/`` of the master.
+        caller_id: the fully resolved name of the calling node (e.g. ``/talker``).
+        xmlrpc: a shared client; when omitted one is created and closed by ``aclose()``.
+        timeout: per-call timeout in seconds (``None`` uses the XML-RPC client's default).
+    """
+
+    def __init__(
+        self,
+        master_uri: str,
+        caller_id: str,
+        xmlrpc: XmlRpcClient | None = None,
+        *,
+        timeout: float | None = None,
+    ) -> None:
+        self.master_uri = master_uri
+        self.caller_id = caller_id
+        self._owns_xmlrpc = xmlrpc is None
+        self._xmlrpc = xmlrpc if xmlrpc is not None else XmlRpcClient()
+        self._timeout = timeout
+
+    async def aclose(self) -> None:
+        """Close the XML-RPC client if this instance created it."""
+        if self._owns_xmlrpc:
+            await self._xmlrpc.aclose()
+
+    async def __aenter__(self) -> MasterClient:
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.aclose()
+
+    async def call(self, method: str, *args: Any) -> Any:
+        """Call ``method(caller_id, *args)`` and return the value of a code-1 answer.
+
+        Raises:
+            MasterError: the master answered with code 0 or -1, a fault, or a malformed triple.
+            MasterUnreachableError: no answer (refused connection, timeout, HTTP error).
+        """
+        try:
+            reply = await self._xmlrpc.call(self.master_uri, method, self.caller_id, *args, timeout=self._timeout)
+        except Fault as exc:
+            raise MasterError(method, exc.code, exc.message) from exc
+        except XmlRpcError as exc:
+            raise MasterUnreachableError(self.master_uri, str(exc)) from exc
+        if not isinstance(reply, list | tuple) or len(reply) != 3 or not isinstance(reply[0], int):
+            raise MasterError(method, -1, f"malformed reply {reply!r:.200}")
+        code, status, value = reply
+        if code != 1:
+            raise MasterError(method, code, str(status))
+        return value
+
+    # --- Master API: registration ------------------------------------------------------------
+
+    async def register_service(self, service: str, service_api: str, caller_api: str) -> None:
+        """Register ``service`` (rosrpc URI ``service_api``) provided by the node at ``caller_api``."""
+        await self.call("registerService", service, service_api, caller_api)
+
+    async def unregister_service(self, service: str, service_api: str) -> int:
+        """Unregister a service; returns the number unregistered (0 if it was not ours)."""
+        return int(await self.call("unregisterService", service, service_api))
+
+    async def register_subscriber(self, topic: str, topic_type: str, caller_api: str) -> list[str]:
+        """Subscribe; returns the XML-RPC URIs of the current publishers."""
+        return [str(u) for u in await self.call("registerSubscriber", topic, topic_type, caller_api)]
+
+    async def unregister_subscriber(self, topic: str, caller_api: str) -> int:
+        """Unsubscribe; returns the number unregistered."""
+        return int(await self.call("unregisterSubscriber", topic, caller_api))
+
+    async def register_publisher(self, topic: str, topic_type: str, caller_api: str) -> list[str]:
+        """Advertise; returns the XML-RPC URIs of the current subscribers."""
+        return [str(u) for u in await self.call("registerPublisher", topic, topic_type, caller_api)]
+
+    async def unregister_publisher(self, topic: str, caller_api: str) -> int:
+        """Unadvertise; returns the number unregistered."""
+        return int(await self.call("unregisterPublisher", topic, caller_api))
+
+    # --- Master API: name service and state --------------------------------------------------
+
+    async def lookup_node(self, node_name: str) -> str:
+        """XML-RPC URI of the node called ``node_name``."""
+        return str(await self.call("lookupNode", node_name))
+
+    async def get_published_topics(self, subgraph: str = "") -> list[TopicType]:
+        """``[(topic, type), ...]`` of topics with publishers, restricted to namespace ``subgraph``."""
+        return [(str(t), str(ty)) for t, ty in await self.call("getPublishedTopics", subgraph)]
+
+    async def get_topic_types(self) -> list[TopicType]:
+        """``[(topic, type), ...]`` of every known topic (published or subscribed)."""
+        return [(str(t), str(ty)) for t, ty in await self.call("getTopicTypes")]
+
+    async def get_system_state(self) -> tuple[GraphList, GraphList, GraphList]:
+        """``(publishers, subscribers, services)``, each ``[(name, [node, ...]), ...]``."""
+        pubs, subs, srvs = await self.call("getSystemState")
+
+        def conv(entries: Any) -> GraphList:
+            return [(str(name), [str(n) for n in nodes]) for name, nodes in entries]
+
+        return conv(pubs), conv(subs), conv(srvs)
+
+    async def get_uri(self) -> str:
+        """The master's own URI."""
+        return str(await self.call("getUri"))
+
+    async def lookup_service(self, service: str) -> str:
+        """The ``rosrpc://`` URI of ``service``."""
+        return str(await self.call("lookupService", service))
+
+    # --- Parameter Server --------------------------------------------------------------------
+
+    async def delete_param(self, key: str) -> None:
+        """Delete ``key`` (and its subtree)."""
+        await self.call("deleteParam", key)
+
+    async def set_param(self, key: str, value: Any) -> None:
+        """Set ``key``; a dict value replaces the whole subtree."""
+        await self.call("setParam", key, value)
+
+    async def get_param(self, key: str) -> Any:
+        """Value of ``key`` (a dict for a namespace). Raises ``MasterError`` if unset."""
+        return await self.call("getParam", key)
+
+    async def search_param(self, key: str) -> str | None:
+        """Closest ``key`` up the caller's namespace, or ``None`` when not found."""
+        try:
+            found = await self.call("searchParam", key)
+        except MasterUnreachableError:
+            raise
+        except MasterError as exc:
+            if exc.code == -1 and "cannot find" in exc.status.lower():
+                return None
+            raise
+        return str(found) if found else None
+
+    async def subscribe_param(self, caller_api: str, key: str) -> Any:
+        """Subscribe the node at ``caller_api`` to ``key``; returns its current value (``{}`` if unset)."""
+        return await self.call("subscribeParam", caller_api, key)
+
+    async def unsubscribe_param(self, caller_api: str, key: str) -> int:
+        """Unsubscribe; returns the number unsubscribed."""
+        return int(await self.call("unsubscribeParam", caller_api, key))
+
+    async def has_param(self, key: str) -> bool:
+        """Whether ``key`` is set."""
+        return bool(await self.call("hasParam", key))
+
+    async def get_param_names(self) -> list[str]:
+        """Every parameter name (leaves only)."""
+        return [str(n) for n in await self.call("getParamNames")]
