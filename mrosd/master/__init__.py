@@ -1,6 +1,13 @@
 """The ROS 1 master: Master API and Parameter Server over XML-RPC, plus a typed client.
 
-``Master`` (server) lives in ``mrosd.master.server``; ``MasterClient`` in ``mrosd.master.client``.
+Layers, innermost first: ``registry`` and ``params`` (pure data, return the notifications to send),
+``notifier`` (per-node bounded delivery), ``api`` (thin rosmaster-compatible handlers), ``server``
+(``Master``: sockets and lifecycle), ``client`` (``MasterClient`` for nodes and tools).
 """
 
 from __future__ import annotations
+
+from mrosd.master.client import MasterClient
+from mrosd.master.server import DEFAULT_PORT, Master
+
+__all__ = ["DEFAULT_PORT", "Master", "MasterClient"]

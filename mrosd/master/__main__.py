@@ -1,0 +1,70 @@
+"""``python -m mrosd.master``: run the master alone (also used by ``mrosd --master-only``).
+
+The default port comes from ROS_MASTER_URI (11311 if unset); the advertised URI from
+ROS_HOSTNAME/ROS_IP. Stops cleanly on SIGINT/SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import os
+import signal
+import sys
+
+from mrosd.master.server import Master, port_from_master_uri
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m mrosd.master", description="Run the mrosd ROS 1 master.")
+    parser.add_argument("--host", default="0.0.0.0", help="address to bind (default 0.0.0.0)")
+    parser.add_argument(
+        "--port", "-p", type=int, default=None, help="TCP port (default: ROS_MASTER_URI's port, else 11311)"
+    )
+    parser.add_argument(
+        "--allow",
+        action="append",
+        default=None,
+        metavar="NET",
+        help="client network allowed to call, e.g. 127.0.0.0/8 (repeatable; default: everyone)",
+    )
+    parser.add_argument("--no-uvloop", action="store_true", help="use the stock asyncio event loop")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log every notification failure")
+    return parser.parse_args(argv)
+
+
+async def serve(args: argparse.Namespace) -> None:
+    """Run a master until SIGINT/SIGTERM."""
+    port = args.port if args.port is not None else port_from_master_uri(os.environ.get("ROS_MASTER_URI"))
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    async with Master(args.host, port, allow=args.allow) as master:
+        print(f"mrosd master ready at {master.uri}", flush=True)
+        await stop.wait()
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING, format="%(asctime)s %(name)s: %(message)s"
+    )
+    if not args.no_uvloop:
+        try:
+            import uvloop
+        except ImportError:  # pragma: no cover - uvloop is a project dependency
+            pass
+        else:
+            uvloop.install()
+    try:
+        asyncio.run(serve(args))
+    except OSError as exc:
+        print(f"mrosd master: cannot listen: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
