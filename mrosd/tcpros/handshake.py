@@ -64,18 +64,20 @@ def publisher_reply(
     )
 
 
-def check_publisher_reply(reply: ConnectionHeader, *, topic: str, msg_type: str, md5sum: str) -> ConnectionHeader:
+def check_publisher_reply(
+    reply: ConnectionHeader, *, topic: str, msg_type: str, md5sum: str, peer: str = "?"
+) -> ConnectionHeader:
     """Check a publisher's answer to our subscription.
 
     Raises:
         HandshakeError: the publisher sent an error header, or its type/md5 do not match ours.
     """
     if reply.error is not None:
-        raise HandshakeError(f"publisher [{reply.callerid or '?'}] refused [{topic}]: {reply.error}")
+        raise HandshakeError(f"publisher [{reply.callerid or peer}] refused [{topic}]: {reply.error}")
     _require(reply, "md5sum")
     reason = types_compatible(reply.type, reply.md5sum, msg_type, md5sum)
     if reason is not None:
-        raise HandshakeError(f"publisher [{reply.callerid or '?'}] on [{topic}]: {reason}")
+        raise HandshakeError(f"publisher [{reply.callerid or peer}] on [{topic}]: {reason}")
     return reply
 
 

@@ -70,7 +70,9 @@ class SubscriberProtocol(TcprosProtocol):
         # Checked here, synchronously: a latched frame may follow in the same read.
         sub = self.link.subscriber
         try:
-            self.link.header = check_publisher_reply(header, topic=sub.topic, msg_type=sub.type, md5sum=sub.md5sum)
+            self.link.header = check_publisher_reply(
+                header, topic=sub.topic, msg_type=sub.type, md5sum=sub.md5sum, peer=self.link.uri
+            )
         except HandshakeError as exc:
             if not self.handshake.done():
                 self.handshake.set_exception(exc)

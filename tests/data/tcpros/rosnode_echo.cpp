@@ -1,0 +1,120 @@
+// A tiny roscpp node for mrosd's interop tests and benchmark (compiled at test time, never shipped).
+//   echo <string|image>               republish every /ping message on /pong
+//   ping <string|image> <size> <n>    send n messages of size bytes on /ping, wait for each on /pong,
+//                                     print "RTT <size> <ns> <ns> ..." (one round trip per message)
+//   burst <string|image> <size> <n>   send n messages back to back, count replies on /pong,
+//                                     print "BURST <size> <received> <seconds>"
+#include <ros/callback_queue.h>
+#include <ros/ros.h>
+#include <sensor_msgs/Image.h>
+#include <std_msgs/String.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+
+static long long now_ns() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+static void fill(std_msgs::String& m, size_t size) { m.data.assign(size, 'x'); }
+static void fill(sensor_msgs::Image& m, size_t size) {
+  m.encoding = "mono8";
+  m.height = 1;
+  m.width = size;
+  m.step = size;
+  m.data.assign(size, 7);
+}
+
+template <class M>
+struct Node {
+  ros::NodeHandle nh;
+  ros::Publisher pub;
+  ros::Subscriber sub;
+  long long received = 0;
+  long long last_ns = 0;
+  bool echo = false;
+  void cb(const boost::shared_ptr<M const>& m) {
+    if (echo) {
+      pub.publish(*m);
+    } else {
+      ++received;
+      last_ns = now_ns();
+    }
+  }
+  Node(bool echo_, const char* in, const char* out) : echo(echo_) {
+    pub = nh.advertise<M>(out, 1000);
+    sub = nh.subscribe(in, 1000, &Node::cb, this, ros::TransportHints().tcpNoDelay());
+  }
+  void wait_connected() {
+    while (ros::ok() && (pub.getNumSubscribers() == 0 || sub.getNumPublishers() == 0)) {
+      ros::getGlobalCallbackQueue()->callAvailable(ros::WallDuration(0.01));
+    }
+  }
+  bool wait_for(long long count, double timeout_s) {
+    long long deadline = now_ns() + (long long)(timeout_s * 1e9);
+    while (ros::ok() && received < count && now_ns() < deadline) {
+      ros::getGlobalCallbackQueue()->callAvailable(ros::WallDuration(0.001));
+    }
+    return received >= count;
+  }
+};
+
+template <class M>
+static int run(const std::string& mode, size_t size, long long n) {
+  if (mode == "echo") {
+    Node<M> node(true, "/ping", "/pong");
+    ros::spin();
+    return 0;
+  }
+  Node<M> node(false, "/pong", "/ping");
+  node.wait_connected();
+  M msg;
+  fill(msg, size);
+  if (mode == "ping") {
+    for (int i = 0; i < 20; ++i) {  // warm-up
+      long long want = node.received + 1;
+      node.pub.publish(msg);
+      if (!node.wait_for(want, 5.0)) return 3;
+    }
+    std::printf("RTT %zu", size);
+    for (long long i = 0; i < n; ++i) {
+      long long want = node.received + 1;
+      long long t0 = now_ns();
+      node.pub.publish(msg);
+      if (!node.wait_for(want, 5.0)) return 3;
+      std::printf(" %lld", node.last_ns - t0);
+    }
+    std::printf("\n");
+  } else {
+    long long t0 = now_ns();
+    for (long long i = 0; i < n; ++i) {
+      node.pub.publish(msg);
+      ros::getGlobalCallbackQueue()->callAvailable(ros::WallDuration(0));
+    }
+    long long before = -1;
+    while (ros::ok() && node.received != before) {  // until one quiet second
+      before = node.received;
+      node.wait_for(n, 1.0);
+      if (node.received >= n) break;
+    }
+    std::printf("BURST %zu %lld %.6f\n", size, node.received, (node.last_ns - t0) / 1e9);
+  }
+  std::fflush(stdout);
+  return 0;
+}
+
+int main(int argc, char** argv) {
+  ros::init(argc, argv, "roscpp_echo", ros::init_options::AnonymousName);
+  if (argc < 3) {
+    std::fprintf(stderr, "usage: %s echo|ping|burst string|image [size n]\n", argv[0]);
+    return 2;
+  }
+  std::string mode = argv[1], type = argv[2];
+  size_t size = argc > 3 ? std::strtoull(argv[3], nullptr, 10) : 0;
+  long long n = argc > 4 ? std::strtoll(argv[4], nullptr, 10) : 0;
+  if (type == "image") return run<sensor_msgs::Image>(mode, size, n);
+  return run<std_msgs::String>(mode, size, n);
+}
