@@ -77,9 +77,7 @@ class NetnsLab:
             self.addrs.append(addr)
 
     def exec_ok(self, ns: str, argv: Sequence[str], timeout: float = 10) -> str:
-        done = subprocess.run(
-            ["ip", "netns", "exec", ns, *argv], capture_output=True, check=False, timeout=timeout
-        )
+        done = subprocess.run(["ip", "netns", "exec", ns, *argv], capture_output=True, check=False, timeout=timeout)
         if done.returncode != 0:
             raise RuntimeError(f"in {ns}: {' '.join(argv)} failed: {done.stderr.decode().strip()}")
         return done.stdout.decode()

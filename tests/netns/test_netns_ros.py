@@ -97,7 +97,7 @@ def test_real_rosmaster_rospy_talker_and_rostopic_echo_talk_across_three_namespa
     echo_env = host_env(lab, 2, tmp_path, use_ip=True)
     lines = echo_three(lab, procs, tmp_path, ["rostopic", "echo", "-n", "3", "/chatter"], echo_env)
 
-    assert len(lines) == 3 and all(line.startswith("data: \"hello ") for line in lines), lines
+    assert len(lines) == 3 and all(line.startswith('data: "hello ') for line in lines), lines
     # each node advertised the address of its own host, as set by ROS_HOSTNAME / ROS_IP
     assert lookup_node_from(lab, 2, "/talker").startswith(f"http://{lab.addrs[1]}:")
 
