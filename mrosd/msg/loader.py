@@ -49,7 +49,7 @@ def build_class(spec: MsgSpec, store: TypeStore, text: str | None = None) -> typ
         md5 = compute_md5(spec, store.msg_spec, store._md5)
         key = (spec.full_name, md5)
         cls = _CLASSES.get(key)
-        if cls is not None:
+        if cls is not None and (text is None or text == cls._full_text):
             return cls
         text = full_text(spec, store.msg_spec) if text is None else text
         generated = generate_class(spec, md5, text, store.msg_spec)
@@ -62,7 +62,7 @@ def build_class(spec: MsgSpec, store: TypeStore, text: str | None = None) -> typ
         assert isinstance(cls, type)
         cls.__module__ = f"mrosd.msg.dynamic.{spec.package or 'nopkg'}"
         cls.__qualname__ = generated.class_name
-        _CLASSES[key] = cls
+        _CLASSES.setdefault(key, cls)  # a same-md5 class with other comments never displaces the first
         return cls
 
 
@@ -133,13 +133,16 @@ def load_type(name: str, definition: str, store: TypeStore | None = None) -> typ
     """A class for ``name`` built from ``definition`` (a TCPROS header's message_definition); cached.
 
     The class's ``_full_text`` is ``definition`` verbatim. Types the definition uses but does not include
-    are looked up on the search path.
+    are looked up on the search path; an empty definition (some tools send none) means the search path's
+    class for ``name``.
 
     Raises:
         MsgParseError: the definition is malformed (line numbers count from its first line).
         MsgNotFoundError: it uses a type that is neither included nor on the search path.
     """
     name = normalize_type_name(name)
+    if not definition.strip():
+        return get_message_class(name, store)
     key = (name, definition)
     cls = _DEFINITIONS.get(key)
     if cls is not None:

@@ -90,3 +90,35 @@ def test_time_and_duration_follow_ros_arithmetic() -> None:
     assert t - Time(1, 0) == Duration(0, 500_000_000)
     assert Duration(1, 0) * 3 == Duration(3, 0)
     assert Time(1, 0) < Time(1, 1)
+
+
+def test_load_type_with_an_empty_definition_uses_the_search_path() -> None:
+    assert load_type("std_msgs/String", "") is get_message_class("std_msgs/String")
+
+
+def test_load_type_reuses_the_builtin_class_for_nested_types_with_the_same_md5() -> None:
+    text = get_message_class("geometry_msgs/PoseStamped")._full_text.replace("# A Pose", "# another comment")
+    dyn = load_type("geometry_msgs/PoseStamped", text)
+    assert type(dyn().header) is get_message_class("std_msgs/Header")
+    assert dyn._full_text == text
+
+
+def test_serializing_a_wrong_value_names_the_type_and_the_problem() -> None:
+    from mrosd.errors import SerializationError
+
+    with pytest.raises(SerializationError, match="std_msgs/UInt8"):
+        get_message_class("std_msgs/UInt8")(data=256).serialize()
+    with pytest.raises(SerializationError, match="fixed array of 9 items, got 2"):
+        get_message_class("sensor_msgs/CameraInfo")(K=[1.0, 2.0]).serialize()
+    with pytest.raises(SerializationError, match="std_msgs/String"):
+        get_message_class("std_msgs/String")(data=5).serialize()  # type: ignore[arg-type]
+
+
+def test_large_uint8_arrays_decode_as_zero_copy_views_of_immutable_input() -> None:
+    image = get_message_class("sensor_msgs/Image")
+    body = image(data=bytes(range(256)) * 512).serialize()
+    big = image.deserialize(body).data
+    assert isinstance(big, memoryview) and big.readonly and big == bytes(range(256)) * 512
+    assert isinstance(image.deserialize(bytearray(body)).data, bytes)  # mutable input: copied, never aliased
+    small = image.deserialize(image(data=b"abc").serialize()).data
+    assert small == b"abc" and isinstance(small, bytes)
