@@ -1,0 +1,137 @@
+"""IXM under faults: a writer SIGKILLed while copying a value, and the daemon SIGKILLed and restarted."""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import struct
+import subprocess
+import sys
+import textwrap
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from mrosd.errors import IxmError
+from mrosd.ixm.client import IxmClient
+from tests.rosenv import Processes, iter_lines_until
+
+SIZE = 8 << 20  # 8 MiB: copying it takes milliseconds, so a random kill often lands inside the copy
+WORD = struct.Struct("<Q")
+
+
+def ixm_segments() -> set[str]:
+    return {n for n in os.listdir("/dev/shm") if n.startswith("mrosd-ixm-")}
+
+
+def start_daemon(procs: Processes, path: str) -> subprocess.Popen[bytes]:
+    proc = procs.our_python(["-m", "mrosd.ixm", "--socket", path], stderr=subprocess.DEVNULL)
+    assert next(iter_lines_until(proc, 1, 20.0)) == "ready"
+    return proc
+
+
+@pytest.fixture
+def no_new_segments() -> Iterator[None]:
+    before = ixm_segments()
+    yield
+    assert ixm_segments() - before == set(), "shared memory segments left in /dev/shm"
+
+
+WRITER = textwrap.dedent(
+    """
+    import struct, sys
+    from mrosd.ixm.client import IxmClient
+    c = IxmClient(sys.argv[1], name="writer")
+    k = c.open("/big", "uint8", count=int(sys.argv[2]), mode="w")
+    i = int(sys.argv[3])
+    k.write_bytes(struct.pack("<Q", i) * (int(sys.argv[2]) // 8))
+    print("ready", flush=True)
+    while True:
+        i += 1
+        k.write_bytes(struct.pack("<Q", i) * (int(sys.argv[2]) // 8))
+    """
+)
+
+
+def consistent(buf: bytearray) -> int:
+    """The value's counter, after checking every word carries the same one (a torn copy would mix two)."""
+    first = WORD.unpack_from(buf, 0)[0]
+    assert buf == WORD.pack(first) * (len(buf) // 8), "torn value: words of two different writes"
+    return int(first)
+
+
+def kill9(proc: subprocess.Popen[bytes]) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.wait(10)
+
+
+def test_a_writer_killed_while_writing_never_shows_a_torn_value_and_the_next_writer_recovers(
+    no_new_segments: None, procs: Processes, tmp_path: Path
+) -> None:
+    path = str(tmp_path / "ixm.sock")
+    start_daemon(procs, path)
+    buf = bytearray(SIZE)
+    outcomes = {"last value": 0, "clear error": 0}
+    with IxmClient(path, name="reader") as ixm:
+        key = ixm.open("/big", "uint8", count=SIZE, mode="r")
+        base = 0
+        for _ in range(4):
+            writer = procs.our_python(["-c", WRITER, path, str(SIZE), str(base)])
+            assert next(iter_lines_until(writer, 1, 20.0)) == "ready"
+            time.sleep(random.uniform(0.0, 0.05))
+            kill9(writer)
+            try:
+                assert key.read_into(buf) == SIZE
+                assert consistent(buf) >= base
+                outcomes["last value"] += 1
+            except IxmError as exc:
+                assert "died" in str(exc)  # the writer died inside the copy: said so, never a torn value
+                outcomes["clear error"] += 1
+            base += 1_000_000
+        # a new writer recovers the key whatever state the last one left it in
+        writer = procs.our_python(["-c", WRITER, path, str(SIZE), str(base)])
+        assert next(iter_lines_until(writer, 1, 20.0)) == "ready"
+        kill9(writer)
+        try:
+            key.read_into(buf)
+            assert consistent(buf) >= base
+        except IxmError as exc:
+            assert "died" in str(exc)
+        key.close()
+    print("outcomes after SIGKILL of the writer:", outcomes, file=sys.stderr)
+
+
+def test_a_daemon_killed_with_sigkill_gives_clients_a_clear_error_and_they_reopen_after_restart(
+    no_new_segments: None, procs: Processes, tmp_path: Path
+) -> None:
+    path = str(tmp_path / "ixm.sock")
+    daemon = start_daemon(procs, path)
+    before = ixm_segments()
+    old = IxmClient(path, name="survivor")
+    key = old.open("/pose", "float64", count=3, mode="rw")
+    key.write([1.0, 2.0, 3.0])
+    assert len(ixm_segments() - before) == 1
+
+    kill9(daemon)
+    # the mapping a client already holds stays valid memory (no crash, no SIGBUS)
+    assert list(key.read()) == [1.0, 2.0, 3.0]
+    with pytest.raises(IxmError) as excinfo:
+        old.open("/other", "int32", mode="w")
+    assert path in str(excinfo.value) or "daemon" in str(excinfo.value)
+    with pytest.raises(IxmError, match="cannot reach the IXM daemon"):
+        IxmClient(path, timeout=2)
+    old.close()
+
+    start_daemon(procs, path)
+    assert ixm_segments() - before == set(), "the restarted daemon left the crashed run's segment in /dev/shm"
+    with IxmClient(path, name="again") as again:
+        fresh = again.open("/pose", "float64", count=3, mode="rw")
+        fresh.write([4.0, 5.0, 6.0])
+        assert list(fresh.read()) == [4.0, 5.0, 6.0]
+        fresh.close()
