@@ -477,11 +477,15 @@ def _deserialize_source(spec: MsgSpec, w: _Writer) -> list[str]:
         out += [line.replace(_DECODE, decode) for line in body] or ["            pass"]
         if fallback:
             out += ["        except UnicodeDecodeError:", f"            return {name}._deserialize_lenient(b)"]
+        if lenient:
+            # memoryview has no .decode(): strings need bytes (other fields decode from any buffer).
+            out += [
+                "        except AttributeError:",
+                "            if data.__class__ is bytes:",
+                "                raise",
+                f"            return {name}.{method}(_as_bytes(data))",
+            ]
         out += [
-            "        except AttributeError:",
-            "            if data.__class__ is bytes:",
-            "                raise",
-            f"            return {name}.{method}(_as_bytes(data))  # a memoryview: decode from bytes",
             "        except _struct_error as exc:",
             f"            raise _truncated_message({spec.full_name!r}, n, exc) from None",
             f"        if {end} != n:",
