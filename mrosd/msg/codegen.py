@@ -38,6 +38,11 @@ def symbol(type_name: str) -> str:
     return "_T_" + type_name.replace("/", "__")
 
 
+def attribute_name(field_name: str) -> str:
+    """The Python attribute of a field: genpy's rule appends ``_`` to keywords and ``self``."""
+    return field_name + "_" if keyword.iskeyword(field_name) or field_name == "self" else field_name
+
+
 def class_name(spec: MsgSpec) -> str:
     """The Python class name of a message (its short name)."""
     return spec.short_name
@@ -183,7 +188,7 @@ class _Encoder:
 
     def fields(self, spec: MsgSpec, expr: str, indent: int, path: str) -> None:
         for f in spec.fields:
-            self.one(f, f"{expr}.{f.name}", indent, f"{path}{f.name}")
+            self.one(f, f"{expr}.{attribute_name(f.name)}", indent, f"{path}{f.name}")
 
     def one(self, f: Field, acc: str, indent: int, path: str) -> None:
         w = self.w
@@ -575,8 +580,8 @@ def generate_class(spec: MsgSpec, md5: str, full_text: str, lookup: Lookup, tag:
         MsgError: a field name cannot be a Python attribute (a keyword).
     """
     for f in spec.fields:
-        if keyword.iskeyword(f.name) or f.name in ("serialize", "deserialize"):
-            raise MsgError(f"{spec.full_name}: field name {f.name!r} cannot be a Python attribute")
+        if f.name in ("serialize", "deserialize"):
+            raise MsgError(f"{spec.full_name}: field name {f.name!r} would hide the {f.name}() method")
     name = class_name(spec)
     w = _Writer(type_name=spec.full_name, lookup=lookup, tag=tag)
     ser = _serialize_source(spec, w)
@@ -588,7 +593,7 @@ def generate_class(spec: MsgSpec, md5: str, full_text: str, lookup: Lookup, tag:
     lines.append(f'    """{doc}"""')
     lines.append("")
     for f in spec.fields:
-        lines.append(f"    {f.name}: {_annotation(f)} = {_default(f)}")
+        lines.append(f"    {attribute_name(f.name)}: {_annotation(f)} = {_default(f)}")
     if spec.fields:
         lines.append("")
     lines += [

@@ -122,3 +122,10 @@ def test_large_uint8_arrays_decode_as_zero_copy_views_of_immutable_input() -> No
     assert isinstance(image.deserialize(bytearray(body)).data, bytes)  # mutable input: copied, never aliased
     small = image.deserialize(image(data=b"abc").serialize()).data
     assert small == b"abc" and isinstance(small, bytes)
+
+
+def test_keyword_field_names_get_an_underscore_as_in_genpy() -> None:
+    cls = load_type("kw_msgs/Route", "string from\nstring to\nint32 self\n")
+    assert cls.__struct_fields__ == ("from_", "to", "self_")
+    msg = cls(from_="a", to="b", self_=3)
+    assert cls.deserialize(msg.serialize()) == msg
