@@ -184,26 +184,54 @@ def run(args: argparse.Namespace) -> int:
     port = free_port()
     uri = f"http://127.0.0.1:{port}/"
     env = {k: v for k, v in os.environ.items() if not k.startswith("ROS_")}
-    env.update(ROS_MASTER_URI=uri, ROS_HOSTNAME="127.0.0.1", MROSD_MASTER_HOST="127.0.0.1",
-               MROSD_IXM_SOCKET=str(tmp / "ixm.sock"), ROS_HOME=str(tmp))  # fmt: skip
+    env.update(
+        ROS_MASTER_URI=uri,
+        ROS_HOSTNAME="127.0.0.1",
+        MROSD_MASTER_HOST="127.0.0.1",
+        MROSD_IXM_SOCKET=str(tmp / "ixm.sock"),
+        ROS_HOME=str(tmp),
+    )
     shm_before = shm_entries()
     procs: list[subprocess.Popen[bytes]] = []
     ok = True
     try:
-        daemon = subprocess.Popen([sys.executable, "-m", "mrosd.daemon", "--port", str(port), "--log-level", "error"],
-                                  env=env, stdout=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
+        daemon = subprocess.Popen(
+            [sys.executable, "-m", "mrosd.daemon", "--port", str(port), "--log-level", "error"],
+            env=env,
+            stdout=subprocess.DEVNULL,
+            start_new_session=True,
+        )
         procs.append(daemon)
         wait_master(uri)
-        base = [sys.executable, "-m", "bench.soak", "--worker-of", str(args.workers), "--nodes", str(args.nodes),
-                "--topics", str(args.topics), "--fanout", str(args.fanout), "--hot-rate", str(args.hot_rate), *(["--uvloop"] if args.uvloop else [])]  # fmt: skip
+        base = [
+            sys.executable,
+            "-m",
+            "bench.soak",
+            "--worker-of",
+            str(args.workers),
+            "--nodes",
+            str(args.nodes),
+            "--topics",
+            str(args.topics),
+            "--fanout",
+            str(args.fanout),
+            "--hot-rate",
+            str(args.hot_rate),
+            *(["--uvloop"] if args.uvloop else []),
+        ]
         workers = [
-            subprocess.Popen([*base, "--worker", str(w)], env=env, stdout=subprocess.PIPE, start_new_session=True,
-                             cwd=Path(__file__).resolve().parent.parent)  # fmt: skip
+            subprocess.Popen(
+                [*base, "--worker", str(w)],
+                env=env,
+                stdout=subprocess.PIPE,
+                start_new_session=True,
+                cwd=Path(__file__).resolve().parent.parent,
+            )
             for w in range(args.workers)
         ]
         procs += workers
         last: dict[int, dict[str, Any]] = {}
-        for w, p in enumerate(workers):
+        for p in workers:
             assert p.stdout is not None
             os.set_blocking(p.stdout.fileno(), False)
         started = time.monotonic()
@@ -235,16 +263,22 @@ def run(args: argparse.Namespace) -> int:
                 print("FAIL: workers did not start", flush=True)
                 return 1
             time.sleep(0.1)
-        print(f"{args.nodes} nodes, {args.topics} topics, {args.fanout} subscribers of {HOT} at {args.hot_rate:g} Hz, "
-              f"{args.workers} worker processes; started in {time.monotonic() - started:.1f} s", flush=True)  # fmt: skip
+        print(
+            f"{args.nodes} nodes, {args.topics} topics, {args.fanout} subscribers of {HOT} at {args.hot_rate:g} Hz, "
+            f"{args.workers} worker processes; started in {time.monotonic() - started:.1f} s",
+            flush=True,
+        )
         slow = stall_subscriber(uri)
         print(f"stalled raw subscriber of {HOT}: {'connected' if slow else 'FAILED to connect'}", flush=True)
         ok = slow is not None
 
         samples: list[dict[str, Any]] = []
         t0 = time.monotonic()
-        print(f"{'t(s)':>6} {'daemon RSS MiB':>15} {'fds':>5} {'workers RSS MiB':>24} {'fds':>16} {'/hot rx':>9} "
-              f"{'tx':>9} {'churn':>5} {'errors':>6} {'shm':>4}", flush=True)  # fmt: skip
+        print(
+            f"{'t(s)':>6} {'daemon RSS MiB':>15} {'fds':>5} {'workers RSS MiB':>24} {'fds':>16} {'/hot rx':>9} "
+            f"{'tx':>9} {'churn':>5} {'errors':>6} {'shm':>4}",
+            flush=True,
+        )
         hot_seen: dict[int, int] = {}
         while True:
             time.sleep(min(args.interval, max(0.0, seconds - (time.monotonic() - t0))) or 0.01)
@@ -266,8 +300,11 @@ def run(args: argparse.Namespace) -> int:
             samples.append(s)
             wr = "/".join(f"{r / 1024:.0f}" for r in s["rss"][1:])
             wf = "/".join(str(f) for f in s["fds"][1:])
-            print(f"{s['t']:6.0f} {s['rss'][0] / 1024:15.1f} {s['fds'][0]:5d} {wr:>24} {wf:>16} {s['hot']:9d} "
-                  f"{s['tx']:9d} {s['churn']:5d} {s['errors']:6d} {s['shm']:4d}", flush=True)  # fmt: skip
+            print(
+                f"{s['t']:6.0f} {s['rss'][0] / 1024:15.1f} {s['fds'][0]:5d} {wr:>24} {wf:>16} {s['hot']:9d} "
+                f"{s['tx']:9d} {s['churn']:5d} {s['errors']:6d} {s['shm']:4d}",
+                flush=True,
+            )
             for w, v in last.items():
                 hot_seen.setdefault(w, v.get("hot_rx", 0))
             if s["t"] >= seconds:
@@ -280,8 +317,11 @@ def run(args: argparse.Namespace) -> int:
             bound = r0 * 1.25 + 20 * 1024
             verdict = "ok" if r1 <= bound and f1 <= f0 + 32 else "GREW"
             ok &= verdict == "ok"
-            print(f"  {name:8} RSS {r0 / 1024:7.1f} -> {r1 / 1024:7.1f} MiB (bound {bound / 1024:.1f}), "
-                  f"fds {f0} -> {f1}: {verdict}", flush=True)  # fmt: skip
+            print(
+                f"  {name:8} RSS {r0 / 1024:7.1f} -> {r1 / 1024:7.1f} MiB (bound {bound / 1024:.1f}), "
+                f"fds {f0} -> {f1}: {verdict}",
+                flush=True,
+            )
         hot_total = end["hot"] - warm["hot"]
         print(f"  /hot deliveries after warm-up: {hot_total}; errors: {end['errors']}; new /dev/shm: {end['shm']}")
         ok &= hot_total > 0 and end["errors"] == 0 and end["shm"] == 0

@@ -26,8 +26,25 @@ def rss_mib() -> float:
 
 def test_a_short_soak_of_the_daemon_and_many_nodes_keeps_memory_fds_and_shm_bounded() -> None:
     done = subprocess.run(
-        [sys.executable, "-m", "bench.soak", "--seconds", "20", "--interval", "4", "--nodes", "30", "--topics", "300",
-         "--fanout", "10", "--workers", "2", "--hot-rate", "50"],  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "bench.soak",
+            "--seconds",
+            "20",
+            "--interval",
+            "4",
+            "--nodes",
+            "30",
+            "--topics",
+            "300",
+            "--fanout",
+            "10",
+            "--workers",
+            "2",
+            "--hot-rate",
+            "50",
+        ],
         cwd=PROJECT_ROOT,
         capture_output=True,
         timeout=150,
