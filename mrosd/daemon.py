@@ -340,6 +340,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _new_loop_factory() -> Callable[[], asyncio.AbstractEventLoop] | None:
+    # MROSD_LOOP=asyncio selects the standard loop (for debugging, or to rule uvloop out).
+    if os.environ.get("MROSD_LOOP", "uvloop") == "asyncio":
+        return None
     try:
         import uvloop
     except ImportError:

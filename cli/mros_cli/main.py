@@ -113,13 +113,15 @@ def _unwrap(method: str, reply: Any) -> Any:
 
 
 def run(coro: Coroutine[Any, Any, T] | Awaitable[T]) -> T:
-    """Run one command's coroutine on a fresh loop (uvloop when installed)."""
-    try:
-        import uvloop
+    """Run one command's coroutine on a fresh loop (uvloop when installed, unless ``MROSD_LOOP=asyncio``)."""
+    factory: Any = None
+    if os.environ.get("MROSD_LOOP", "uvloop") != "asyncio":
+        try:
+            import uvloop
 
-        factory: Any = uvloop.new_event_loop
-    except ImportError:
-        factory = None
+            factory = uvloop.new_event_loop
+        except ImportError:
+            factory = None
     with asyncio.Runner(loop_factory=factory) as runner:
         return runner.run(coro)  # type: ignore[arg-type]
 

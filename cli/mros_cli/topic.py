@@ -359,7 +359,7 @@ def echo(topic: str, count: int | None, noarr: bool, as_json: bool, offset: bool
         async with Graph() as graph:
             real, _type, fields = await wait_for_topic(graph, name)
         echo = Echo(fields, count, noarr=noarr, as_json=as_json, offset=offset)
-        async with mrosd.Node(anonymous("echo"), master_uri=graph.uri) as node:
+        async with mrosd.Node(anonymous("echo"), master_uri=graph.uri, argv=[]) as node:
             await node.subscribe(real, mrosd.AnyMsg, callback=echo.on_raw)
             await echo.done.wait()
             echo.flush()
@@ -539,7 +539,7 @@ def pub(  # noqa: PLR0917  (one parameter per click option)
 
     async def main() -> None:
         mrosd = _runtime()
-        async with mrosd.Node(anonymous("pub"), master_uri=master_uri()) as node:
+        async with mrosd.Node(anonymous("pub"), master_uri=master_uri(), argv=[]) as node:
             publisher = await node.advertise(name, cls, latch=latched)
             if rate is None:
                 note = f" for {ONCE_DELAY:g} seconds" if once else ". Press ctrl-C to terminate"
@@ -630,7 +630,7 @@ async def _measure(topic: str, on_raw: Any, tick: Any, duration: float | None) -
 
     async with Graph() as graph:
         real, _type, _fields = await wait_for_topic(graph, resolve(topic))
-    async with mrosd.Node(anonymous("measure"), master_uri=graph.uri) as node:
+    async with mrosd.Node(anonymous("measure"), master_uri=graph.uri, argv=[]) as node:
         await node.subscribe(real, mrosd.AnyMsg, callback=on_raw)
         click.echo(f"subscribed to [{real}]")
         end = None if duration is None else time.monotonic() + duration
