@@ -153,6 +153,15 @@ class Publisher:
             LocalProtocolError: the publisher was closed, or ``msg`` is not of the advertised type.
             SerializationError: a field value cannot be serialized.
         """
+        self.publish_nowait(msg)
+
+    def publish_nowait(self, msg: Any) -> None:
+        """``publish`` for synchronous code on the loop's thread (e.g. a subscriber callback).
+
+        Raises:
+            LocalProtocolError: the publisher was closed, or ``msg`` is not of the advertised type.
+            SerializationError: a field value cannot be serialized.
+        """
         if type(msg) is not self.msg_class and getattr(msg, "_md5sum", None) != self.md5sum:
             raise LocalProtocolError(f"{self.topic} publishes {self.type}, got {type(msg).__name__}")
         self.publish_serialized(msg.serialize())

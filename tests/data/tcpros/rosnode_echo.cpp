@@ -1,8 +1,8 @@
 // A tiny roscpp node for mrosd's interop tests and benchmark (compiled at test time, never shipped).
 //   echo <string|image>               republish every /ping message on /pong
-//   ping <string|image> <size> <n>    send n messages of size bytes on /ping, wait for each on /pong,
+//   ping <string|image> <sizes> <n>   for each comma-separated size, send n messages on /ping, wait for each on /pong,
 //                                     print "RTT <size> <ns> <ns> ..." (one round trip per message)
-//   burst <string|image> <size> <n>   send n messages back to back, count replies on /pong,
+//   burst <string|image> <sizes> <n>  for each size, send n messages back to back, count replies on /pong,
 //                                     print "BURST <size> <received> <seconds>"
 #include <ros/callback_queue.h>
 #include <ros/ros.h>
@@ -63,7 +63,10 @@ struct Node {
 };
 
 template <class M>
-static int run(const std::string& mode, size_t size, long long n) {
+static int run_size(Node<M>& node, const std::string& mode, size_t size, long long n);
+
+template <class M>
+static int run(const std::string& mode, const std::string& sizes, long long n) {
   if (mode == "echo") {
     Node<M> node(true, "/ping", "/pong");
     ros::spin();
@@ -71,6 +74,19 @@ static int run(const std::string& mode, size_t size, long long n) {
   }
   Node<M> node(false, "/pong", "/ping");
   node.wait_connected();
+  size_t pos = 0;
+  while (pos <= sizes.size()) {
+    size_t comma = sizes.find(',', pos);
+    if (comma == std::string::npos) comma = sizes.size();
+    int rc = run_size(node, mode, std::strtoull(sizes.substr(pos, comma - pos).c_str(), nullptr, 10), n);
+    if (rc != 0) return rc;
+    pos = comma + 1;
+  }
+  return 0;
+}
+
+template <class M>
+static int run_size(Node<M>& node, const std::string& mode, size_t size, long long n) {
   M msg;
   fill(msg, size);
   if (mode == "ping") {
@@ -89,6 +105,7 @@ static int run(const std::string& mode, size_t size, long long n) {
     }
     std::printf("\n");
   } else {
+    long long start = node.received;
     long long t0 = now_ns();
     for (long long i = 0; i < n; ++i) {
       node.pub.publish(msg);
@@ -97,10 +114,10 @@ static int run(const std::string& mode, size_t size, long long n) {
     long long before = -1;
     while (ros::ok() && node.received != before) {  // until one quiet second
       before = node.received;
-      node.wait_for(n, 1.0);
-      if (node.received >= n) break;
+      node.wait_for(start + n, 1.0);
+      if (node.received - start >= n) break;
     }
-    std::printf("BURST %zu %lld %.6f\n", size, node.received, (node.last_ns - t0) / 1e9);
+    std::printf("BURST %zu %lld %.6f\n", size, node.received - start, (node.last_ns - t0) / 1e9);
   }
   std::fflush(stdout);
   return 0;
@@ -113,8 +130,8 @@ int main(int argc, char** argv) {
     return 2;
   }
   std::string mode = argv[1], type = argv[2];
-  size_t size = argc > 3 ? std::strtoull(argv[3], nullptr, 10) : 0;
+  std::string sizes = argc > 3 ? argv[3] : "0";
   long long n = argc > 4 ? std::strtoll(argv[4], nullptr, 10) : 0;
-  if (type == "image") return run<sensor_msgs::Image>(mode, size, n);
-  return run<std_msgs::String>(mode, size, n);
+  if (type == "image") return run<sensor_msgs::Image>(mode, sizes, n);
+  return run<std_msgs::String>(mode, sizes, n);
 }

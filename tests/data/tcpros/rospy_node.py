@@ -2,8 +2,8 @@
 
 Modes (kind is string, image or coordinate):
   echo KIND                  republish /ping on /pong
-  ping KIND SIZE N           N round trips over /ping -> /pong; prints "RTT SIZE ns ns ..."
-  burst KIND SIZE N          N messages back to back; prints "BURST SIZE received seconds"
+  ping KIND SIZES N          N round trips per size (comma-separated) on /ping -> /pong; "RTT SIZE ns ..."
+  burst KIND SIZES N         N messages per size back to back; prints "BURST SIZE received seconds"
   talk KIND TOPIC LATCH      publish a known message (once if LATCH=1, else at 20 Hz)
   listen KIND TOPIC COUNT    print COUNT received messages, one line each
   server SERVICE             std_srvs/SetBool server; data=False raises an error
@@ -56,7 +56,7 @@ def main():
         print("up", flush=True)
         rospy.spin()
     elif mode in ("ping", "burst"):
-        size, n = int(sys.argv[3]), int(sys.argv[4])
+        sizes, n = [int(x) for x in sys.argv[3].split(",")], int(sys.argv[4])
         cond = threading.Condition()
         state = {"received": 0, "last": 0}
 
@@ -70,36 +70,39 @@ def main():
         sub = rospy.Subscriber("/pong", CLASSES[kind], on_pong, queue_size=1000, tcp_nodelay=True)
         while pub.get_num_connections() == 0 or sub.get_num_connections() == 0:
             time.sleep(0.01)
-        msg = make(kind, size)
 
         def wait_for(count, timeout):
             with cond:
                 return cond.wait_for(lambda: state["received"] >= count, timeout)
 
-        if mode == "ping":
-            for _ in range(20):
-                want = state["received"] + 1
-                pub.publish(msg)
-                if not wait_for(want, 5.0):
-                    sys.exit(3)
-            rtts = []
-            for _ in range(n):
-                want = state["received"] + 1
+        for size in sizes:
+            msg = make(kind, size)
+            if mode == "ping":
+                for _ in range(20):
+                    want = state["received"] + 1
+                    pub.publish(msg)
+                    if not wait_for(want, 5.0):
+                        sys.exit(3)
+                rtts = []
+                for _ in range(n):
+                    want = state["received"] + 1
+                    t0 = time.perf_counter_ns()
+                    pub.publish(msg)
+                    if not wait_for(want, 5.0):
+                        sys.exit(3)
+                    rtts.append(state["last"] - t0)
+                print(f"RTT {size} " + " ".join(map(str, rtts)), flush=True)
+            else:
+                start = state["received"]
                 t0 = time.perf_counter_ns()
-                pub.publish(msg)
-                if not wait_for(want, 5.0):
-                    sys.exit(3)
-                rtts.append(state["last"] - t0)
-            print(f"RTT {size} " + " ".join(map(str, rtts)), flush=True)
-        else:
-            t0 = time.perf_counter_ns()
-            for _ in range(n):
-                pub.publish(msg)
-            before = -1
-            while state["received"] != before and state["received"] < n:
-                before = state["received"]
-                wait_for(n, 1.0)
-            print(f"BURST {size} {state['received']} {(state['last'] - t0) / 1e9:.6f}", flush=True)
+                for _ in range(n):
+                    pub.publish(msg)
+                before = -1
+                while state["received"] != before and state["received"] - start < n:
+                    before = state["received"]
+                    wait_for(start + n, 1.0)
+                got = state["received"] - start
+                print(f"BURST {size} {got} {(state['last'] - t0) / 1e9:.6f}", flush=True)
     elif mode == "talk":
         topic, latch = sys.argv[3], sys.argv[4] == "1"
         pub = rospy.Publisher(topic, CLASSES[kind], queue_size=10, latch=latch)

@@ -236,3 +236,19 @@ async def test_ipv6_hosts_are_advertised_as_bracketed_literals(rosmaster: str) -
     async with n:
         assert n.uri.startswith("http://[::1]:")
         assert n.service_uri.startswith("rosrpc://[::1]:")
+
+
+def test_topics_and_services_work_under_uvloop(rosmaster: str) -> None:
+    uvloop = pytest.importorskip("uvloop")
+
+    async def main() -> None:
+        async with node("talker", rosmaster) as a, node("listener", rosmaster) as b:
+            pub = await a.advertise("/uv", String, latch=True)
+            await pub.publish(String(data="uv"))
+            sub = await b.subscribe("/uv", String)
+            assert (await sub.next(timeout=5)).data == "uv"
+            await a.advertise_service("/uvs", SetBool, lambda r: SetBool._response_class(success=r.data))
+            assert (await b.service_proxy("/uvs", SetBool).call(SetBool._request_class(data=True))).success
+
+    with asyncio.Runner(loop_factory=uvloop.new_event_loop) as runner:
+        runner.run(main())
