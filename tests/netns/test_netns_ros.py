@@ -134,3 +134,72 @@ _CONNECT = (
     "except ConnectionRefusedError:\n"
     "    pass\n"
 )
+
+
+def start_our_master(lab: NetnsLab, procs: Processes, tmp: Path, *extra: str) -> None:
+    procs.start(
+        lab.argv(0, [sys.executable, "-m", "mrosd.master", "--host", "0.0.0.0", "--port", str(MASTER_PORT), *extra]),
+        host_env(lab, 0, tmp),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+
+
+@needs_ros
+def test_our_master_and_our_talker_serve_rostopic_echo_on_a_third_host(
+    netns_lab: NetnsLab, procs: Processes, tmp_path: Path
+) -> None:
+    from tests.reliability.relnodes import TALKER as OUR_TALKER
+
+    lab = netns_lab
+    start_our_master(lab, procs, tmp_path)
+    wait_for_xmlrpc_from(lab, 1, f"http://{lab.addrs[0]}:{MASTER_PORT}/")
+    talker = procs.start(
+        lab.argv(1, [sys.executable, "-c", OUR_TALKER, "/chatter", "20", "talker"]), host_env(lab, 1, tmp_path)
+    )
+    assert next(iter_lines_until(talker, 1, 30.0)) == "ready"
+    lines = echo_three(
+        lab, procs, tmp_path, ["rostopic", "echo", "-n", "3", "/chatter"], host_env(lab, 2, tmp_path, use_ip=True)
+    )
+    assert len(lines) == 3 and all(line.startswith('data: "') for line in lines), lines
+    assert lookup_node_from(lab, 2, "/talker").startswith(f"http://{lab.addrs[1]}:")
+
+
+@needs_ros
+def test_a_rospy_talker_reaches_our_listener_on_another_host_through_our_master(
+    netns_lab: NetnsLab, procs: Processes, tmp_path: Path
+) -> None:
+    from tests.reliability.relnodes import LISTENER as OUR_LISTENER
+
+    lab = netns_lab
+    start_our_master(lab, procs, tmp_path)
+    wait_for_xmlrpc_from(lab, 1, f"http://{lab.addrs[0]}:{MASTER_PORT}/")
+    procs.start(lab.argv(1, [ROS_PYTHON, "-c", TALKER]), host_env(lab, 1, tmp_path, use_ip=True))
+    listener = procs.start(
+        lab.argv(2, [sys.executable, "-c", OUR_LISTENER, "/chatter", "listener"]), host_env(lab, 2, tmp_path)
+    )
+    lines = list(iter_lines_until(listener, 3, timeout=30.0))
+    assert all(line.startswith("hello ") for line in lines), lines
+    assert lookup_node_from(lab, 1, "/listener").startswith(f"http://{lab.addrs[2]}:")
+
+
+def test_the_master_allow_list_admits_the_listed_network_and_refuses_another_host(
+    netns_lab: NetnsLab, procs: Processes, tmp_path: Path
+) -> None:
+    lab = netns_lab
+    start_our_master(lab, procs, tmp_path, "--allow", f"{lab.addrs[1]}/32", "--allow", "127.0.0.0/8")
+    uri = f"http://{lab.addrs[0]}:{MASTER_PORT}/"
+    wait_for_xmlrpc_from(lab, 1, uri)  # host 2 is listed
+    probe = (
+        "import xmlrpc.client, sys\n"
+        f"p = xmlrpc.client.ServerProxy({uri!r})\n"
+        "try:\n"
+        "    p.getPid('/intruder')\n"
+        "except xmlrpc.client.ProtocolError as e:\n"
+        "    print(e.errcode)\n"
+        "    sys.exit(0)\n"
+        "sys.exit(1)\n"
+    )
+    assert lab.exec_ok(lab.hosts[2], [sys.executable, "-c", probe]).strip() == "403"
+    # the refusal did not disturb the master for the allowed host
+    wait_for_xmlrpc_from(lab, 1, uri, timeout=5)
