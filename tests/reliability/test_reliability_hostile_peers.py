@@ -1,0 +1,52 @@
+"""A node's TCPROS listener facing hostile peers: giant length claims, garbage headers, half-open connections.
+
+Each bad connection is closed on its own; the publisher keeps serving a well-behaved subscriber throughout.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import struct
+
+import mrosd
+from mrosd.msg import get_message_class
+from tests.reliability.relnodes import start_master
+from tests.rosenv import Processes
+
+String = get_message_class("std_msgs/String")
+
+HOSTILE = [
+    struct.pack("<I", 0xFFFFFFF0),  # a 4 GB header claim
+    struct.pack("<I", 12) + struct.pack("<I", 100) + b"abcdefgh",  # a field running past the header's end
+    struct.pack("<I", 8) + struct.pack("<I", 4) + b"noeq",  # a field without '='
+    struct.pack("<I", 9) + struct.pack("<I", 5) + b"a=\xff\xfe\xfd",  # not UTF-8
+    struct.pack("<I", 0),  # an empty header: no topic, no md5
+    b"GET / HTTP/1.1\r\nHost: x\r\n\r\n",  # a web client on the wrong port
+]
+
+
+async def test_hostile_connections_are_closed_and_the_publisher_keeps_serving(procs: Processes) -> None:
+    _, uri = start_master(procs)
+    async with mrosd.Node("target", master_uri=uri, host="127.0.0.1", argv=[]) as node:
+        pub = await node.advertise("/safe", String)
+        got: list[str] = []
+        await node.subscribe("/safe", String, callback=lambda m: got.append(m.data))
+        idle = []
+        for payload in HOSTILE:
+            reader, writer = await asyncio.open_connection("127.0.0.1", node.tcpros_port)
+            writer.write(payload)
+            await writer.drain()
+            # either an error header then EOF, or EOF at once; never a hang
+            rest = await asyncio.wait_for(reader.read(), 5.0)
+            assert b"md5sum=" not in rest
+            writer.close()
+        for _ in range(20):  # connections that never send a byte must not stop anyone else
+            idle.append(await asyncio.open_connection("127.0.0.1", node.tcpros_port))
+        for _ in range(250):
+            await pub.publish(String(data="ok"))
+            if got:
+                break
+            await asyncio.sleep(0.02)
+        assert got and got[0] == "ok"
+        for _, w in idle:
+            w.close()
