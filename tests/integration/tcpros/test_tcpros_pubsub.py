@@ -7,6 +7,7 @@ import logging
 import os
 import socket
 import struct
+import subprocess
 
 import pytest
 
@@ -15,7 +16,7 @@ from mrosd.errors import HandshakeError, LocalProtocolError, ServiceError
 from mrosd.msg import get_message_class, get_service_class
 from mrosd.tcpros.header import ConnectionHeader, decode_connection_header, encode_header
 from mrosd.xmlrpc import XmlRpcClient
-from tests.rosenv import needs_ros
+from tests.rosenv import Processes, free_port, needs_ros, ros_env, wait_for_xmlrpc
 
 pytestmark = needs_ros
 
@@ -252,3 +253,45 @@ def test_topics_and_services_work_under_uvloop(rosmaster: str) -> None:
 
     with asyncio.Runner(loop_factory=uvloop.new_event_loop) as runner:
         runner.run(main())
+
+
+async def test_nodes_register_again_after_the_master_restarts(procs: Processes) -> None:
+    port = free_port()
+    uri = f"http://127.0.0.1:{port}/"
+
+    def start_master() -> subprocess.Popen[bytes]:
+        proc = procs.start(
+            ["rosmaster", "--core", "-p", str(port)],
+            ros_env(uri, procs.tmp),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        wait_for_xmlrpc(uri)
+        return proc
+
+    master = start_master()
+    async with node("talker", uri, watchdog_interval=0.1) as a, node("listener", uri, watchdog_interval=0.1) as b:
+        pub = await a.advertise("/survivor", String)
+        sub = await b.subscribe("/survivor", String)
+        await pub.wait_for_subscribers(1, timeout=10)
+        await asyncio.to_thread(procs.stop, master)
+        # Connections between nodes do not need the master: traffic continues while it is down.
+        await pub.publish(String(data="during"))
+        assert (await sub.next(timeout=5)).data == "during"
+        await asyncio.to_thread(start_master)
+        client = XmlRpcClient()
+        try:
+            async with asyncio.timeout(20):
+                while True:
+                    state = (await client.call(uri, "getSystemState", "/test"))[2]
+                    pubs = {t: n for t, n in state[0]}
+                    subs = {t: n for t, n in state[1]}
+                    if pubs.get("/survivor") == ["/talker"] and subs.get("/survivor") == ["/listener"]:
+                        break
+                    await asyncio.sleep(0.05)
+        finally:
+            await client.aclose()
+        # A publisher that appears after the restart is found through the new master.
+        async with node("talker2", uri) as c:
+            pub2 = await c.advertise("/survivor", String)
+            await pub2.wait_for_subscribers(1, timeout=10)
