@@ -4,7 +4,8 @@
 process; 200 real ``mrosd.Node`` s spread over worker processes (each node has its own slave XML-RPC server and
 TCPROS listener, exactly as separate programs would); 2000 topics (10 per node) each published every 2 s; every
 node subscribes to one random other topic; 100 nodes subscribe to ``/hot``, published at 100 Hz; parameters are
-set and read every second; every 5 s each worker closes one node and starts a new one (registration churn). A
+set and read every second; each worker opens a new IXM shared-memory key every second and closes the one
+opened 10 s before; every 5 s each worker closes one node and starts a new one (registration churn). A
 raw TCP subscriber of ``/hot`` completes the handshake and then never reads: the publisher must drop for it, not
 buffer. Every ``--interval`` seconds the RSS and open fds of the daemon and of every worker, and the mrosd entries
 of /dev/shm, are sampled and printed.
@@ -90,6 +91,21 @@ async def worker(args: argparse.Namespace) -> None:
                 counters["tx"] += 1
             await asyncio.sleep(1 / args.hot_rate)
 
+    from mrosd.ixm.client import IxmClient
+
+    ixm = IxmClient(name=f"soak-worker{w}", timeout=5)
+    keys: dict[int, Any] = {}
+
+    def ixm_churn(tick: int) -> None:
+        """Open a new shared-memory key each second, write it, close the one opened 10 s earlier."""
+        key = ixm.open(f"/soak/w{w}/k{tick}", "float64", count=1024, mode="rw")
+        key.write([float(tick)] * 1024)
+        keys[tick] = key
+        old = keys.pop(tick - 10, None)
+        if old is not None:
+            assert old.read()[0] == float(tick - 10)
+            old.close()
+
     async def params_and_churn() -> None:
         tick = 0
         while True:
@@ -99,6 +115,7 @@ async def worker(args: argparse.Namespace) -> None:
                 node = next(iter(live.values()))[0]
                 await node.set_param(f"/soak/w{w}", {"tick": tick, "blob": "p" * 512})
                 assert (await node.get_param(f"/soak/w{w}"))["tick"] == tick
+                ixm_churn(tick)
                 if tick % 5 == 0:
                     victims = [i for i in live if i > args.fanout]  # keep the hot topic's graph stable
                     if victims:
@@ -122,6 +139,7 @@ async def worker(args: argparse.Namespace) -> None:
         t.cancel()
     for node, _ in live.values():
         await node.aclose()
+    ixm.close()
 
 
 # --- controller -----------------------------------------------------------------------------------------------
@@ -138,8 +156,9 @@ def fd_count(pid: int) -> int:
     return len(os.listdir(f"/proc/{pid}/fd"))
 
 
-def shm_entries() -> set[str]:
-    return {n for n in os.listdir("/dev/shm") if n.startswith("mrosd")}
+def shm_entries(prefix: str = "mrosd") -> set[str]:
+    """Entries of /dev/shm with ``prefix`` (the soak daemon's own segment prefix, so other users' runs don't count)."""
+    return {n for n in os.listdir("/dev/shm") if n.startswith(prefix)}
 
 
 def free_port() -> int:
@@ -191,7 +210,10 @@ def run(args: argparse.Namespace) -> int:
         MROSD_IXM_SOCKET=str(tmp / "ixm.sock"),
         ROS_HOME=str(tmp),
     )
-    shm_before = shm_entries()
+    from mrosd.ixm.server import segment_prefix
+
+    prefix = segment_prefix(str(tmp / "ixm.sock"))
+    shm_before = shm_entries(prefix)
     procs: list[subprocess.Popen[bytes]] = []
     ok = True
     try:
@@ -295,7 +317,7 @@ def run(args: argparse.Namespace) -> int:
                 "tx": sum(v.get("tx", 0) for v in last.values()),
                 "churn": sum(v.get("churn", 0) for v in last.values()),
                 "errors": sum(v.get("errors", 0) for v in last.values()),
-                "shm": len(shm_entries() - shm_before),
+                "shm": len(shm_entries(prefix) - shm_before),
             }
             samples.append(s)
             wr = "/".join(f"{r / 1024:.0f}" for r in s["rss"][1:])
@@ -338,7 +360,7 @@ def run(args: argparse.Namespace) -> int:
                 p.wait(5)
             if p.stdout is not None:
                 p.stdout.close()
-    leaked = shm_entries() - shm_before
+    leaked = shm_entries(prefix) - shm_before
     if leaked:
         print(f"FAIL: /dev/shm entries left after the run: {sorted(leaked)}")
         ok = False

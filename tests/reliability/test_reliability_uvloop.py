@@ -7,8 +7,6 @@ import sys
 import textwrap
 from pathlib import Path
 
-import pytest
-
 from tests.reliability.relnodes import node_env, start_master
 from tests.rosenv import Processes
 
@@ -34,14 +32,20 @@ SELF_TALK = textwrap.dedent(
 )
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="mrosd/tcpros/protocol.py:58 asserts isinstance(transport, asyncio.Transport); uvloop's TCPTransport "
-    "is not one, so every TCPROS connection fails under uvloop",
-)
 def test_a_node_on_uvloop_receives_its_own_topic(procs: Processes, tmp_path: Path) -> None:
     _, uri = start_master(procs)
     done = subprocess.run(
         [sys.executable, "-c", SELF_TALK], env=node_env(uri, tmp_path), capture_output=True, timeout=30, check=False
     )
     assert done.stdout.decode().strip() == "hi", done.stderr.decode()[-2000:]
+
+
+def test_the_master_on_its_default_uvloop_answers_and_registers(procs: Processes) -> None:
+    """`python -m mrosd.master` (and the daemon) install uvloop by default: the master must work there."""
+    import xmlrpc.client
+
+    _, uri = start_master(procs)  # no --no-uvloop
+    with xmlrpc.client.ServerProxy(uri) as master:
+        code, _, _ = master.registerPublisher("/probe", "/uv", "std_msgs/String", "http://127.0.0.1:1/")
+        assert code == 1
+        assert master.getSystemState("/probe")[2][0] == [["/uv", ["/probe"]]]
