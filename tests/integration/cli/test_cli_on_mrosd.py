@@ -46,8 +46,8 @@ def test_parameters_round_trip_through_set_get_list_dump_load_delete(mrosd_maste
     uri = mrosd_master
     assert mros(uri, "param", "set", "/robot", "{name: r2, arm: {joints: 6}, gains: [1.5, 2]}").returncode == 0
     assert mros(uri, "param", "set", "/neg", "-3").returncode == 0
-    assert mros(uri, "param", "get", "/robot/arm/joints").stdout == "6\n\n"
-    assert mros(uri, "param", "get", "/neg").stdout == "-3\n\n"
+    assert mros(uri, "param", "get", "/robot/arm/joints").stdout == "6\n"
+    assert mros(uri, "param", "get", "/neg").stdout == "-3\n"
     assert mros(uri, "param", "list", "/robot").stdout == "/robot/arm/joints\n/robot/gains\n/robot/name\n"
     dumped = mros(uri, "param", "dump", "-", "/robot").stdout
     assert dumped == "arm:\n  joints: 6\ngains:\n- 1.5\n- 2\nname: r2\n"

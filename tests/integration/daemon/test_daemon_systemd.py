@@ -71,7 +71,8 @@ def test_the_daemon_notifies_ready_once_the_master_answers_and_exits_cleanly_on_
     try:
         _receive_until(notify, "READY=1", timeout=30)
         # READY means the master answers now, not eventually.
-        assert xmlrpc.client.ServerProxy(f"http://127.0.0.1:{port}/").getPid("/test")[0] == 1
+        with xmlrpc.client.ServerProxy(f"http://127.0.0.1:{port}/") as proxy:
+            assert proxy.getPid("/test")[0] == 1
         _receive_until(notify, "WATCHDOG=1", timeout=5)
         start = time.monotonic()
         proc.send_signal(signal.SIGTERM)
