@@ -145,11 +145,11 @@ Impl = Callable[..., Reply]
 Handler = Callable[..., Awaitable[Reply]]
 
 
-def _wrap(name: str, error_value: Any, validators: tuple[Validator, ...], impl: Impl) -> Handler:
+def _wrap(name: str, error_value: Any, validators: tuple[Validator, ...], impl: Impl) -> Impl:
     """rosmaster's apivalidate: arity, caller_id type, per-argument checks, error value on failure."""
     arity = len(validators) + 1
 
-    async def handler(*args: Any) -> Reply:
+    def handler(*args: Any) -> Reply:
         if not args:
             return -1, "missing required caller_id parameter", error_value
         if len(args) != arity:
@@ -171,6 +171,14 @@ def _wrap(name: str, error_value: Any, validators: tuple[Validator, ...], impl: 
     return handler
 
 
+def _as_async(handler: Impl) -> Handler:
+    async def call(*args: Any) -> Reply:
+        return handler(*args)
+
+    call.__name__ = handler.__name__
+    return call
+
+
 class MasterApi:
     """The state of one master (registry + parameter tree) and its handlers.
 
@@ -187,7 +195,7 @@ class MasterApi:
         self.outbox: list[Notification] = []  # only used when there is no notifier
         v_key = non_empty_str("key")
         v_api = is_api("caller_api")
-        self.methods: dict[str, Handler] = {
+        self.sync_methods: dict[str, Impl] = {
             "registerService": _wrap(
                 "registerService",
                 0,
@@ -233,6 +241,8 @@ class MasterApi:
             "hasParam": _wrap("hasParam", False, (v_key,), self.has_param),
             "getParamNames": _wrap("getParamNames", [], (), self.get_param_names),
         }
+        #: The same handlers as coroutines, for ``XmlRpcServer`` (multicall and the in-memory tests).
+        self.methods: dict[str, Handler] = {name: _as_async(h) for name, h in self.sync_methods.items()}
 
     def _send(self, notes: list[Notification]) -> None:
         if not notes:

@@ -1,7 +1,8 @@
 """``Master``: the ROS 1 master process part, composing the handlers, the notifier and the XML-RPC server.
 
 Owns the listening socket, the outgoing XML-RPC client used for callbacks, and the optional
-allow-list of client networks (requests from other addresses get HTTP 403 before any parsing).
+allow-list of client networks (connections from other addresses get HTTP 403 before any parsing).
+HTTP framing is ``httpserver`` (lean asyncio protocol); XML-RPC codec and dispatch are ``mrosd.xmlrpc``.
 """
 
 from __future__ import annotations
@@ -11,12 +12,10 @@ import logging
 import os
 import socket
 from collections.abc import Iterable
-from typing import Any
 from urllib.parse import urlsplit
 
-from aiohttp import web
-
 from mrosd.master.api import MasterApi
+from mrosd.master.httpserver import HttpServer, XmlRpcHttpHandler
 from mrosd.master.notifier import Notifier
 from mrosd.xmlrpc import XmlRpcClient, XmlRpcServer
 
@@ -58,33 +57,6 @@ def port_from_master_uri(uri: str | None, default: int = DEFAULT_PORT) -> int:
         return default
 
 
-class _GuardedServer(XmlRpcServer):
-    """XmlRpcServer that refuses clients outside the allowed networks with HTTP 403."""
-
-    def __init__(self, *args: Any, allow: list[Network] | None = None, **kw: Any) -> None:
-        super().__init__(*args, **kw)
-        self._allow = allow
-
-    def _allowed(self, remote: str | None) -> bool:
-        if self._allow is None:
-            return True
-        if not remote:
-            return False
-        try:
-            addr = ipaddress.ip_address(remote.split("%", 1)[0])
-        except ValueError:
-            return False
-        if isinstance(addr, ipaddress.IPv6Address) and addr.ipv4_mapped is not None:
-            addr = addr.ipv4_mapped
-        return any(addr in net for net in self._allow)
-
-    async def _handle_http(self, request: web.Request) -> web.Response:
-        if not self._allowed(request.remote):
-            log.warning("master: refused request from %s (not in the allow-list)", request.remote)
-            return web.Response(status=403, text="client address not allowed\n")
-        return await super()._handle_http(request)
-
-
 class Master:
     """A ROS 1 master (Master API + Parameter Server) on one event loop.
 
@@ -120,13 +92,15 @@ class Master:
             on_result=self.api.on_notification_result,
         )
         self.api.notifier = self.notifier
-        self._server = _GuardedServer(self.api.methods, host, port, name="master", allow=self._allow)
+        self._dispatch = XmlRpcServer(self.api.methods, name="master")  # codec + multicall; never bound
+        self._handler = XmlRpcHttpHandler(self.api.sync_methods, self._dispatch)
+        self._server = HttpServer(self._handler, self._allow)
         self.port = 0
         self.uri = ""
 
     async def start(self) -> None:
         """Bind and serve; ``.port`` and ``.uri`` are set afterwards."""
-        await self._server.start()
+        await self._server.start(self.host, self._requested_port)
         self.port = self._server.port
         host = self._advertise or advertised_host(self.host)
         if ":" in host and not host.startswith("["):

@@ -1,0 +1,281 @@
+"""Master benchmark: our master vs Debian's ``rosmaster --core``, both started in this run on free ports.
+
+Same load generator against both (aiohttp with keep-alive, request bodies encoded once; both servers
+keep connections alive: rosmaster's handler speaks HTTP/1.1 with a thread per connection):
+
+* latency of registerPublisher, lookupNode, getSystemState, getParam (one client, sequential calls);
+* throughput with 1/8/32 concurrent clients (worker subprocesses, a mix of the four calls);
+* registration of N nodes x M topics whose subscriber URIs point at dead ports, against the same
+  registration without subscribers to notify (is registration slowed by dead nodes?).
+
+Run: ``python -m bench.master [--quick] [--duration S]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import statistics
+import subprocess
+import sys
+import time
+import xmlrpc.client
+from pathlib import Path
+from tempfile import TemporaryDirectory
+from typing import Any
+
+import aiohttp
+
+from tests.rosenv import Processes, free_port, ros_available, ros_env, start_rosmaster, wait_for_xmlrpc
+
+DEAD_API = "http://127.0.0.1:{port}/"
+
+
+def body(method: str, *params: Any) -> bytes:
+    return xmlrpc.client.dumps(params, method).encode()
+
+
+def mix_bodies(tag: str) -> list[bytes]:
+    """The four benchmarked calls; each worker registers under its own node name."""
+    api = f"http://127.0.0.1:9/{tag}"
+    return [
+        body("registerPublisher", f"/bench_{tag}", f"/bench/{tag}", "std_msgs/String", api),
+        body("lookupNode", "/probe", f"/bench_{tag}"),
+        body("getSystemState", "/probe"),
+        body("getParam", "/probe", "/bench/param"),
+    ]
+
+
+async def post(session: aiohttp.ClientSession, uri: str, data: bytes) -> bytes:
+    async with session.post(uri, data=data, headers={"Content-Type": "text/xml"}) as resp:
+        out = await resp.read()
+    if b"<int>1</int>" not in out[:400] and b"<i4>1</i4>" not in out[:400]:
+        raise RuntimeError(f"unexpected reply: {out[:200]!r}")
+    return out
+
+
+# --- worker subprocess: closed-loop clients for a fixed time ------------------------------------
+
+
+def http_request(uri: str, data: bytes) -> bytes:
+    """A complete HTTP/1.1 POST, encoded once and replayed (the cheapest fair client)."""
+    host = uri.split("//", 1)[1].rstrip("/")
+    return (
+        b"POST / HTTP/1.1\r\nHost: %s\r\nContent-Type: text/xml\r\nContent-Length: %d\r\n\r\n"
+        % (host.encode(), len(data))
+        + data
+    )
+
+
+async def raw_call(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, request: bytes) -> bool:
+    """Send one prepared request and read its response; False if the server closed the connection."""
+    writer.write(request)
+    try:
+        head = await reader.readuntil(b"\r\n\r\n")
+    except asyncio.IncompleteReadError:
+        return False
+    length = 0
+    close = False
+    for line in head.split(b"\r\n")[1:]:
+        name, _, value = line.partition(b":")
+        key = name.strip().lower()
+        if key == b"content-length":
+            length = int(value)
+        elif key == b"connection" and value.strip().lower() == b"close":
+            close = True
+    payload = await reader.readexactly(length)
+    if b"<int>1</int>" not in payload[:400] and b"<i4>1</i4>" not in payload[:400]:
+        raise RuntimeError(f"unexpected reply: {payload[:200]!r}")
+    return not close
+
+
+async def worker(uri: str, concurrency: int, duration: float, tag: str) -> int:
+    bodies = mix_bodies(tag)
+    async with aiohttp.ClientSession() as session:
+        await post(session, uri, bodies[0])  # register once so lookupNode succeeds
+        await post(session, uri, body("setParam", "/probe", "/bench/param", 42))
+    requests = [http_request(uri, b) for b in bodies]
+    host, port = uri.split("//", 1)[1].rstrip("/").split(":")
+    count = 0
+    stop_at = time.perf_counter() + duration
+
+    async def loop(i: int) -> None:
+        nonlocal count
+        k = i
+        reader, writer = await asyncio.open_connection(host, int(port))
+        try:
+            while time.perf_counter() < stop_at:
+                if not await raw_call(reader, writer, requests[k % len(requests)]):
+                    writer.close()
+                    reader, writer = await asyncio.open_connection(host, int(port))
+                k += 1
+                count += 1
+        finally:
+            writer.close()
+
+    await asyncio.gather(*(loop(i) for i in range(concurrency)))
+    return count
+
+
+def throughput(uri: str, clients: int, duration: float) -> float:
+    """Calls per second with ``clients`` concurrent closed-loop clients spread over up to 2 processes."""
+    procs_n = 1 if clients == 1 else 2
+    per = clients // procs_n
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-m", "bench.master", "--worker", uri, str(per), str(duration), f"w{i}"],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        for i in range(procs_n)
+    ]
+    total = 0
+    for p in procs:
+        out, _ = p.communicate(timeout=duration + 60)
+        total += int(out.strip() or 0)
+    return total / duration
+
+
+# --- latency and registration (in process) ------------------------------------------------------
+
+
+async def latency(uri: str, n: int) -> dict[str, float]:
+    """Median microseconds per call, sequential."""
+    out: dict[str, float] = {}
+    async with aiohttp.ClientSession() as session:
+        await post(session, uri, body("setParam", "/probe", "/bench/param", 42))
+        for i, name in enumerate(["registerPublisher", "lookupNode", "getSystemState", "getParam"]):
+            data = mix_bodies("lat")[i]
+            await post(session, uri, data)
+            samples = []
+            for _ in range(n):
+                t0 = time.perf_counter()
+                await post(session, uri, data)
+                samples.append(time.perf_counter() - t0)
+            out[name] = statistics.median(samples) * 1e6
+    return out
+
+
+async def registration(uri: str, nodes: int, topics: int, dead: bool, tag: str) -> tuple[float, float]:
+    """Seconds to register ``nodes`` x ``topics`` subscribers then publishers (8 concurrent callers).
+
+    With ``dead`` the subscribers register first, at URIs of closed ports, so every publisher
+    registration owes them a publisherUpdate; otherwise publishers register first (nothing to send).
+    Also returns the median lookupNode latency (us) measured right after, while callbacks drain.
+    """
+    dead_ports = [free_port() for _ in range(16)]
+    subs = [
+        body(
+            "registerSubscriber",
+            f"/{tag}_sub{i}",
+            f"/{tag}/n{i}/t{j}",
+            "std_msgs/String",
+            DEAD_API.format(port=dead_ports[i % len(dead_ports)]),
+        )
+        for i in range(nodes)
+        for j in range(topics)
+    ]
+    pubs = [
+        body("registerPublisher", f"/{tag}_pub{i}", f"/{tag}/n{i}/t{j}", "std_msgs/String", f"http://127.0.0.1:9/{i}")
+        for i in range(nodes)
+        for j in range(topics)
+    ]
+    jobs = subs + pubs if dead else pubs + subs
+    connector = aiohttp.TCPConnector(limit=8)
+    async with aiohttp.ClientSession(connector=connector) as session:
+        it = iter(jobs)
+
+        async def caller() -> None:
+            for data in it:
+                await post(session, uri, data)
+
+        t0 = time.perf_counter()
+        await asyncio.gather(*(caller() for _ in range(8)))
+        elapsed = time.perf_counter() - t0
+        probe = body("lookupNode", "/probe", f"/{tag}_pub0")
+        samples = []
+        for _ in range(50):
+            t1 = time.perf_counter()
+            await post(session, uri, probe)
+            samples.append(time.perf_counter() - t1)
+    return elapsed, statistics.median(samples) * 1e6
+
+
+# --- driver -------------------------------------------------------------------------------------
+
+
+def start_ours(procs: Processes) -> str:
+    port = free_port()
+    uri = f"http://127.0.0.1:{port}/"
+    procs.start(
+        [sys.executable, "-m", "mrosd.master", "--port", str(port)],
+        ros_env(uri, procs.tmp),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    wait_for_xmlrpc(uri)
+    return uri
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.master")
+    parser.add_argument("--quick", action="store_true", help="smaller runs (CI smoke)")
+    parser.add_argument("--duration", type=float, default=3.0, help="seconds per throughput run")
+    parser.add_argument("--worker", nargs=4, metavar=("URI", "CONC", "DUR", "TAG"), help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.worker:
+        uri, conc, dur, tag = args.worker
+        try:
+            import uvloop
+
+            uvloop.install()
+        except ImportError:  # pragma: no cover
+            pass
+        print(asyncio.run(worker(uri, int(conc), float(dur), tag)))
+        return 0
+    if not ros_available():
+        print("bench.master: Debian rosmaster is not installed; nothing to compare against")
+        return 0
+    duration = 1.0 if args.quick else args.duration
+    nodes, topics = (50, 20) if args.quick else (500, 20)
+    lat_n = 100 if args.quick else 500
+    with TemporaryDirectory() as tmp:
+        procs = Processes(Path(tmp))
+        try:
+            masters = {"mrosd": start_ours(procs), "rosmaster": start_rosmaster(procs)}
+            results: dict[str, dict[str, float]] = {name: {} for name in masters}
+            for name, uri in masters.items():
+                for call, us in asyncio.run(latency(uri, lat_n)).items():
+                    results[name][f"latency {call} (us)"] = us
+            for clients in (1, 8, 32):
+                for name, uri in masters.items():
+                    results[name][f"throughput {clients} clients (calls/s)"] = throughput(uri, clients, duration)
+            for name, uri in masters.items():
+                base, _ = asyncio.run(registration(uri, nodes, topics, dead=False, tag="base"))
+                dead, probe = asyncio.run(registration(uri, nodes, topics, dead=True, tag="dead"))
+                results[name][f"register {nodes}x{topics} no subscribers (s)"] = base
+                results[name][f"register {nodes}x{topics} dead subscribers (s)"] = dead
+                results[name]["dead/no-subscriber time ratio"] = dead / base
+                results[name]["lookupNode right after (us)"] = probe
+        finally:
+            procs.close()
+    print(f"{'metric':48} {'mrosd':>12} {'rosmaster':>12} {'ratio':>8}")
+    for metric, ours in results["mrosd"].items():
+        theirs = results["rosmaster"][metric]
+        if "calls/s" in metric:
+            ratio = ours / theirs if theirs else float("inf")
+            note = "x faster"
+        elif "ratio" in metric:
+            ratio, note = float("nan"), ""
+        else:
+            ratio = theirs / ours if ours else float("inf")
+            note = "x faster"
+        shown = f"{ratio:7.1f}{note[:1]}" if ratio == ratio else ""
+        print(f"{metric:48} {ours:12.1f} {theirs:12.1f} {shown:>8}")
+    print(f"(pid {os.getpid()}; ratio = how many times faster mrosd is)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

@@ -1,0 +1,295 @@
+"""A lean HTTP/1.1 transport for the master's XML-RPC: an ``asyncio.Protocol``, no web framework.
+
+Why: the master answers thousands of tiny calls per second and aiohttp's request machinery cost more
+than the XML-RPC work itself (profiled). This module only frames HTTP; the XML-RPC codec and
+dispatch stay in ``mrosd.xmlrpc`` (``decode_call``/``encode_response``/``encode_fault`` and
+``XmlRpcServer.call`` for everything that is not a plain synchronous master method).
+
+Supported: POST with Content-Length, keep-alive (HTTP/1.1 default, HTTP/1.0 with the header),
+pipelined requests answered in order, ``Expect: 100-continue``. Refused with a status and a closed
+connection: other methods (405), chunked bodies (411), bodies over ``MAX_BODY_SIZE`` (413), header
+blocks over ``MAX_HEADER_SIZE`` (431), garbage (400), and peers outside the allow-list (403).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import ipaddress
+import logging
+import socket
+from collections.abc import Callable, Coroutine
+from typing import Any, cast
+
+from mrosd.errors import LocalProtocolError, RemoteProtocolError
+from mrosd.xmlrpc import (
+    FAULT_INTERNAL_ERROR,
+    FAULT_PARSE_ERROR,
+    MAX_BODY_SIZE,
+    Fault,
+    XmlRpcServer,
+    decode_call,
+    encode_fault,
+    encode_response,
+)
+
+log = logging.getLogger(__name__)
+
+#: Largest request line + headers accepted.
+MAX_HEADER_SIZE = 64 * 1024
+
+Network = ipaddress.IPv4Network | ipaddress.IPv6Network
+SyncHandler = Callable[..., Any]
+
+_REASONS = {
+    400: b"Bad Request",
+    403: b"Forbidden",
+    405: b"Method Not Allowed",
+    411: b"Length Required",
+    413: b"Payload Too Large",
+    431: b"Request Header Fields Too Large",
+}
+
+
+def allowed(networks: list[Network] | None, host: str | None) -> bool:
+    """Whether a peer address is inside one of ``networks`` (None allows everyone)."""
+    if networks is None:
+        return True
+    if not host:
+        return False
+    try:
+        addr = ipaddress.ip_address(host.split("%", 1)[0])
+    except ValueError:
+        return False
+    if isinstance(addr, ipaddress.IPv6Address) and addr.ipv4_mapped is not None:
+        addr = addr.ipv4_mapped
+    return any(addr in net for net in networks)
+
+
+class XmlRpcHttpHandler:
+    """Turns one request body into one response body: sync fast path, else the shared XmlRpcServer."""
+
+    def __init__(self, sync_methods: dict[str, SyncHandler], fallback: XmlRpcServer) -> None:
+        self.sync_methods = sync_methods
+        self.fallback = fallback
+
+    def handle(self, body: bytes) -> bytes | Coroutine[Any, Any, bytes]:
+        """The response body, or a coroutine producing it for calls that need the event loop."""
+        try:
+            method, params = decode_call(body)
+        except RemoteProtocolError as exc:
+            log.info("master: %s", exc)
+            return encode_fault(FAULT_PARSE_ERROR, str(exc))
+        handler = self.sync_methods.get(method)
+        if handler is None:
+            return self._slow(method, params)
+        try:
+            return encode_response(handler(*params))
+        except LocalProtocolError as exc:
+            return encode_fault(FAULT_INTERNAL_ERROR, str(exc))
+        except Exception as exc:  # the handlers catch their own errors; this is the last guard
+            log.exception("master: %s failed", method)
+            return encode_fault(FAULT_INTERNAL_ERROR, f"{method}: internal error: {exc!r}")
+
+    async def _slow(self, method: str, params: tuple[Any, ...]) -> bytes:
+        try:
+            return encode_response(await self.fallback.call(method, params))
+        except Fault as exc:
+            return encode_fault(exc.code, exc.message)
+        except LocalProtocolError as exc:
+            return encode_fault(FAULT_INTERNAL_ERROR, str(exc))
+
+
+class _Request:
+    __slots__ = ("body_start", "keep_alive", "length")
+
+    def __init__(self, body_start: int, length: int, keep_alive: bool) -> None:
+        self.body_start = body_start
+        self.length = length
+        self.keep_alive = keep_alive
+
+
+class HttpProtocol(asyncio.Protocol):
+    """One client connection: parse requests, answer them in order."""
+
+    def __init__(
+        self, handler: XmlRpcHttpHandler, networks: list[Network] | None, live: set[asyncio.Transport]
+    ) -> None:
+        self._handler = handler
+        self._live = live
+        self._networks = networks
+        self._buf = bytearray()
+        self._transport: asyncio.Transport | None = None
+        self._request: _Request | None = None
+        self._busy = False
+        self._closed = False
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self._transport = cast(asyncio.Transport, transport)  # uvloop's transports are not subclasses
+        self._live.add(self._transport)
+        peer = transport.get_extra_info("peername")
+        host = peer[0] if isinstance(peer, tuple) and peer else None
+        if not allowed(self._networks, host):
+            log.warning("master: refused connection from %s (not in the allow-list)", host)
+            self._fail(403, b"client address not allowed\n")
+            return
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            try:
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            except OSError:
+                pass
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self._transport is not None:
+            self._live.discard(self._transport)
+        self._closed = True
+        self._buf.clear()
+
+    def data_received(self, data: bytes) -> None:
+        if self._closed:
+            return
+        self._buf += data
+        self._process()
+
+    def _fail(self, status: int, text: bytes) -> None:
+        if self._transport is None or self._closed:
+            return
+        head = b"HTTP/1.1 %d %s\r\nContent-Type: text/plain\r\nContent-Length: %d\r\nConnection: close\r\n\r\n" % (
+            status,
+            _REASONS.get(status, b"Error"),
+            len(text),
+        )
+        self._transport.write(head + text)
+        self._transport.close()
+        self._closed = True
+        self._buf.clear()
+
+    def _parse_head(self) -> _Request | None:
+        """Parse the header block at the start of the buffer; None while incomplete (or after failing)."""
+        end = self._buf.find(b"\r\n\r\n", 0, MAX_HEADER_SIZE + 4)
+        if end < 0:
+            if len(self._buf) > MAX_HEADER_SIZE:
+                self._fail(431, b"header block too large\n")
+            return None
+        lines = bytes(self._buf[:end]).split(b"\r\n")
+        parts = lines[0].split()
+        if len(parts) != 3 or not parts[2].startswith(b"HTTP/1."):
+            self._fail(400, b"malformed request line\n")
+            return None
+        if parts[0] != b"POST":
+            self._fail(405, b"only POST is supported\n")
+            return None
+        keep_alive = parts[2] != b"HTTP/1.0"
+        length: int | None = None
+        expect_continue = False
+        for line in lines[1:]:
+            name, sep, value = line.partition(b":")
+            if not sep:
+                self._fail(400, b"malformed header line\n")
+                return None
+            key = name.strip().lower()
+            value = value.strip()
+            if key == b"content-length":
+                try:
+                    length = int(value)
+                except ValueError:
+                    length = -1
+                if length < 0:
+                    self._fail(400, b"bad Content-Length\n")
+                    return None
+            elif key == b"transfer-encoding":
+                self._fail(411, b"chunked bodies are not supported; send Content-Length\n")
+                return None
+            elif key == b"connection":
+                token = value.lower()
+                if token == b"close":
+                    keep_alive = False
+                elif token == b"keep-alive":
+                    keep_alive = True
+            elif key == b"expect" and value.lower() == b"100-continue":
+                expect_continue = True
+        if length is None:
+            self._fail(411, b"Content-Length required\n")
+            return None
+        if length > MAX_BODY_SIZE:
+            self._fail(413, b"request body too large\n")
+            return None
+        if expect_continue and self._transport is not None:
+            self._transport.write(b"HTTP/1.1 100 Continue\r\n\r\n")
+        return _Request(end + 4, length, keep_alive)
+
+    def _process(self) -> None:
+        while not self._busy and not self._closed:
+            if self._request is None:
+                self._request = self._parse_head()
+                if self._request is None:
+                    return
+            req = self._request
+            stop = req.body_start + req.length
+            if len(self._buf) < stop:
+                return
+            body = bytes(self._buf[req.body_start : stop])
+            del self._buf[:stop]
+            self._request = None
+            result = self._handler.handle(body)
+            if isinstance(result, bytes):
+                self._respond(result, req.keep_alive)
+            else:
+                self._busy = True
+                task = asyncio.get_running_loop().create_task(result)
+                task.add_done_callback(functools.partial(self._finished, keep_alive=req.keep_alive))
+
+    def _finished(self, task: asyncio.Task[bytes], *, keep_alive: bool) -> None:
+        self._busy = False
+        if task.cancelled():
+            return
+        exc = task.exception()
+        out = encode_fault(FAULT_INTERNAL_ERROR, f"internal error: {exc!r}") if exc else task.result()
+        self._respond(out, keep_alive)
+        self._process()
+
+    def _respond(self, body: bytes, keep_alive: bool) -> None:
+        if self._transport is None or self._closed:
+            return
+        conn = b"keep-alive" if keep_alive else b"close"
+        self._transport.write(
+            b"HTTP/1.1 200 OK\r\nContent-Type: text/xml\r\nContent-Length: %d\r\nConnection: %s\r\n\r\n%s"
+            % (len(body), conn, body)
+        )
+        if not keep_alive:
+            self._transport.close()
+            self._closed = True
+
+
+class HttpServer:
+    """The listening socket plus every open connection (so closing really closes them all)."""
+
+    def __init__(self, handler: XmlRpcHttpHandler, networks: list[Network] | None) -> None:
+        self._handler = handler
+        self._networks = networks
+        self._live: set[asyncio.Transport] = set()
+        self._server: asyncio.Server | None = None
+        self.port = 0
+
+    async def start(self, host: str, port: int, backlog: int = 1024) -> None:
+        """Bind and listen; ``.port`` is the bound port afterwards."""
+        loop = asyncio.get_running_loop()
+        self._server = await loop.create_server(
+            lambda: HttpProtocol(self._handler, self._networks, self._live),
+            host,
+            port,
+            backlog=backlog,
+            reuse_address=True,
+        )
+        self.port = int(self._server.sockets[0].getsockname()[1])
+
+    async def aclose(self) -> None:
+        """Stop listening and abort every open connection."""
+        if self._server is not None:
+            self._server.close()
+            for transport in list(self._live):
+                transport.abort()
+            self._live.clear()
+            await self._server.wait_closed()
+            self._server = None
