@@ -88,15 +88,22 @@ async def _send(mode: str, kind: str, sizes: list[int], n: int) -> None:
         if fut is not None and state["received"] >= target[0] and not fut.done():
             fut.set_result(None)
 
+    def expire(fut: asyncio.Future[None]) -> None:
+        if not fut.done():
+            fut.set_exception(TimeoutError())
+
     async def wait_for(count: int, timeout: float) -> bool:
         if state["received"] >= count:
             return True
         target[0] = count
-        waiter[0] = loop.create_future()
+        fut = waiter[0] = loop.create_future()
+        timer = loop.call_later(timeout, expire, fut)
         try:
-            await asyncio.wait_for(waiter[0], timeout)
+            await fut
         except TimeoutError:
             return False
+        finally:
+            timer.cancel()
         return True
 
     async with mrosd.Node(f"mrosd_{mode}_{os.getpid()}", argv=[]) as node:

@@ -45,6 +45,43 @@ class FrameDecoder:
         """Append received bytes."""
         self._buf += data
 
+    def feed_frames(self, data: bytes) -> list[bytes]:
+        """``feed(data)`` and return every frame now complete (the hot path: one call per socket read).
+
+        When nothing is buffered, frames are sliced straight out of ``data`` without copying it into the
+        buffer first; only an incomplete tail is buffered.
+
+        Raises:
+            RemoteProtocolError: a length prefix exceeds ``max_size``; the connection must be closed.
+        """
+        if len(self._buf) != self._pos:
+            self.feed(data)
+            frames = []
+            while (frame := self.maybe_next_frame()) is not None:
+                frames.append(frame)
+            return frames
+        frames = []
+        size = len(data)
+        pos = 0
+        limit = self.max_size
+        unpack = _U32.unpack_from
+        while size - pos >= 4:
+            (length,) = unpack(data, pos)
+            if length > limit:
+                self._buf += data[pos:]
+                self._pos = 0
+                raise RemoteProtocolError(f"frame of {length} bytes announced, the limit is {limit}")
+            end = pos + 4 + length
+            if end > size:
+                break
+            frames.append(data[pos + 4 : end])
+            pos = end
+        if pos < size:
+            self._buf.clear()
+            self._pos = 0
+            self._buf += memoryview(data)[pos:]
+        return frames
+
     def take(self, count: int) -> bytes | None:
         """Return exactly ``count`` raw bytes (e.g. a service ok byte), or None while fewer are buffered."""
         if len(self._buf) - self._pos < count:

@@ -45,10 +45,6 @@ class TcprosProtocol(asyncio.Protocol):
     def frame_received(self, body: bytes) -> None:
         """Called for every complete frame after the header."""
 
-    def raw_received(self) -> bool:
-        """Called before frame decoding after the header; return False to stop for now (service replies)."""
-        return True
-
     def connection_closed(self, exc: BaseException | None) -> None:
         """Called once when the connection is gone."""
 
@@ -65,22 +61,22 @@ class TcprosProtocol(asyncio.Protocol):
 
     def data_received(self, data: bytes) -> None:
         decoder = self.decoder
-        decoder.feed(data)
         try:
             if self.header is None:
+                decoder.feed(data)
                 body = decoder.maybe_next_frame()
                 if body is None:
                     return
                 self.header = decode_connection_header(body)
                 decoder.max_size = MAX_FRAME_SIZE
                 self.header_received(self.header)
-            while self.transport is not None and not self.transport.is_closing():
-                if not self.raw_received():
+                data = decoder.take(decoder.buffered) or b""
+            frame_received = self.frame_received
+            for body in decoder.feed_frames(data):
+                transport = self.transport
+                if transport is None or transport.is_closing():
                     return
-                body = decoder.maybe_next_frame()
-                if body is None:
-                    return
-                self.frame_received(body)
+                frame_received(body)
         except RemoteProtocolError as exc:
             self.abort(f"protocol error from {self.peer}: {exc}")
 

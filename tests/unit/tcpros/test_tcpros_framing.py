@@ -94,3 +94,28 @@ def test_arbitrary_bytes_never_break_the_decoder(data: bytes) -> None:
             pass
     except RemoteProtocolError:
         pass
+
+
+@given(st.lists(st.binary(max_size=200), max_size=20), st.lists(st.integers(1, 50), min_size=1, max_size=30))
+def test_feed_frames_agrees_with_maybe_next_frame_however_the_stream_is_cut(
+    bodies: list[bytes], cuts: list[int]
+) -> None:
+    stream = b"".join(encode_frame(b) for b in bodies)
+    dec = FrameDecoder()
+    out: list[bytes] = []
+    pos = 0
+    i = 0
+    while pos < len(stream):
+        step = cuts[i % len(cuts)]
+        out.extend(dec.feed_frames(stream[pos : pos + step]))
+        pos += step
+        i += 1
+    assert out == bodies
+    assert dec.buffered == 0
+
+
+def test_feed_frames_refuses_an_oversized_length_without_buffering_the_body() -> None:
+    dec = FrameDecoder(max_size=10)
+    assert dec.feed_frames(encode_frame(b"ok")) == [b"ok"]
+    with pytest.raises(RemoteProtocolError):
+        dec.feed_frames(b"\xff\xff\xff\x7f" + b"x" * 10)
