@@ -1,0 +1,111 @@
+"""The master's HTTP framing over real sockets: keep-alive, pipelining, refusals, multicall, bounded queues."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import AsyncIterator
+
+import pytest
+
+from mrosd.master import Master
+from mrosd.master.notifier import Notifier
+from mrosd.master.registry import publisher_update
+from mrosd.xmlrpc import XmlRpcClient, decode_response, encode_call
+from tests.rosenv import free_port
+
+
+@pytest.fixture
+async def master() -> AsyncIterator[Master]:
+    async with Master("127.0.0.1", 0, advertise="127.0.0.1") as m:
+        yield m
+
+
+def request(body: bytes, version: bytes = b"HTTP/1.1", extra: bytes = b"") -> bytes:
+    return b"POST / %s\r\nContent-Type: text/xml\r\n%sContent-Length: %d\r\n\r\n%s" % (
+        version,
+        extra,
+        len(body),
+        body,
+    )
+
+
+async def read_response(reader: asyncio.StreamReader) -> tuple[bytes, bytes]:
+    head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), 5)
+    length = next(
+        int(line.split(b":", 1)[1]) for line in head.split(b"\r\n") if line.lower().startswith(b"content-length")
+    )
+    return head, await asyncio.wait_for(reader.readexactly(length), 5)
+
+
+async def test_pipelined_requests_on_one_connection_are_answered_in_order(master: Master) -> None:
+    reader, writer = await asyncio.open_connection("127.0.0.1", master.port)
+    try:
+        writer.write(
+            request(encode_call("setParam", ("/c", "/x", 1)))
+            + request(encode_call("getParam", ("/c", "/x")))
+            + request(encode_call("getParam", ("/c", "/missing")))
+        )
+        codes = [decode_response((await read_response(reader))[1])[0] for _ in range(3)]
+        assert codes == [1, 1, -1]
+    finally:
+        writer.close()
+
+
+async def test_http_1_0_requests_are_answered_then_closed(master: Master) -> None:
+    reader, writer = await asyncio.open_connection("127.0.0.1", master.port)
+    try:
+        writer.write(request(encode_call("getUri", ("/c",)), version=b"HTTP/1.0"))
+        head, body = await read_response(reader)
+        assert b"200 OK" in head and decode_response(body)[2] == master.uri
+        assert await asyncio.wait_for(reader.read(), 5) == b""
+    finally:
+        writer.close()
+
+
+@pytest.mark.parametrize(
+    ("raw", "status"),
+    [
+        (b"GET / HTTP/1.1\r\nHost: x\r\n\r\n", b"405"),
+        (b"POST / HTTP/1.1\r\nTransfer-Encoding: chunked\r\n\r\n", b"411"),
+        (b"POST / HTTP/1.1\r\nHost: x\r\n\r\n", b"411"),
+        (b"POST / HTTP/1.1\r\nContent-Length: 99999999999\r\n\r\n", b"413"),
+        (b"POST / HTTP/1.1\r\nContent-Length: -3\r\n\r\n", b"400"),
+        (b"garbage\r\n\r\n", b"400"),
+        (b"POST / HTTP/1.1\r\nX: " + b"a" * 70000 + b"\r\n\r\n", b"431"),
+    ],
+)
+async def test_bad_http_is_refused_with_a_status_and_the_master_keeps_serving(
+    master: Master, raw: bytes, status: bytes
+) -> None:
+    reader, writer = await asyncio.open_connection("127.0.0.1", master.port)
+    try:
+        writer.write(raw)
+        head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), 5)
+        assert head.split(b" ")[1] == status
+    finally:
+        writer.close()
+    async with XmlRpcClient() as client:
+        assert (await client.call(master.uri, "getUri", "/c"))[2] == master.uri
+
+
+async def test_multicall_goes_through_the_shared_dispatcher(master: Master) -> None:
+    async with XmlRpcClient() as client:
+        calls = [
+            {"methodName": "setParam", "params": ["/c", "/m", 5]},
+            {"methodName": "getParam", "params": ["/c", "/m"]},
+            {"methodName": "nope", "params": []},
+        ]
+        out = await client.call(master.uri, "system.multicall", calls)
+        assert out[1] == [[1, "Parameter [/m]", 5]]
+        assert out[2]["faultCode"] == -32601
+
+
+async def test_a_full_notification_queue_drops_its_oldest_entries() -> None:
+    async with XmlRpcClient() as client:
+        notifier = Notifier(client, timeout=0.5, max_queue=3, max_failures=100)
+        dead = f"http://127.0.0.1:{free_port()}/"
+        notifier.submit([publisher_update(dead, f"/t{i}", []) for i in range(10)])
+        assert notifier.backlog(dead) <= 3
+        assert notifier.dropped >= 6
+        await notifier.drain()
+        await notifier.aclose()
