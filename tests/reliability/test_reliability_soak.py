@@ -31,7 +31,7 @@ def test_a_short_soak_of_the_daemon_and_many_nodes_keeps_memory_fds_and_shm_boun
             "-m",
             "bench.soak",
             "--seconds",
-            "20",
+            "15",
             "--interval",
             "4",
             "--nodes",
