@@ -107,7 +107,8 @@ class FrameDecoder:
         if avail < 4 + length:
             return None
         start = pos + 4
-        body = bytes(buf[start : start + length])
+        with memoryview(buf) as view:  # one copy of the body, not slice-then-copy
+            body = bytes(view[start : start + length])
         self._advance(4 + length)
         return body
 
