@@ -121,6 +121,8 @@ class _KeyState:
             seq = self.layout.write(data)
         finally:
             fcntl.flock(fd, fcntl.LOCK_UN)
+        if self.wake_fd is not None:
+            self.last_seq = seq  # in "rw" mode, our own write is not news to our own wait()
         if self.layout.generation != self.generation:
             # checked after the data is in place: a reader whose open completed before this point is
             # already announced by the daemon, and its eventfd is in our socket buffer

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from mrosd.ixm.server import segment_prefix
 from tests.rosenv import Processes
 
 SHM = Path("/dev/shm")
@@ -47,17 +48,39 @@ def start_daemon(procs: Processes, socket_path: str, config: str | None = None) 
     return proc
 
 
+class ShmGuard:
+    """The socket paths whose daemons' segments must all be gone when the test ends.
+
+    Segment names carry a hash of their daemon's socket path, so a test checks only its own daemons and
+    is not confused by other daemons running on the machine at the same time (benchmarks, other suites).
+    """
+
+    def __init__(self) -> None:
+        self.prefixes: set[str] = set()
+
+    def watch(self, socket_path: str) -> str:
+        self.prefixes.add(segment_prefix(socket_path))
+        return socket_path
+
+    def leftovers(self) -> set[str]:
+        return {n for n in ixm_segments() if n.startswith(tuple(self.prefixes))}
+
+
 @pytest.fixture
-def shm_guard() -> Iterator[None]:
-    """Fails the test if it leaves a new mrosd IXM segment in /dev/shm (checked after the daemon stopped)."""
-    before = ixm_segments()
-    yield
-    leaked = ixm_segments() - before
+def shm_guard(tmp_path: Path) -> Iterator[ShmGuard]:
+    """Fails the test if its daemons leave a segment in /dev/shm (checked after they stopped).
+
+    ``tmp_path / "ixm.sock"`` is watched by default; call ``watch(path)`` for other socket paths.
+    """
+    guard = ShmGuard()
+    guard.watch(str(tmp_path / "ixm.sock"))
+    yield guard
+    leaked = guard.leftovers()
     assert not leaked, f"leaked shared memory segments: {sorted(leaked)}"
 
 
 @pytest.fixture
-def ixm_socket(shm_guard: None, tmp_path: Path) -> Iterator[str]:
+def ixm_socket(shm_guard: ShmGuard, tmp_path: Path) -> Iterator[str]:
     """Socket path of a running ``python -m mrosd.ixm`` daemon (stopped, and its segments checked, at the end)."""
     procs = Processes(tmp_path)
     path = str(tmp_path / "ixm.sock")

@@ -10,9 +10,10 @@ import pytest
 from mrosd.errors import IxmError, IxmPermissionError
 from mrosd.ixm import AccessRules, AsyncIxmClient
 from mrosd.ixm.server import IxmServer
+from tests.integration.ixm.conftest import ShmGuard
 
 
-async def test_async_for_yields_each_write_without_polling(shm_guard: None, tmp_path: Path) -> None:
+async def test_async_for_yields_each_write_without_polling(shm_guard: ShmGuard, tmp_path: Path) -> None:
     sock = str(tmp_path / "ixm.sock")
     async with IxmServer(sock), AsyncIxmClient(sock) as a, AsyncIxmClient(sock) as b:
         reader = await b.open("/speed", "float32")
@@ -42,7 +43,7 @@ async def test_async_for_yields_each_write_without_polling(shm_guard: None, tmp_
         await writer.close()
 
 
-async def test_a_raw_array_is_written_and_read_through_zero_copy_views(shm_guard: None, tmp_path: Path) -> None:
+async def test_a_raw_array_is_written_and_read_through_zero_copy_views(shm_guard: ShmGuard, tmp_path: Path) -> None:
     sock = str(tmp_path / "ixm.sock")
     async with IxmServer(sock), AsyncIxmClient(sock) as a:
         img = await a.open("/image", "uint8", max_size=1024, mode="rw")
@@ -62,7 +63,7 @@ async def test_a_raw_array_is_written_and_read_through_zero_copy_views(shm_guard
             (await a.open("/scalar", "float64", mode="w")).view()
 
 
-async def test_reloaded_rules_apply_to_later_opens(shm_guard: None, tmp_path: Path) -> None:
+async def test_reloaded_rules_apply_to_later_opens(shm_guard: ShmGuard, tmp_path: Path) -> None:
     sock = str(tmp_path / "ixm.sock")
     async with IxmServer(sock, {"default": "deny"}) as server, AsyncIxmClient(sock) as a:
         # this test runs as the daemon's own uid, which is always allowed: take that away for the check

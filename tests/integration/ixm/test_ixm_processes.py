@@ -12,7 +12,7 @@ import pytest
 
 from mrosd.errors import IxmError
 from mrosd.ixm import IxmClient
-from tests.integration.ixm.conftest import ixm_segments, python_child, start_daemon, until, wait_line
+from tests.integration.ixm.conftest import ShmGuard, ixm_segments, python_child, start_daemon, until, wait_line
 from tests.rosenv import Processes
 
 
@@ -92,7 +92,7 @@ def test_closing_the_last_holder_unlinks_the_segment(ixm_socket: str) -> None:
 
 
 def test_a_restarted_daemon_removes_the_segments_of_the_run_that_crashed(
-    shm_guard: None, procs: Processes, tmp_path: Path
+    shm_guard: ShmGuard, procs: Processes, tmp_path: Path
 ) -> None:
     sock = str(tmp_path / "ixm.sock")
     daemon = start_daemon(procs, sock)

@@ -22,7 +22,7 @@ import pytest
 
 from mrosd.errors import IxmError, IxmPermissionError
 from mrosd.ixm import IxmClient
-from tests.integration.ixm.conftest import start_daemon
+from tests.integration.ixm.conftest import ShmGuard, start_daemon
 from tests.rosenv import Processes
 
 USER = "mrosdixmtest"
@@ -96,7 +96,7 @@ def outcome(action: Callable[[], object]) -> str:
 
 
 def test_a_denied_reader_cannot_read_and_a_reader_cannot_write(
-    other_user: pwd.struct_passwd, shm_guard: None, procs: Processes
+    other_user: pwd.struct_passwd, shm_guard: ShmGuard, procs: Processes
 ) -> None:
     with tempfile.TemporaryDirectory(prefix="mrosd-ixm-users-") as tmp:
         os.chmod(tmp, 0o755)  # the other user must reach the socket; the daemon's rules decide the rest
@@ -106,7 +106,7 @@ def test_a_denied_reader_cannot_read_and_a_reader_cannot_write(
             '[ixm.rules.keys."/secret"]\nread_uids = [0]\n'
             f'[ixm.rules.keys."/shared"]\nread_uids = [{other_user.pw_uid}]\n'
         )
-        sock = os.path.join(tmp, "ixm.sock")
+        sock = shm_guard.watch(os.path.join(tmp, "ixm.sock"))
         start_daemon(procs, sock, str(config))
         with IxmClient(sock) as ixm:
             ixm.open("/secret", "float64", mode="w").write(42.0)
@@ -155,11 +155,11 @@ def test_a_denied_reader_cannot_read_and_a_reader_cannot_write(
 
 
 def test_a_reader_of_another_uid_is_refused_write_access_on_open(
-    other_user: pwd.struct_passwd, shm_guard: None, procs: Processes
+    other_user: pwd.struct_passwd, shm_guard: ShmGuard, procs: Processes
 ) -> None:
     with tempfile.TemporaryDirectory(prefix="mrosd-ixm-users-") as tmp:
         os.chmod(tmp, 0o755)
-        sock = os.path.join(tmp, "ixm.sock")
+        sock = shm_guard.watch(os.path.join(tmp, "ixm.sock"))
         start_daemon(procs, sock)  # default policy: anyone reads, only the creator's uid writes
         with IxmClient(sock) as ixm:
             ixm.open("/cmd", "int32", mode="w").write(3)
