@@ -17,6 +17,7 @@ import asyncio
 import functools
 import ipaddress
 import logging
+import re
 import socket
 from collections.abc import Callable, Coroutine
 from typing import Any, cast
@@ -66,6 +67,63 @@ def allowed(networks: list[Network] | None, host: str | None) -> bool:
     return any(addr in net for net in networks)
 
 
+# --- fast path for the master's typical calls -------------------------------------------------
+# Profiling showed expat parser construction in xmlrpc.client.loads dominating the master's CPU per
+# call. Nearly every Master API call carries only short ASCII strings, so those exact shapes are
+# matched here; anything else (other types, entities, CDATA, comments, non-ASCII, odd whitespace)
+# returns None and goes through mrosd.xmlrpc.decode_call. Tests check both give identical results.
+
+_WS = rb"[ \t\n\r]*"
+_CALL = re.compile(
+    rb"(?:<\?xml version=(?:'1\.0'|\"1\.0\")(?: encoding=(?:'(?i:utf-8)'|\"(?i:utf-8)\"))?\?>)?"
+    + _WS
+    + rb"<methodCall>"
+    + _WS
+    + rb"<methodName>([A-Za-z0-9_.]{1,200})</methodName>"
+    + _WS
+    + rb"(?:<params>(.*)</params>"
+    + _WS
+    + rb"|<params/>"
+    + _WS
+    + rb")?</methodCall>"
+    + _WS,
+    re.S,
+)
+_TEXT = rb"[\t\n\x20-\x25\x27-\x3b\x3d-\x5c\x5e-\x7e]*"  # printable ASCII without < & ]
+_PARAM = re.compile(
+    _WS + rb"<param>" + _WS + rb"<value>(?:<string>(" + _TEXT + rb")</string>"
+    rb"|<(?:i4|int)>([-+]?[0-9]{1,9})</(?:i4|int)>"
+    rb"|<boolean>([01])</boolean>|(" + _TEXT + rb"))</value>" + _WS + rb"</param>" + _WS
+)
+
+
+def fast_decode_call(body: bytes) -> tuple[str, tuple[Any, ...]] | None:
+    """Decode a methodCall made only of ASCII strings, ints and booleans; None for anything else."""
+    call = _CALL.fullmatch(body)
+    if call is None:
+        return None
+    params: list[Any] = []
+    text = call.group(2)
+    if text and text.strip(b" \t\n\r"):
+        pos = 0
+        end = len(text)
+        while pos < end:
+            m = _PARAM.match(text, pos)
+            if m is None:
+                return None
+            s, i, b, untyped = m.groups()
+            if s is not None:
+                params.append(s.decode())
+            elif i is not None:
+                params.append(int(i))
+            elif b is not None:
+                params.append(b == b"1")
+            else:
+                params.append(untyped.decode())
+            pos = m.end()
+    return call.group(1).decode(), tuple(params)
+
+
 class XmlRpcHttpHandler:
     """Turns one request body into one response body: sync fast path, else the shared XmlRpcServer."""
 
@@ -75,8 +133,9 @@ class XmlRpcHttpHandler:
 
     def handle(self, body: bytes) -> bytes | Coroutine[Any, Any, bytes]:
         """The response body, or a coroutine producing it for calls that need the event loop."""
+        fast = fast_decode_call(body)
         try:
-            method, params = decode_call(body)
+            method, params = fast if fast is not None else decode_call(body)
         except RemoteProtocolError as exc:
             log.info("master: %s", exc)
             return encode_fault(FAULT_PARSE_ERROR, str(exc))
