@@ -3,8 +3,9 @@
 One-way latency is measured as the paper does: the writer reads CLOCK_MONOTONIC just before the write
 API and writes that time as the float64 value; the reader takes the clock right after its read API
 returns (woken by the writer, no polling) and keeps the difference. The reader then answers on a second
-key so that the next exchange starts only when the previous one is done. Both runs happen in the same
-invocation: unpinned, then both processes pinned to one CPU (the paper's ``taskset`` condition).
+key so that the next exchange starts only when the previous one is done. IXM and TCPROS run in the same
+invocation under the same conditions: unpinned; both processes pinned to one CPU (the paper's ``taskset``
+condition); both at real-time priority (SCHED_FIFO; the paper's "highest priority" condition used nice).
 
 The TCPROS comparison uses ``mrosd.Node`` publisher/subscriber of std_msgs/Float64 on loopback when
 ``mrosd.Node`` is available; otherwise a plain asyncio TCP length-prefixed stream (said in the output).
@@ -36,9 +37,19 @@ def _now() -> int:
     return time.clock_gettime_ns(CLOCK)
 
 
-def _pin(cpu: int | None) -> None:
+#: (CPU to pin to or None, real-time priority): the paper's conditions (taskset; highest priority)
+Placement = tuple[int | None, bool]
+
+
+def _place(place: Placement) -> None:
+    cpu, realtime = place
     if cpu is not None:
         os.sched_setaffinity(0, {cpu})
+    if realtime:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
+        except PermissionError:
+            pass  # not allowed here: the run is then the same as "not pinned"
 
 
 def _run_server(sock: str, ready: Any, stop: Any) -> None:
@@ -50,8 +61,8 @@ def _run_server(sock: str, ready: Any, stop: Any) -> None:
     asyncio.run(main())
 
 
-def _ixm_reader(sock: str, n: int, cpu: int | None, out: Any) -> None:
-    _pin(cpu)
+def _ixm_reader(sock: str, n: int, place: Placement, out: Any) -> None:
+    _place(place)
     with IxmClient(sock, name="bench-reader") as ixm:
         data = ixm.open("/bench/value", "float64", mode="r")
         ack = ixm.open("/bench/ack", "int64", mode="w")
@@ -65,8 +76,8 @@ def _ixm_reader(sock: str, n: int, cpu: int | None, out: Any) -> None:
         out.send(lat)
 
 
-def _ixm_writer(sock: str, n: int, cpu: int | None) -> None:
-    _pin(cpu)
+def _ixm_writer(sock: str, n: int, place: Placement) -> None:
+    _place(place)
     with IxmClient(sock, name="bench-writer") as ixm:
         data = ixm.open("/bench/value", "float64", mode="w")
         ack = ixm.open("/bench/ack", "int64", mode="r")
@@ -76,10 +87,10 @@ def _ixm_writer(sock: str, n: int, cpu: int | None) -> None:
             ack.wait(10.0)
 
 
-def ixm_latency(sock: str, n: int, cpu: int | None) -> list[int]:
+def ixm_latency(sock: str, n: int, place: Placement) -> list[int]:
     ctx = mp.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
-    reader = ctx.Process(target=_ixm_reader, args=(sock, n, cpu, send))
+    reader = ctx.Process(target=_ixm_reader, args=(sock, n, place, send))
     reader.start()
     # the writer must open after the reader created the keys: wait until /bench/ack exists
     with IxmClient(sock, name="bench-probe") as probe:
@@ -88,7 +99,7 @@ def ixm_latency(sock: str, n: int, cpu: int | None) -> list[int]:
             if time.monotonic() > deadline:
                 raise RuntimeError("the reader did not start")
             time.sleep(0.01)
-    writer = ctx.Process(target=_ixm_writer, args=(sock, n, cpu))
+    writer = ctx.Process(target=_ixm_writer, args=(sock, n, place))
     writer.start()
     lat: list[int] = recv.recv()
     writer.join(10)
@@ -99,8 +110,8 @@ def ixm_latency(sock: str, n: int, cpu: int | None) -> list[int]:
 # the TCP comparison ---------------------------------------------------------------------------------------
 
 
-def _tcp_reader(port_out: Any, n: int, cpu: int | None, out: Any) -> None:
-    _pin(cpu)
+def _tcp_reader(port_out: Any, n: int, place: Placement, out: Any) -> None:
+    _place(place)
 
     async def main() -> None:
         done = asyncio.get_running_loop().create_future()
@@ -124,8 +135,8 @@ def _tcp_reader(port_out: Any, n: int, cpu: int | None, out: Any) -> None:
     asyncio.run(main())
 
 
-def _tcp_writer(port: int, n: int, cpu: int | None) -> None:
-    _pin(cpu)
+def _tcp_writer(port: int, n: int, place: Placement) -> None:
+    _place(place)
 
     async def main() -> None:
         reader, writer = await asyncio.open_connection("127.0.0.1", port)
@@ -141,14 +152,14 @@ def _tcp_writer(port: int, n: int, cpu: int | None) -> None:
     asyncio.run(main())
 
 
-def tcp_latency(n: int, cpu: int | None) -> list[int]:
+def tcp_latency(n: int, place: Placement) -> list[int]:
     ctx = mp.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
     port_recv, port_send = ctx.Pipe(duplex=False)
-    reader = ctx.Process(target=_tcp_reader, args=(port_send, n, cpu, send))
+    reader = ctx.Process(target=_tcp_reader, args=(port_send, n, place, send))
     reader.start()
     port = port_recv.recv()
-    writer = ctx.Process(target=_tcp_writer, args=(port, n, cpu))
+    writer = ctx.Process(target=_tcp_writer, args=(port, n, place))
     writer.start()
     lat: list[int] = recv.recv()
     writer.join(10)
@@ -165,8 +176,8 @@ def _node_available() -> bool:
         return False
 
 
-def _node_reader(uri: str, n: int, cpu: int | None, out: Any) -> None:
-    _pin(cpu)
+def _node_reader(uri: str, n: int, place: Placement, out: Any) -> None:
+    _place(place)
 
     async def main() -> None:
         import mrosd
@@ -199,8 +210,8 @@ def _node_reader(uri: str, n: int, cpu: int | None, out: Any) -> None:
     asyncio.run(main())
 
 
-def _node_writer(uri: str, n: int, cpu: int | None) -> None:
-    _pin(cpu)
+def _node_writer(uri: str, n: int, place: Placement) -> None:
+    _place(place)
 
     async def main() -> None:
         import mrosd
@@ -285,14 +296,14 @@ def _start_master(ctx: Any, stop: Any) -> tuple[str, Callable[[], None]]:
     return uri, stop_rosmaster
 
 
-def node_latency(n: int, cpu: int | None) -> list[int]:
+def node_latency(n: int, place: Placement) -> list[int]:
     """TCPROS through mrosd.Node publisher/subscriber of std_msgs/Float64 on loopback."""
     ctx = mp.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
     stop = ctx.Event()
     uri, stop_master = _start_master(ctx, stop)
-    reader = ctx.Process(target=_node_reader, args=(uri, n, cpu, send))
-    writer = ctx.Process(target=_node_writer, args=(uri, n, cpu))
+    reader = ctx.Process(target=_node_reader, args=(uri, n, place, send))
+    writer = ctx.Process(target=_node_writer, args=(uri, n, place))
     reader.start()
     writer.start()
     try:
@@ -388,9 +399,14 @@ def main(argv: list[str]) -> int:
             results: dict[str, dict[str, float]] = {}
             use_node = _node_available()
             base_name = "TCPROS (mrosd.Node)" if use_node else "asyncio TCP stream"
-            tcp: Callable[[int, int | None], list[int]] = node_latency if use_node else tcp_latency
+            tcp: Callable[[int, Placement], list[int]] = node_latency if use_node else tcp_latency
             print(f"IXM one-way latency, float64, {args.n} exchanges (writer clock -> reader after read)")
-            for label, pin in (("not pinned", None), (f"pinned to CPU {cpu}", cpu)):
+            conditions: list[tuple[str, Placement]] = [
+                ("not pinned", (None, False)),
+                (f"pinned to CPU {cpu}", (cpu, False)),
+                ("real-time priority", (None, True)),
+            ]
+            for label, pin in conditions:
                 results[f"ixm {label}"] = summary(ixm_latency(sock, args.n, pin))
                 try:
                     results[f"{base_name} {label}"] = summary(tcp(args.n, pin))
