@@ -300,6 +300,9 @@ class IxmServer:
             self._drop(client, f"protocol error: {exc}", level=logging.WARNING)
         except OSError as exc:
             self._drop(client, f"socket error: {exc}", level=logging.DEBUG)
+        except Exception:  # a bug of ours must cost this client its connection, never the daemon its life
+            log.exception("IXM: internal error while serving client %d (pid %d)", client.id, client.peer.pid)
+            self._drop(client, "dropped after an internal error", level=logging.ERROR)
 
     def _drop(self, client: _Client, reason: str, level: int) -> None:
         if client.closed:
