@@ -24,13 +24,13 @@ GENPY_SERIALIZE = "b = BytesIO(); gmsg.serialize(b); b.getvalue()"
 
 
 def compare(
-    theirs: str, ours: str, namespace: dict[str, Any], rounds: int = 9, budget: float = 0.03
+    theirs: str, ours: str, namespace: dict[str, Any], rounds: int = 80, budget: float = 0.002
 ) -> tuple[float, float]:
     """Best ns per execution of each statement, measured in alternating rounds.
 
-    The machine is shared: alternating short rounds and keeping each side's best means a burst of
-    load hits both sides alike instead of skewing one of them. timeit inlines the statement, so no
-    wrapper call is measured.
+    The machine is shared: many short alternating rounds (a few ms each, shorter than a scheduler time
+    slice) and each side's best round mean that load bursts hit both sides alike and are filtered out.
+    timeit inlines the statement, so no wrapper call is measured.
     """
     timers = [timeit.Timer(theirs, globals=namespace), timeit.Timer(ours, globals=namespace)]
     numbers = []
