@@ -141,19 +141,26 @@ def throughput(uri: str, clients: int, duration: float) -> float:
 
 
 async def latency(uri: str, n: int) -> dict[str, float]:
-    """Median microseconds per call, sequential."""
+    """Median microseconds per call, sequential, one kept-alive connection (same raw client as throughput)."""
     out: dict[str, float] = {}
     async with aiohttp.ClientSession() as session:
         await post(session, uri, body("setParam", "/probe", "/bench/param", 42))
+    host, port = uri.split("//", 1)[1].rstrip("/").split(":")
+    reader, writer = await asyncio.open_connection(host, int(port))
+    try:
         for i, name in enumerate(["registerPublisher", "lookupNode", "getSystemState", "getParam"]):
-            data = mix_bodies("lat")[i]
-            await post(session, uri, data)
+            request = http_request(uri, mix_bodies("lat")[i])
+            await raw_call(reader, writer, request)
             samples = []
             for _ in range(n):
                 t0 = time.perf_counter()
-                await post(session, uri, data)
+                if not await raw_call(reader, writer, request):
+                    writer.close()
+                    reader, writer = await asyncio.open_connection(host, int(port))
                 samples.append(time.perf_counter() - t0)
             out[name] = statistics.median(samples) * 1e6
+    finally:
+        writer.close()
     return out
 
 

@@ -124,6 +124,50 @@ def fast_decode_call(body: bytes) -> tuple[str, tuple[Any, ...]] | None:
     return call.group(1).decode(), tuple(params)
 
 
+_RESPONSE_HEAD = "<?xml version='1.0'?>\n<methodResponse>\n<params>\n<param>\n"
+_RESPONSE_TAIL = "</param>\n</params>\n</methodResponse>\n"
+_INT_MIN, _INT_MAX = -(2**31), 2**31 - 1
+
+
+def _escape(text: str) -> str:
+    if "&" in text:
+        text = text.replace("&", "&amp;")
+    if "<" in text:
+        text = text.replace("<", "&lt;")
+    if ">" in text:
+        text = text.replace(">", "&gt;")
+    return text
+
+
+def _dump(value: Any, out: list[str]) -> bool:
+    if isinstance(value, str):
+        out.append(f"<value><string>{_escape(value)}</string></value>\n")
+    elif value is True or value is False:
+        out.append(f"<value><boolean>{int(value)}</boolean></value>\n")
+    elif type(value) is int:
+        if not _INT_MIN <= value <= _INT_MAX:
+            return False
+        out.append(f"<value><int>{value}</int></value>\n")
+    elif type(value) is list or type(value) is tuple:
+        out.append("<value><array><data>\n")
+        for item in value:
+            if not _dump(item, out):
+                return False
+        out.append("</data></array></value>\n")
+    else:
+        return False
+    return True
+
+
+def fast_encode_response(value: Any) -> bytes | None:
+    """The stdlib's exact response bytes for strings, ints, booleans and (nested) lists; None otherwise."""
+    out = [_RESPONSE_HEAD]
+    if not _dump(value, out):
+        return None
+    out.append(_RESPONSE_TAIL)
+    return "".join(out).encode()
+
+
 class XmlRpcHttpHandler:
     """Turns one request body into one response body: sync fast path, else the shared XmlRpcServer."""
 
@@ -143,7 +187,8 @@ class XmlRpcHttpHandler:
         if handler is None:
             return self._slow(method, params)
         try:
-            return encode_response(handler(*params))
+            reply = handler(*params)
+            return fast_encode_response(reply) or encode_response(reply)
         except LocalProtocolError as exc:
             return encode_fault(FAULT_INTERNAL_ERROR, str(exc))
         except Exception as exc:  # the handlers catch their own errors; this is the last guard

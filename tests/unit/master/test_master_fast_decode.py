@@ -54,3 +54,20 @@ def test_corrupted_bodies_are_never_accepted_differently(params: list[Any], at: 
     fast = fast_decode_call(mutated)
     if fast is not None:
         assert fast == stdlib(mutated)
+
+
+replies = st.recursive(
+    st.one_of(st.text(max_size=8), st.integers(-(2**32), 2**32), st.booleans(), st.floats(), st.none()),
+    lambda inner: st.lists(inner, max_size=3) | st.tuples(inner, inner) | st.dictionaries(st.text(max_size=2), inner),
+    max_leaves=8,
+)
+
+
+@given(replies)
+def test_fast_response_encoding_is_byte_identical_to_the_stdlib(value: Any) -> None:
+    from mrosd.master.httpserver import fast_encode_response
+    from mrosd.xmlrpc import encode_response
+
+    fast = fast_encode_response(value)
+    if fast is not None:
+        assert fast == encode_response(value)
