@@ -22,13 +22,11 @@ UNKNOWN_ENCODING = b'<?xml version="1.0" encoding="x-unknown"?><methodCall><meth
 IXM_BAD_UTF8_TAG = b"\x82\xa2op\xa5\x80hello\xa4name\xa1n"  # {"op": b"\x80hello"...}: invalid UTF-8 in the tag
 
 
-@pytest.mark.xfail(strict=True, reason="mrosd/xmlrpc.py decode_call lets xmlrpc.client.Fault escape")
 def test_a_fault_response_sent_as_a_request_is_a_protocol_error() -> None:
     with pytest.raises(RemoteProtocolError):
         decode_call(FAULT_AS_REQUEST)
 
 
-@pytest.mark.xfail(strict=True, reason="mrosd/xmlrpc.py decode_call/decode_response let LookupError escape")
 def test_an_unknown_xml_encoding_is_a_protocol_error_both_ways() -> None:
     with pytest.raises(RemoteProtocolError):
         decode_call(UNKNOWN_ENCODING)
@@ -36,7 +34,6 @@ def test_an_unknown_xml_encoding_is_a_protocol_error_both_ways() -> None:
         decode_response(UNKNOWN_ENCODING.replace(b"methodCall", b"methodResponse"))
 
 
-@pytest.mark.xfail(strict=True, reason="XmlRpcServer answers HTTP 500 instead of a parse-error fault")
 async def test_the_xmlrpc_server_answers_those_bodies_with_a_fault_not_an_http_500() -> None:
     async def get_pid(caller: str) -> list[object]:
         return [1, "", 42]

@@ -21,7 +21,9 @@ from hypothesis import HealthCheck, given, settings
 from mrosd.xmlrpc import MAX_BODY_SIZE, XmlRpcServer, decode_call, decode_response, encode_call
 from tests.fuzz.targets import KNOWN_XMLRPC_ESCAPES, ixm_bodies, xmlrpc_bodies
 
-FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck), database=None)
+FUZZ = settings(
+    max_examples=60, deadline=None, suppress_health_check=list(HealthCheck), database=None, derandomize=True
+)
 
 
 class LoopThread:
