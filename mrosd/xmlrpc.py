@@ -48,6 +48,20 @@ class Fault(XmlRpcError):
 
 # --- pure codec -------------------------------------------------------------------------------
 
+#: Everything the stdlib parser raises on hostile input: expat errors, bad values (ValueError, OverflowError),
+#: unknown encodings (LookupError), structural surprises (TypeError/KeyError/IndexError/AttributeError),
+#: and xmlrpc.client.Error for responses/faults where a call was expected.
+_DECODE_ERRORS = (
+    xml.parsers.expat.ExpatError,
+    ValueError,
+    OverflowError,
+    LookupError,
+    TypeError,
+    AttributeError,
+    xmlrpc.client.Error,
+)
+
+
 
 def decode_call(body: bytes) -> tuple[str, tuple[Any, ...]]:
     """Parse a methodCall body.
@@ -59,10 +73,9 @@ def decode_call(body: bytes) -> tuple[str, tuple[Any, ...]]:
         raise RemoteProtocolError(f"XML-RPC request of {len(body)} bytes exceeds {MAX_BODY_SIZE}")
     try:
         params, method = xmlrpc.client.loads(body, use_builtin_types=True)
-    except (xml.parsers.expat.ExpatError, ValueError, TypeError, KeyError, IndexError) as exc:
-        raise RemoteProtocolError(f"malformed XML-RPC request: {exc}") from exc
-    except xmlrpc.client.ResponseError as exc:
-        raise RemoteProtocolError(f"malformed XML-RPC request: {exc}") from exc
+    except _DECODE_ERRORS as exc:
+        # A fault or response sent as a request lands here too (xmlrpc.client.Error).
+        raise RemoteProtocolError(f"malformed XML-RPC request: {exc!r}") from exc
     if not method:
         raise RemoteProtocolError("XML-RPC request has no methodName")
     return method, params
@@ -109,11 +122,11 @@ def decode_response(body: bytes) -> Any:
     try:
         params, _ = xmlrpc.client.loads(body, use_builtin_types=True)
     except xmlrpc.client.Fault as exc:
+        if not isinstance(exc.faultCode, int):
+            raise RemoteProtocolError(f"malformed XML-RPC fault: code {exc.faultCode!r}") from exc
         raise Fault(exc.faultCode, str(exc.faultString)) from exc
-    except (xml.parsers.expat.ExpatError, ValueError, TypeError, KeyError, IndexError) as exc:
-        raise RemoteProtocolError(f"malformed XML-RPC response: {exc}") from exc
-    except xmlrpc.client.ResponseError as exc:
-        raise RemoteProtocolError(f"malformed XML-RPC response: {exc}") from exc
+    except _DECODE_ERRORS as exc:
+        raise RemoteProtocolError(f"malformed XML-RPC response: {exc!r}") from exc
     if len(params) != 1:
         raise RemoteProtocolError(f"XML-RPC response carries {len(params)} values, expected 1")
     return params[0]

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import itertools
 import struct
-import xmlrpc.client
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
