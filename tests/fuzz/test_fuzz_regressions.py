@@ -67,7 +67,6 @@ def test_an_ixm_request_with_invalid_utf8_is_a_protocol_error() -> None:
         decode_reply(IXM_BAD_UTF8_TAG)
 
 
-@pytest.mark.xfail(strict=True, reason="IxmServer._on_readable does not drop a client whose request is invalid UTF-8")
 async def test_the_ixm_daemon_disconnects_a_client_sending_invalid_utf8(tmp_path: Path) -> None:
     import struct
 
