@@ -15,6 +15,7 @@ before they allocate or loop.
 from __future__ import annotations
 
 import keyword
+import re
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -453,6 +454,48 @@ def _has_strings(spec: MsgSpec, lookup: Lookup) -> bool:
     return any(f.base == "string" or (not f.is_builtin and _has_strings(lookup(f.base), lookup)) for f in spec.fields)
 
 
+#: How many distinct message sizes one class caches a tail struct for (then the generic path is used).
+MAX_TAIL_STRUCTS = 1024
+
+_TAIL_PATTERN = (
+    re.compile(r"(?P<indent>\s*)(?P<targets>.*), = (?P<unpack>_U\w+)\(b\)\Z"),
+    re.compile(r"\s*(?P<end>_e\d+) = (?P<start>\d+) \+ (?P<length>_n\d+)\Z"),
+    re.compile(r"\s*(?P<value>_v\d+) = b\[(?P<start>\d+):(?P<end>_e\d+)\]" + _DECODE + r"\Z"),
+)
+
+
+def _tail_string_fast_path(body: list[str], w: _Writer) -> list[str]:
+    """Fixed fields then one final string (std_msgs/String, std_msgs/Header): one unpack for everything.
+
+    The message size fixes the string's size, so a struct ``<fixed...I{size}s`` cached per size reads the
+    fixed fields, the length and the string bytes in one C call (no separate slice); the usual end check
+    still compares the length prefix with the size. Other sizes, once the cache is full, take the
+    generic path.
+    """
+    if len(body) != 3:
+        return body
+    matches = [pattern.match(line) for pattern, line in zip(_TAIL_PATTERN, body, strict=True)]
+    first, second, third = matches
+    if first is None or second is None or third is None or second["start"] != third["start"]:
+        return body
+    fmt = next((f for f in w.structs if w.unpack(f) == first["unpack"]), None)
+    if fmt is None or _fmt_size(fmt) != int(second["start"]):
+        return body
+    indent = first["indent"]
+    tails = w.helper(f"_TAIL{w.tag}", "{}")
+    return [
+        f"{indent}_u = {tails}.get(n)",
+        f"{indent}if _u is None and len({tails}) < {MAX_TAIL_STRUCTS} and n >= {second['start']}:",
+        f"{indent}    _u = {tails}[n] = _struct.Struct({'<' + fmt!r} + str(n - {second['start']}) + 's').unpack_from",
+        f"{indent}if _u is not None:",
+        f"{indent}    {first['targets']}, _raw = _u(b)",
+        f"{indent}    {second['end']} = {second['start']} + {second['length']}",
+        f"{indent}    {third['value']} = _raw{_DECODE}",
+        f"{indent}else:",
+        *("    " + line for line in body),
+    ]
+
+
 def _deserialize_source(spec: MsgSpec, w: _Writer) -> list[str]:
     dec = _Decoder(w)
     start = len(w.lines)
@@ -468,6 +511,7 @@ def _deserialize_source(spec: MsgSpec, w: _Writer) -> list[str]:
         # The last field is a string or uint8[] ending the message: the final ``end != n`` check covers
         # truncation too (a short slice allocates nothing beyond the buffer), so skip the separate check.
         del body[-3:-1]
+        body = _tail_string_fast_path(body, w)
 
     def variant(method: str, decode: str, doc: str, fallback: bool) -> list[str]:
         # A staticmethod (not a classmethod): looking it up allocates no bound method on every call.

@@ -129,3 +129,14 @@ def test_keyword_field_names_get_an_underscore_as_in_genpy() -> None:
     assert cls.__struct_fields__ == ("from_", "to", "self_")
     msg = cls(from_="a", to="b", self_=3)
     assert cls.deserialize(msg.serialize()) == msg
+
+
+def test_strings_of_many_sizes_decode_on_both_the_cached_and_the_generic_path() -> None:
+    cls = get_message_class("std_msgs/Header")
+    for size in range(1100):  # more sizes than the per-class cache of tail structs holds
+        msg = cls(seq=size, stamp=Time(size, 1), frame_id="é" * (size // 2) + "x" * (size % 2))
+        assert cls.deserialize(msg.serialize()) == msg
+    with pytest.raises(DeserializationError, match="trailing"):
+        cls.deserialize(cls(frame_id="abc").serialize() + b"z")
+    with pytest.raises(DeserializationError):
+        cls.deserialize(cls(frame_id="abc").serialize()[:10])
