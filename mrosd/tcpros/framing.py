@@ -17,6 +17,10 @@ MAX_FRAME_SIZE = 1024 * 1024 * 1024
 
 _U32 = struct.Struct("<I")
 
+#: Frames above this size that span socket reads get a buffer of their own size (one copy, no regrowth);
+#: below it, joining a straddling tail costs less than a separate allocation.
+LARGE_FRAME = 64 * 1024
+
 #: Compact the buffer once this many consumed bytes sit at its front (amortises the memmove).
 _COMPACT_AT = 64 * 1024
 
@@ -29,57 +33,75 @@ def encode_frame(body: bytes | bytearray | memoryview) -> bytes:
 class FrameDecoder:
     """Incremental decoder of ``<uint32 length><body>`` frames with a size limit."""
 
-    __slots__ = ("_buf", "_pos", "max_size")
+    __slots__ = ("_buf", "_large", "_large_filled", "_pos", "max_size")
 
     def __init__(self, max_size: int = MAX_FRAME_SIZE) -> None:
         self._buf = bytearray()
         self._pos = 0
+        self._large: bytearray | None = None
+        self._large_filled = 0
         self.max_size = max_size
 
     @property
     def buffered(self) -> int:
         """Bytes received and not yet returned as frames."""
-        return len(self._buf) - self._pos
+        return len(self._buf) - self._pos + self._large_filled
 
     def feed(self, data: bytes | bytearray | memoryview) -> None:
         """Append received bytes."""
         self._buf += data
 
-    def feed_frames(self, data: bytes) -> list[bytes]:
+    def feed_frames(self, data: bytes | bytearray | memoryview) -> list[bytes | bytearray]:
         """``feed(data)`` and return every frame now complete (the hot path: one call per socket read).
 
-        When nothing is buffered, frames are sliced straight out of ``data`` without copying it into the
-        buffer first; only an incomplete tail is buffered.
+        Frames are sliced straight out of ``data``; only an incomplete tail is kept. A large frame
+        (over LARGE_FRAME) that spans reads gets its own buffer of exactly its size, allocated once when its
+        length is known and returned as is (a bytearray): large bodies are copied once, never regrown or
+        re-sliced. Do not mix with ``maybe_next_frame`` while a large frame is pending.
 
         Raises:
             RemoteProtocolError: a length prefix exceeds ``max_size``; the connection must be closed.
         """
+        frames: list[bytes | bytearray] = []
+        view = memoryview(data)
+        large = self._large
+        if large is not None:
+            take = min(len(large) - self._large_filled, len(view))
+            large[self._large_filled : self._large_filled + take] = view[:take]
+            self._large_filled += take
+            if self._large_filled < len(large):
+                return frames
+            frames.append(large)
+            self._large = None
+            self._large_filled = 0
+            view = view[take:]
         if len(self._buf) != self._pos:
-            self.feed(data)
-            frames = []
-            while (frame := self.maybe_next_frame()) is not None:
-                frames.append(frame)
-            return frames
-        frames = []
-        size = len(data)
+            # A short tail (a length prefix or a small frame) straddled the previous read: join it.
+            view = memoryview(bytes(self._buf[self._pos :]) + bytes(view))
+            self._buf.clear()
+            self._pos = 0
+        size = len(view)
         pos = 0
         limit = self.max_size
         unpack = _U32.unpack_from
         while size - pos >= 4:
-            (length,) = unpack(data, pos)
+            (length,) = unpack(view, pos)
             if length > limit:
-                self._buf += data[pos:]
-                self._pos = 0
                 raise RemoteProtocolError(f"frame of {length} bytes announced, the limit is {limit}")
             end = pos + 4 + length
             if end > size:
+                if length > LARGE_FRAME:
+                    large = bytearray(length)
+                    avail = size - pos - 4
+                    large[:avail] = view[pos + 4 : size]
+                    self._large = large
+                    self._large_filled = avail
+                    return frames
                 break
-            frames.append(data[pos + 4 : end])
+            frames.append(bytes(view[pos + 4 : end]))
             pos = end
         if pos < size:
-            self._buf.clear()
-            self._pos = 0
-            self._buf += memoryview(data)[pos:]
+            self._buf += view[pos:]
         return frames
 
     def take(self, count: int) -> bytes | None:

@@ -42,7 +42,7 @@ class TcprosProtocol(asyncio.Protocol):
     def header_received(self, header: ConnectionHeader) -> None:
         """Called once with the peer's connection header."""
 
-    def frame_received(self, body: bytes) -> None:
+    def frame_received(self, body: bytes | bytearray) -> None:
         """Called for every complete frame after the header."""
 
     def connection_closed(self, exc: BaseException | None) -> None:
@@ -72,11 +72,11 @@ class TcprosProtocol(asyncio.Protocol):
                 self.header_received(self.header)
                 data = decoder.take(decoder.buffered) or b""
             frame_received = self.frame_received
-            for body in decoder.feed_frames(data):
+            for frame in decoder.feed_frames(data):
                 transport = self.transport
                 if transport is None or transport.is_closing():
                     return
-                frame_received(body)
+                frame_received(frame)
         except RemoteProtocolError as exc:
             self.abort(f"protocol error from {self.peer}: {exc}")
 

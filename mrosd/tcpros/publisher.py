@@ -117,7 +117,7 @@ class PublisherProtocol(TcprosProtocol):
         if self.link is not None:
             self.link.publisher._drop(self.link)
 
-    def frame_received(self, body: bytes) -> None:
+    def frame_received(self, body: bytes | bytearray) -> None:
         """Subscribers send nothing after their header; ignore stray bytes."""
 
 

@@ -60,11 +60,11 @@ class ServiceProtocol(TcprosProtocol):
     def start(self, service: Service, persistent: bool) -> None:
         self.service = service
         self.persistent = persistent
-        self.pending: collections.deque[bytes] = collections.deque()
+        self.pending: collections.deque[bytes | bytearray] = collections.deque()
         self.wake = asyncio.Event()
         self.task = asyncio.get_running_loop().create_task(self._serve())
 
-    def frame_received(self, body: bytes) -> None:
+    def frame_received(self, body: bytes | bytearray) -> None:
         if self.service is None:
             return
         if len(self.pending) >= MAX_PENDING_REQUESTS:
@@ -134,7 +134,7 @@ class Service:
         self.connections.add(proto)
         proto.closed.add_done_callback(lambda _f: self.connections.discard(proto))
 
-    async def _handle(self, body: bytes) -> tuple[bool, bytes]:
+    async def _handle(self, body: bytes | bytearray) -> tuple[bool, bytes]:
         self.calls += 1
         try:
             request = self.request_class.deserialize(body)

@@ -54,7 +54,7 @@ class RawMessage(msgspec.Struct, gc=False):
     Decode it with ``mrosd.msg.load_type(header.type, header.message_definition).deserialize(data)``.
     """
 
-    data: bytes
+    data: bytes | bytearray
     header: ConnectionHeader
 
 
@@ -81,7 +81,7 @@ class SubscriberProtocol(TcprosProtocol):
         if not self.handshake.done():
             self.handshake.set_result(header)
 
-    def frame_received(self, body: bytes) -> None:
+    def frame_received(self, body: bytes | bytearray) -> None:
         self.link.bytes_received += len(body) + 4
         self.link.messages_received += 1
         self.link.subscriber._deliver(body, self.link)
@@ -257,7 +257,7 @@ class Subscriber:
 
     # --- delivery --------------------------------------------------------------------------------
 
-    def _deliver(self, body: bytes, link: PublisherLink) -> None:
+    def _deliver(self, body: bytes | bytearray, link: PublisherLink) -> None:
         if self.raw:
             assert link.header is not None
             msg: Any = RawMessage(body, link.header)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mrosd.errors import RemoteProtocolError
@@ -119,3 +119,24 @@ def test_feed_frames_refuses_an_oversized_length_without_buffering_the_body() ->
     assert dec.feed_frames(encode_frame(b"ok")) == [b"ok"]
     with pytest.raises(RemoteProtocolError):
         dec.feed_frames(b"\xff\xff\xff\x7f" + b"x" * 10)
+
+
+@settings(deadline=None, max_examples=50)
+@given(
+    st.lists(st.sampled_from([0, 3, 100, 70_000, 200_000]), max_size=6),
+    st.lists(st.integers(1, 150_000) | st.integers(1, 8), min_size=1, max_size=10).filter(lambda c: max(c) > 1000),
+)
+def test_large_frames_spanning_reads_come_out_whole(sizes: list[int], cuts: list[int]) -> None:
+    bodies = [bytes([i % 251]) * n for i, n in enumerate(sizes)]
+    stream = b"".join(encode_frame(b) for b in bodies)
+    dec = FrameDecoder()
+    out: list[bytes] = []
+    pos = 0
+    i = 0
+    while pos < len(stream):
+        step = cuts[i % len(cuts)]
+        out.extend(bytes(f) for f in dec.feed_frames(stream[pos : pos + step]))
+        pos += step
+        i += 1
+    assert out == bodies
+    assert dec.buffered == 0
