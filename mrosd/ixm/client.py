@@ -73,6 +73,12 @@ def _error_from(reply: Error) -> IxmError:
     return IxmError(reply.message)
 
 
+def _close_all(fds: list[int]) -> None:
+    for fd in fds:
+        with contextlib.suppress(OSError):
+            os.close(fd)
+
+
 def _default_name() -> str:
     return os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else f"pid{os.getpid()}"
 
@@ -454,7 +460,11 @@ class IxmClient:
             raise RemoteProtocolError(f"unexpected {type_name(reply)} in answer to open")
         fd = self._reader.take_fds(1)[0]
         targets = self._reader.take_fds(reply.wake)
-        state = _KeyState(reply, fd, efd)
+        try:
+            state = _KeyState(reply, fd, efd)
+        except BaseException:
+            _close_all([*targets, *([efd] if efd is not None else [])])
+            raise
         state.set_targets(reply.generation, targets)
         state.refresh_targets = self._drain_pushes
         handle = IxmKey(self, state)
@@ -689,8 +699,13 @@ class AsyncIxmClient:
             raise RemoteProtocolError(f"unexpected {type_name(reply)} in answer to open")
         assert self._reader is not None
         fd = self._reader.take_fds(1)[0]
-        state = _KeyState(reply, fd, efd)
-        state.set_targets(reply.generation, self._reader.take_fds(reply.wake))
+        targets = self._reader.take_fds(reply.wake)
+        try:
+            state = _KeyState(reply, fd, efd)
+        except BaseException:
+            _close_all([*targets, *([efd] if efd is not None else [])])
+            raise
+        state.set_targets(reply.generation, targets)
         state.refresh_targets = self._on_readable
         handle = AsyncIxmKey(self, state)
         self._keys[key] = handle

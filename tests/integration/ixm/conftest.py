@@ -22,6 +22,12 @@ def ixm_segments() -> set[str]:
     return {n for n in os.listdir(SHM) if n.startswith("mrosd-ixm-")}
 
 
+def own_segments(socket_path: str) -> set[str]:
+    """The segments in /dev/shm of the daemon serving ``socket_path`` (others may run at the same time)."""
+    prefix = segment_prefix(socket_path)
+    return {n for n in ixm_segments() if n.startswith(prefix)}
+
+
 def wait_line(proc: subprocess.Popen[bytes], expected: str, timeout: float = 10.0) -> None:
     """Read stdout lines until ``expected`` (bounded); fail with stderr if the process dies first."""
     assert proc.stdout is not None

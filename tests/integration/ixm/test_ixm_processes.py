@@ -12,7 +12,7 @@ import pytest
 
 from mrosd.errors import IxmError
 from mrosd.ixm import IxmClient
-from tests.integration.ixm.conftest import ShmGuard, ixm_segments, python_child, start_daemon, until, wait_line
+from tests.integration.ixm.conftest import ShmGuard, own_segments, python_child, start_daemon, until, wait_line
 from tests.rosenv import Processes
 
 
@@ -54,7 +54,7 @@ def test_a_waiting_reader_in_another_process_is_woken_by_each_write(ixm_socket: 
 
 
 def test_a_killed_process_releases_its_keys_and_the_segment_is_freed(ixm_socket: str, procs: Processes) -> None:
-    before = ixm_segments()
+    before = own_segments(ixm_socket)
     child = python_child(
         procs,
         textwrap.dedent(
@@ -71,24 +71,24 @@ def test_a_killed_process_releases_its_keys_and_the_segment_is_freed(ixm_socket:
     wait_line(child, "ready")
     with IxmClient(ixm_socket) as ixm:
         assert [s.key for s in ixm.list().segments] == ["/victim"]
-        assert len(ixm_segments() - before) == 1
+        assert len(own_segments(ixm_socket) - before) == 1
         os.killpg(child.pid, signal.SIGKILL)
         child.wait(10)
         until(lambda: not ixm.list().segments)
         assert [p.pid for p in ixm.list().processes] == [os.getpid()]
-    assert ixm_segments() - before == set()
+    assert own_segments(ixm_socket) - before == set()
 
 
 def test_closing_the_last_holder_unlinks_the_segment(ixm_socket: str) -> None:
-    before = ixm_segments()
+    before = own_segments(ixm_socket)
     with IxmClient(ixm_socket) as a, IxmClient(ixm_socket) as b:
         w = a.open("/k", "uint32", mode="w")
         r = b.open("/k", "uint32")
-        assert len(ixm_segments() - before) == 1
+        assert len(own_segments(ixm_socket) - before) == 1
         w.close()
-        assert len(ixm_segments() - before) == 1
+        assert len(own_segments(ixm_socket) - before) == 1
         r.close()
-        assert ixm_segments() - before == set()
+        assert own_segments(ixm_socket) - before == set()
 
 
 def test_a_restarted_daemon_removes_the_segments_of_the_run_that_crashed(
@@ -96,17 +96,17 @@ def test_a_restarted_daemon_removes_the_segments_of_the_run_that_crashed(
 ) -> None:
     sock = str(tmp_path / "ixm.sock")
     daemon = start_daemon(procs, sock)
-    before = ixm_segments()
+    before = own_segments(sock)
     ixm = IxmClient(sock)
     ixm.open("/left/behind", "float64", mode="w").write(1.0)
-    stale = ixm_segments() - before
+    stale = own_segments(sock) - before
     assert len(stale) == 1
     os.killpg(daemon.pid, signal.SIGKILL)  # no chance to clean up
     daemon.wait(10)
     ixm.close()
-    assert stale <= ixm_segments()
+    assert stale <= own_segments(sock)
     start_daemon(procs, sock)
-    assert not (stale & ixm_segments())
+    assert not (stale & own_segments(sock))
     with IxmClient(sock) as again:
         assert again.list().segments == []
 
