@@ -136,9 +136,9 @@ _CONNECT = (
 )
 
 
-def start_our_master(lab: NetnsLab, procs: Processes, tmp: Path, *extra: str) -> None:
+def start_our_master(lab: NetnsLab, procs: Processes, tmp: Path, *extra: str, host: str = "0.0.0.0") -> None:
     procs.start(
-        lab.argv(0, [sys.executable, "-m", "mrosd.master", "--host", "0.0.0.0", "--port", str(MASTER_PORT), *extra]),
+        lab.argv(0, [sys.executable, "-m", "mrosd.master", "--host", host, "--port", str(MASTER_PORT), *extra]),
         host_env(lab, 0, tmp),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
@@ -203,3 +203,21 @@ def test_the_master_allow_list_admits_the_listed_network_and_refuses_another_hos
     assert lab.exec_ok(lab.hosts[2], [sys.executable, "-c", probe]).strip() == "403"
     # the refusal did not disturb the master for the allowed host
     wait_for_xmlrpc_from(lab, 1, uri, timeout=5)
+
+
+def test_a_master_bound_to_loopback_is_unreachable_from_other_hosts(
+    netns_lab: NetnsLab, procs: Processes, tmp_path: Path
+) -> None:
+    lab = netns_lab
+    start_our_master(lab, procs, tmp_path, host="127.0.0.1")
+    wait_for_xmlrpc_from(lab, 0, f"http://127.0.0.1:{MASTER_PORT}/")  # up, on its own host
+    probe = (
+        "import socket\n"
+        "s = socket.socket(); s.settimeout(5)\n"
+        "try:\n"
+        f"    s.connect(({lab.addrs[0]!r}, {MASTER_PORT}))\n"
+        "    print('reached')\n"
+        "except ConnectionRefusedError:\n"
+        "    print('refused')\n"
+    )
+    assert lab.exec_ok(lab.hosts[1], [sys.executable, "-c", probe]).strip() == "refused"
