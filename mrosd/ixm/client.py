@@ -90,10 +90,6 @@ class _KeyState:
         self.key = opened.key
         self.mode = opened.mode
         self.writable = "w" in opened.mode
-        self.type = IxmType(
-            name=opened.type, count=opened.count, max_size=opened.max_size, capacity=opened.capacity,
-            code=0,
-        )
         self.fd = fd
         try:
             size = os.fstat(fd).st_size

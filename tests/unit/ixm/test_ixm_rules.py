@@ -65,3 +65,18 @@ def test_bad_rules_name_the_offending_key(raw: dict, match: str) -> None:  # typ
 
 def test_process_names_come_from_comm_and_argv() -> None:
     assert names_of("python3", ["/usr/bin/python3", "/opt/robot/viewer.py", "x"]) == {"python3", "viewer.py"}
+
+
+def test_the_standalone_registry_reads_the_rules_table_of_a_daemon_config(tmp_path: object) -> None:
+    from pathlib import Path
+
+    from mrosd.ixm.__main__ import load_rules_file
+
+    path = Path(str(tmp_path)) / "mrosd.toml"
+    path.write_text('[master]\nport = 1\n[ixm.rules]\ndefault = "deny"\n[ixm.rules.keys."/k"]\nread_uids = [5]\n')
+    rules = load_rules_file(str(path))
+    assert rules.default == "deny" and rules.keys["/k"].read_uids == frozenset({5})
+    path.write_text('[ixm.rules]\ndefault = "maybe"\n')
+    with pytest.raises(ConfigError, match="default must be"):
+        load_rules_file(str(path))
+    assert load_rules_file(None) == AccessRules()
