@@ -156,3 +156,37 @@ def test_a_type_mismatch_and_a_missing_daemon_are_clear_errors(ixm_socket: str, 
             other.open("/t", "int32")
     with pytest.raises(IxmError, match="cannot reach the IXM daemon"):
         IxmClient(str(tmp_path / "nobody.sock"))
+
+
+def test_a_stopped_reader_never_stalls_the_writer_and_then_sees_the_latest_value(
+    ixm_socket: str, procs: Processes
+) -> None:
+    child = python_child(
+        procs,
+        textwrap.dedent(
+            f"""
+            import sys
+            from mrosd.ixm import IxmClient
+            with IxmClient({ixm_socket!r}) as ixm:
+                key = ixm.open("/ctl", "int64", mode="r")
+                print("ready", flush=True)
+                sys.stdin.readline()
+                print(key.wait(10.0), flush=True)
+            """
+        ),
+    )
+    wait_line(child, "ready")
+    os.kill(child.pid, signal.SIGSTOP)  # a reader that never runs: its eventfd fills, nobody reads
+    try:
+        with IxmClient(ixm_socket) as ixm:
+            key = ixm.open("/ctl", "int64", mode="w")
+            for i in range(50_000):
+                key.write(i)
+            os.kill(child.pid, signal.SIGCONT)
+            assert child.stdin is not None and child.stdout is not None
+            child.stdin.write(b"go\n")
+            child.stdin.flush()
+            assert child.stdout.readline().decode().strip() == "49999"
+    finally:
+        os.kill(child.pid, signal.SIGCONT)
+    assert child.wait(10) == 0
