@@ -188,24 +188,33 @@ async def registration(uri: str, nodes: int, topics: int, dead: bool, tag: str) 
         for i in range(nodes)
         for j in range(topics)
     ]
-    jobs = subs + pubs if dead else pubs + subs
-    connector = aiohttp.TCPConnector(limit=8)
-    async with aiohttp.ClientSession(connector=connector) as session:
-        it = iter(jobs)
+    jobs = [http_request(uri, b) for b in (subs + pubs if dead else pubs + subs)]
+    host, port = uri.split("//", 1)[1].rstrip("/").split(":")
+    it = iter(jobs)
 
-        async def caller() -> None:
-            for data in it:
-                await post(session, uri, data)
+    async def caller() -> None:
+        reader, writer = await asyncio.open_connection(host, int(port))
+        try:
+            for request in it:
+                if not await raw_call(reader, writer, request):
+                    writer.close()
+                    reader, writer = await asyncio.open_connection(host, int(port))
+        finally:
+            writer.close()
 
-        t0 = time.perf_counter()
-        await asyncio.gather(*(caller() for _ in range(8)))
-        elapsed = time.perf_counter() - t0
-        probe = body("lookupNode", "/probe", f"/{tag}_pub0")
-        samples = []
+    t0 = time.perf_counter()
+    await asyncio.gather(*(caller() for _ in range(8)))
+    elapsed = time.perf_counter() - t0
+    probe = http_request(uri, body("lookupNode", "/probe", f"/{tag}_pub0"))
+    reader, writer = await asyncio.open_connection(host, int(port))
+    samples = []
+    try:
         for _ in range(50):
             t1 = time.perf_counter()
-            await post(session, uri, probe)
+            await raw_call(reader, writer, probe)
             samples.append(time.perf_counter() - t1)
+    finally:
+        writer.close()
     return elapsed, statistics.median(samples) * 1e6
 
 

@@ -6,7 +6,8 @@ dispatch stay in ``mrosd.xmlrpc`` (``decode_call``/``encode_response``/``encode_
 ``XmlRpcServer.call`` for everything that is not a plain synchronous master method).
 
 Supported: POST with Content-Length, keep-alive (HTTP/1.1 default, HTTP/1.0 with the header),
-pipelined requests answered in order, ``Expect: 100-continue``. Refused with a status and a closed
+pipelined requests answered in order, ``Expect: 100-continue``. Backpressure: a client that does
+not read its responses (transport write buffer full) is not read from until it does. Refused with a status and a closed
 connection: other methods (405), chunked bodies (411), bodies over ``MAX_BODY_SIZE`` (413), header
 blocks over ``MAX_HEADER_SIZE`` (431), garbage (400), and peers outside the allow-list (403).
 """
@@ -38,6 +39,10 @@ log = logging.getLogger(__name__)
 
 #: Largest request line + headers accepted.
 MAX_HEADER_SIZE = 64 * 1024
+
+# Header fields, matched on the lower-cased header block (which starts with the line break).
+_CONTENT_LENGTH = re.compile(rb"\r\ncontent-length:[ \t]*(?:([0-9]{1,12})[ \t]*(?=\r\n|$)|.*)")
+_CONNECTION = re.compile(rb"\r\nconnection:[ \t]*(close|keep-alive)[ \t]*(?=\r\n|$)")
 
 Network = ipaddress.IPv4Network | ipaddress.IPv6Network
 SyncHandler = Callable[..., Any]
@@ -227,6 +232,7 @@ class HttpProtocol(asyncio.Protocol):
         self._request: _Request | None = None
         self._busy = False
         self._closed = False
+        self._reading_paused = False
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self._transport = cast(asyncio.Transport, transport)  # uvloop's transports are not subclasses
@@ -255,6 +261,18 @@ class HttpProtocol(asyncio.Protocol):
             return
         self._buf += data
         self._process()
+        if self._busy and len(self._buf) > MAX_HEADER_SIZE and self._transport is not None:
+            self._transport.pause_reading()  # a pipelining client waits while a slow call runs
+            self._reading_paused = True
+
+    def pause_writing(self) -> None:
+        # The client does not read its responses: stop reading its requests until it does.
+        if self._transport is not None and not self._closed:
+            self._transport.pause_reading()
+
+    def resume_writing(self) -> None:
+        if self._transport is not None and not self._closed and not self._reading_paused:
+            self._transport.resume_reading()
 
     def _fail(self, status: int, text: bytes) -> None:
         if self._transport is None or self._closed:
@@ -276,8 +294,9 @@ class HttpProtocol(asyncio.Protocol):
             if len(self._buf) > MAX_HEADER_SIZE:
                 self._fail(431, b"header block too large\n")
             return None
-        lines = bytes(self._buf[:end]).split(b"\r\n")
-        parts = lines[0].split()
+        head = bytes(self._buf[:end])
+        line_end = head.find(b"\r\n")
+        parts = (head if line_end < 0 else head[:line_end]).split()
         if len(parts) != 3 or not parts[2].startswith(b"HTTP/1."):
             self._fail(400, b"malformed request line\n")
             return None
@@ -287,32 +306,21 @@ class HttpProtocol(asyncio.Protocol):
         keep_alive = parts[2] != b"HTTP/1.0"
         length: int | None = None
         expect_continue = False
-        for line in lines[1:]:
-            name, sep, value = line.partition(b":")
-            if not sep:
-                self._fail(400, b"malformed header line\n")
-                return None
-            key = name.strip().lower()
-            value = value.strip()
-            if key == b"content-length":
-                try:
-                    length = int(value)
-                except ValueError:
-                    length = -1
-                if length < 0:
-                    self._fail(400, b"bad Content-Length\n")
-                    return None
-            elif key == b"transfer-encoding":
+        fields = head[line_end:].lower() if line_end >= 0 else b""
+        if fields:
+            if b"\r\ntransfer-encoding" in fields:
                 self._fail(411, b"chunked bodies are not supported; send Content-Length\n")
                 return None
-            elif key == b"connection":
-                token = value.lower()
-                if token == b"close":
-                    keep_alive = False
-                elif token == b"keep-alive":
-                    keep_alive = True
-            elif key == b"expect" and value.lower() == b"100-continue":
-                expect_continue = True
+            m = _CONTENT_LENGTH.search(fields)
+            if m is not None:
+                if m.group(1) is None:
+                    self._fail(400, b"bad Content-Length\n")
+                    return None
+                length = int(m.group(1))
+            m = _CONNECTION.search(fields)
+            if m is not None:
+                keep_alive = m.group(1) == b"keep-alive"
+            expect_continue = b"\r\nexpect:" in fields and b"100-continue" in fields
         if length is None:
             self._fail(411, b"Content-Length required\n")
             return None
@@ -324,7 +332,7 @@ class HttpProtocol(asyncio.Protocol):
         return _Request(end + 4, length, keep_alive)
 
     def _process(self) -> None:
-        while not self._busy and not self._closed:
+        while not self._busy and not self._closed and self._buf:
             if self._request is None:
                 self._request = self._parse_head()
                 if self._request is None:
@@ -346,6 +354,9 @@ class HttpProtocol(asyncio.Protocol):
 
     def _finished(self, task: asyncio.Task[bytes], *, keep_alive: bool) -> None:
         self._busy = False
+        if self._reading_paused and self._transport is not None and not self._closed:
+            self._reading_paused = False
+            self._transport.resume_reading()
         if task.cancelled():
             return
         exc = task.exception()
