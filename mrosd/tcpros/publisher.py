@@ -18,6 +18,7 @@ import struct
 from typing import TYPE_CHECKING, Any
 
 from mrosd.errors import HandshakeError, LocalProtocolError
+from mrosd.tcpros.framing import LARGE_FRAME
 from mrosd.tcpros.handshake import error_header, publisher_reply
 from mrosd.tcpros.header import ConnectionHeader, encode_header
 from mrosd.tcpros.protocol import TcprosProtocol
@@ -77,6 +78,18 @@ class SubscriberLink:
         self.queue.append(frame)
         if self._flusher is None:
             self._flusher = asyncio.get_running_loop().create_task(self._flush())
+
+    def send_parts(self, prefix: bytes, body: bytes | bytearray | memoryview) -> None:
+        """``send(prefix + body)`` without building the concatenation when the socket keeps up."""
+        proto = self.proto
+        if proto.transport is None:
+            return
+        if not self.queue and not proto.paused:
+            proto.transport.writelines((prefix, body))
+            self.bytes_sent += len(prefix) + len(body)
+            self.messages_sent += 1
+            return
+        self.send(prefix + bytes(body))
 
     async def _flush(self) -> None:
         try:
@@ -174,10 +187,16 @@ class Publisher:
         """
         if self.closed:
             raise LocalProtocolError(f"publisher of {self.topic} is closed")
-        frame = _U32.pack(len(body)) + body
+        self.messages_published += 1
+        prefix = _U32.pack(len(body))
+        if len(body) > LARGE_FRAME and not self.latch:
+            # Large bodies are not concatenated with their prefix: writelines hands both to the transport.
+            for link in self.links:
+                link.send_parts(prefix, body)
+            return
+        frame = prefix + body
         if self.latch:
             self.latched = frame
-        self.messages_published += 1
         for link in self.links:
             link.send(frame)
 

@@ -295,3 +295,18 @@ async def test_nodes_register_again_after_the_master_restarts(procs: Processes) 
         async with node("talker2", uri) as c:
             pub2 = await c.advertise("/survivor", String)
             await pub2.wait_for_subscribers(1, timeout=10)
+
+
+async def test_large_messages_arrive_intact_in_both_framing_paths(rosmaster: str) -> None:
+    Image = get_message_class("sensor_msgs/Image")
+    async with node("talker", rosmaster) as a, node("listener", rosmaster) as b:
+        pub = await a.advertise("/big", Image)
+        sub = await b.subscribe("/big", Image, queue_size=10)
+        await pub.wait_for_subscribers(1, timeout=10)
+        sizes = [300_000, 5, 2_000_000, 70_000]
+        for i, size in enumerate(sizes):
+            data = bytes([i + 1]) * size
+            await pub.publish(Image(height=1, width=size, encoding="mono8", step=size, data=data))
+        for i, size in enumerate(sizes):
+            msg = await sub.next(timeout=10)
+            assert bytes(msg.data) == bytes([i + 1]) * size
