@@ -13,7 +13,7 @@ import os
 import signal
 import sys
 
-from mrosd.master.server import Master, port_from_master_uri
+from mrosd.master.server import Master, parse_networks, port_from_master_uri
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -58,6 +58,12 @@ def main(argv: list[str] | None = None) -> int:
             pass
         else:
             uvloop.install()
+    if args.allow is not None:
+        try:
+            parse_networks(args.allow)
+        except ValueError as exc:
+            print(f"mrosd master: bad --allow network: {exc}", file=sys.stderr)
+            return 2
     try:
         asyncio.run(serve(args))
     except OSError as exc:

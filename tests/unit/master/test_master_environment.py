@@ -32,3 +32,10 @@ def test_allow_lists_accept_networks_and_single_addresses_and_reject_garbage() -
 def test_command_line_options_parse() -> None:
     args = parse_args(["--port", "12000", "--allow", "127.0.0.0/8", "--host", "127.0.0.1"])
     assert (args.port, args.allow, args.host) == (12000, ["127.0.0.0/8"], "127.0.0.1")
+
+
+def test_a_bad_allow_network_is_a_clean_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+    from mrosd.master.__main__ import main
+
+    assert main(["--allow", "nonsense", "--port", "0"]) == 2
+    assert "bad --allow" in capsys.readouterr().err
