@@ -48,6 +48,12 @@ async def serve(args: argparse.Namespace) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
+    if args.allow is not None:
+        try:
+            parse_networks(args.allow)
+        except ValueError as exc:
+            print(f"mrosd master: bad --allow network: {exc}", file=sys.stderr)
+            return 2
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING, format="%(asctime)s %(name)s: %(message)s"
     )
@@ -58,12 +64,6 @@ def main(argv: list[str] | None = None) -> int:
             pass
         else:
             uvloop.install()
-    if args.allow is not None:
-        try:
-            parse_networks(args.allow)
-        except ValueError as exc:
-            print(f"mrosd master: bad --allow network: {exc}", file=sys.stderr)
-            return 2
     try:
         asyncio.run(serve(args))
     except OSError as exc:
