@@ -17,14 +17,16 @@ import pytest
 
 from mrosd.errors import IxmError
 from mrosd.ixm.client import IxmClient
+from mrosd.ixm.server import segment_prefix
 from tests.rosenv import Processes, iter_lines_until
 
 SIZE = 8 << 20  # 8 MiB: copying it takes milliseconds, so a random kill often lands inside the copy
 WORD = struct.Struct("<Q")
 
 
-def ixm_segments() -> set[str]:
-    return {n for n in os.listdir("/dev/shm") if n.startswith("mrosd-ixm-")}
+def ixm_segments(prefix: str = "mrosd-ixm-") -> set[str]:
+    """Segments in /dev/shm; pass the test daemon's ``segment_prefix`` to ignore other daemons on the machine."""
+    return {n for n in os.listdir("/dev/shm") if n.startswith(prefix)}
 
 
 def start_daemon(procs: Processes, path: str) -> subprocess.Popen[bytes]:
@@ -34,10 +36,11 @@ def start_daemon(procs: Processes, path: str) -> subprocess.Popen[bytes]:
 
 
 @pytest.fixture
-def no_new_segments() -> Iterator[None]:
-    before = ixm_segments()
+def no_new_segments(tmp_path: Path) -> Iterator[None]:
+    """Fails the test if its own daemon (socket ``tmp_path/ixm.sock``) leaves a segment in /dev/shm."""
+    prefix = segment_prefix(str(tmp_path / "ixm.sock"))
     yield
-    assert ixm_segments() - before == set(), "shared memory segments left in /dev/shm"
+    assert ixm_segments(prefix) == set(), "shared memory segments left in /dev/shm"
 
 
 WRITER = textwrap.dedent(
@@ -112,11 +115,11 @@ def test_a_daemon_killed_with_sigkill_gives_clients_a_clear_error_and_they_reope
 ) -> None:
     path = str(tmp_path / "ixm.sock")
     daemon = start_daemon(procs, path)
-    before = ixm_segments()
+    before = ixm_segments(segment_prefix(path))
     old = IxmClient(path, name="survivor")
     key = old.open("/pose", "float64", count=3, mode="rw")
     key.write([1.0, 2.0, 3.0])
-    assert len(ixm_segments() - before) == 1
+    assert len(ixm_segments(segment_prefix(path)) - before) == 1
 
     kill9(daemon)
     # the mapping a client already holds stays valid memory (no crash, no SIGBUS)
@@ -129,7 +132,9 @@ def test_a_daemon_killed_with_sigkill_gives_clients_a_clear_error_and_they_reope
     old.close()
 
     start_daemon(procs, path)
-    assert ixm_segments() - before == set(), "the restarted daemon left the crashed run's segment in /dev/shm"
+    assert ixm_segments(segment_prefix(path)) - before == set(), (
+        "the restarted daemon left the crashed run's segment in /dev/shm"
+    )
     with IxmClient(path, name="again") as again:
         fresh = again.open("/pose", "float64", count=3, mode="rw")
         fresh.write([4.0, 5.0, 6.0])
