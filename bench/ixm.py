@@ -5,7 +5,8 @@ API and writes that time as the float64 value; the reader takes the clock right 
 returns (woken by the writer, no polling) and keeps the difference. The reader then answers on a second
 key so that the next exchange starts only when the previous one is done. IXM and TCPROS run in the same
 invocation under the same conditions: unpinned; both processes pinned to one CPU (the paper's ``taskset``
-condition); both at real-time priority (SCHED_FIFO; the paper's "highest priority" condition used nice).
+condition); both at real-time priority (SCHED_FIFO; the paper's "highest priority" condition used nice);
+both pinned and real-time (the configuration a control loop on a busy machine would use).
 
 The TCPROS comparison uses ``mrosd.Node`` publisher/subscriber of std_msgs/Float64 on loopback when
 ``mrosd.Node`` is available; otherwise a plain asyncio TCP length-prefixed stream (said in the output).
@@ -61,11 +62,11 @@ def _run_server(sock: str, ready: Any, stop: Any) -> None:
     asyncio.run(main())
 
 
-def _ixm_reader(sock: str, n: int, place: Placement, out: Any) -> None:
+def _ixm_reader(sock: str, run: str, n: int, place: Placement, out: Any) -> None:
     _place(place)
     with IxmClient(sock, name="bench-reader") as ixm:
-        data = ixm.open("/bench/value", "float64", mode="r")
-        ack = ixm.open("/bench/ack", "int64", mode="w")
+        data = ixm.open(f"{run}/value", "float64", mode="r")
+        ack = ixm.open(f"{run}/ack", "int64", mode="w")
         ack.write(-1)
         lat: list[int] = []
         for i in range(n):
@@ -76,31 +77,37 @@ def _ixm_reader(sock: str, n: int, place: Placement, out: Any) -> None:
         out.send(lat)
 
 
-def _ixm_writer(sock: str, n: int, place: Placement) -> None:
+def _ixm_writer(sock: str, run: str, n: int, place: Placement) -> None:
     _place(place)
     with IxmClient(sock, name="bench-writer") as ixm:
-        data = ixm.open("/bench/value", "float64", mode="w")
-        ack = ixm.open("/bench/ack", "int64", mode="r")
+        data = ixm.open(f"{run}/value", "float64", mode="w")
+        ack = ixm.open(f"{run}/ack", "int64", mode="r")
         ack.wait(10.0)  # the reader is ready
         for _ in range(n):
             data.write(float(_now()))
             ack.wait(10.0)
 
 
+_runs = iter(range(1, 1 << 30))
+
+
 def ixm_latency(sock: str, n: int, place: Placement) -> list[int]:
     ctx = mp.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
-    reader = ctx.Process(target=_ixm_reader, args=(sock, n, place, send))
+    run = f"/bench/run{next(_runs)}"  # fresh keys: a slow exit of the previous run cannot interfere
+    reader = ctx.Process(target=_ixm_reader, args=(sock, run, n, place, send))
     reader.start()
-    # the writer must open after the reader created the keys: wait until /bench/ack exists
+    # the writer must open after the reader created the keys: wait until the ack key exists
     with IxmClient(sock, name="bench-probe") as probe:
         deadline = time.monotonic() + 10
-        while not any(s.key == "/bench/ack" for s in probe.list().segments):
+        while not any(s.key == f"{run}/ack" for s in probe.list().segments):
             if time.monotonic() > deadline:
                 raise RuntimeError("the reader did not start")
             time.sleep(0.01)
-    writer = ctx.Process(target=_ixm_writer, args=(sock, n, place))
+    writer = ctx.Process(target=_ixm_writer, args=(sock, run, n, place))
     writer.start()
+    if not recv.poll(120):
+        raise RuntimeError("the IXM run did not finish")
     lat: list[int] = recv.recv()
     writer.join(10)
     reader.join(10)
@@ -405,6 +412,7 @@ def main(argv: list[str]) -> int:
                 ("not pinned", (None, False)),
                 (f"pinned to CPU {cpu}", (cpu, False)),
                 ("real-time priority", (None, True)),
+                ("pinned + real-time", (cpu, True)),
             ]
             for label, pin in conditions:
                 results[f"ixm {label}"] = summary(ixm_latency(sock, args.n, pin))
