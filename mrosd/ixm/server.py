@@ -26,7 +26,6 @@ import mmap
 import os
 import secrets
 import socket
-import stat
 import struct
 from collections import deque
 from collections.abc import Mapping
@@ -509,10 +508,3 @@ class IxmServer:
     def _on_writable(self, client: _Client) -> None:
         self._flush(client)
 
-
-def socket_mode_ok(path: str) -> bool:
-    """Whether ``path`` is a Unix socket (used by the CLI to give a clear error)."""
-    try:
-        return stat.S_ISSOCK(os.stat(path).st_mode)
-    except OSError:
-        return False
