@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -24,12 +25,15 @@ SETS = [
 
 
 def test_values_set_by_mros_read_back_identically_with_rosparam_and_mros(rosmaster: str, tmp_path: Path) -> None:
-    for name, value in SETS:
-        assert mros(rosmaster, tmp_path, "param", "set", name, value).returncode == 0
-    for name, _ in [*SETS, ("/dict/b", ""), ("/", "")]:
-        ours = mros(rosmaster, tmp_path, "param", "get", name)
-        theirs = ros_tool(rosmaster, tmp_path, "rosparam", "get", name)
-        assert (ours.returncode, ours.stdout) == (theirs.returncode, theirs.stdout), name
+    # The cases are independent: run them side by side (each tool takes ~1 s to start).
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        sets = list(pool.map(lambda nv: mros(rosmaster, tmp_path, "param", "set", *nv), SETS))
+        assert [r.returncode for r in sets] == [0] * len(SETS), [r.stderr for r in sets]
+        names = [name for name, _ in SETS] + ["/dict/b", "/"]
+        ours = list(pool.map(lambda n: mros(rosmaster, tmp_path, "param", "get", n), names))
+        theirs = list(pool.map(lambda n: ros_tool(rosmaster, tmp_path, "rosparam", "get", n), names))
+    for name, o, t in zip(names, ours, theirs, strict=True):
+        assert (o.returncode, o.stdout) == (t.returncode, t.stdout), name
 
 
 def test_list_and_namespace_list_match_rosparam(rosmaster: str, tmp_path: Path) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -42,11 +43,12 @@ def test_topic_list_info_and_type_match_rostopic(procs: Processes, rosmaster: st
         ["type", "/robot/pose/pose"],
         ["type", "/robot/pose/header/stamp"],
     ]
-    for argv in cases:
-        ours = mros(rosmaster, tmp_path, "topic", *argv)
-        theirs = ros_tool(rosmaster, tmp_path, "rostopic", *argv)
-        assert ours.stdout == theirs.stdout, argv
-        assert ours.returncode == theirs.returncode == 0, argv
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        ours = list(pool.map(lambda argv: mros(rosmaster, tmp_path, "topic", *argv), cases))
+        theirs = list(pool.map(lambda argv: ros_tool(rosmaster, tmp_path, "rostopic", *argv), cases))
+    for argv, o, t in zip(cases, ours, theirs, strict=True):
+        assert o.stdout == t.stdout, argv
+        assert o.returncode == t.returncode == 0, argv
 
 
 def test_unknown_topics_fail_with_exit_code_1(rosmaster: str, tmp_path: Path) -> None:
