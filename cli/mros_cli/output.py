@@ -24,7 +24,7 @@ from typing import Any
 import msgspec
 import yaml
 
-__all__ = ["SEPARATOR", "JsonRenderer", "TextRenderer", "extract_field", "quote_string", "uint8_text"]
+__all__ = ["SEPARATOR", "JsonRenderer", "TextRenderer", "extract_field", "quote_string", "uint8_bytes", "uint8_text"]
 
 #: What rostopic writes after each message ('---' is YAML's document separator).
 SEPARATOR = "\n---\n"
@@ -50,6 +50,9 @@ def quote_string(value: str) -> str:
 
 _TEMPLATE: list[bytes] = [b""]
 
+#: uint8[] arrays longer than this are spliced in as bytes by ``render_bytes`` (saves a decode and two copies).
+_BLOB_MIN = 4096
+
 
 def _separators(n: int) -> bytes:
     """``n`` five-byte cells ``???, `` (a camera sends the same size every frame, so the last one is cached)."""
@@ -58,18 +61,27 @@ def _separators(n: int) -> bytes:
     return _TEMPLATE[0]
 
 
-def uint8_text(data: bytes | bytearray | memoryview) -> str:
-    """``str(list(data))`` for a byte string (``[1, 2, 255]``), without building a million ints."""
+def uint8_bytes(data: bytes | bytearray | memoryview) -> bytes:
+    """``str(list(data)).encode()`` for a byte string (``b"[1, 2, 255]"``), without a million ints.
+
+    Each byte becomes a five-byte cell ``HTU, `` filled by three ``bytes.translate`` passes (one per digit)
+    and strided slice assignment; leading zero digits are marked NUL and deleted in one pass at the end.
+    """
     n = len(data)
     if n == 0:
-        return "[]"
+        return b"[]"
     raw = bytes(data)
     out = bytearray(_separators(n))
     out[0::5] = raw.translate(_HUNDREDS)
     out[1::5] = raw.translate(_TENS)
     out[2::5] = raw.translate(_UNITS)
     del out[-2:]
-    return "[" + out.translate(None, b"\0").decode("ascii") + "]"
+    return b"[" + out.translate(None, b"\0") + b"]"
+
+
+def uint8_text(data: bytes | bytearray | memoryview) -> str:
+    """``str(list(data))`` for a byte string (``[1, 2, 255]``)."""
+    return uint8_bytes(data).decode("ascii")
 
 
 def _is_time(value: Any) -> bool:
@@ -113,6 +125,9 @@ class TextRenderer:
     def __init__(self, *, noarr: bool = False) -> None:
         self.noarr = noarr
         self.offset_ns: int | None = None
+        #: while ``render_bytes`` runs: uint8[] texts kept as bytes, marked by NUL in the text (which never
+        #: contains a NUL otherwise: strings are quoted with escapes, char[] printed as a repr).
+        self._blobs: list[bytes] | None = None
         self._plans: dict[type, tuple[tuple[str, str, Callable[[Any, str], str]], ...]] = {}
 
     def render(self, value: Any, type_info: str | None = None) -> str:
@@ -122,6 +137,23 @@ class TextRenderer:
                 return quote_string(f"<array type: {type_info.rstrip('[]')}, length: {len(value)}>")
             return self._field_renderer(type_info)(value, "")
         return self._value(value, "")
+
+    def render_bytes(self, value: Any, type_info: str | None = None) -> bytes:
+        """``render(...).encode()``, but big ``uint8[]`` texts are spliced in as bytes, never decoded."""
+        blobs: list[bytes] = []
+        self._blobs = blobs
+        try:
+            text = self.render(value, type_info)
+        finally:
+            self._blobs = None
+        if not blobs:
+            return text.encode()
+        parts = text.split("\0")
+        out = [parts[0].encode()]
+        for blob, part in zip(blobs, parts[1:], strict=True):
+            out.append(blob)
+            out.append(part.encode())
+        return b"".join(out)
 
     # -- internals ---------------------------------------------------------------------------------------
 
@@ -154,6 +186,9 @@ class TextRenderer:
 
     def _uint8_field(self, value: Any, indent: str) -> str:
         if isinstance(value, bytes | bytearray | memoryview):
+            if self._blobs is not None and len(value) > _BLOB_MIN:
+                self._blobs.append(uint8_bytes(value))
+                return "\0"
             return uint8_text(value)
         return self._value(value, indent)
 

@@ -29,6 +29,8 @@ from mros_cli.main import Graph, master_uri, run
 from mros_cli.output import SEPARATOR, JsonRenderer, TextRenderer, extract_field
 from mrosd.errors import MrosError
 
+_SEPARATOR_BYTES = SEPARATOR.encode()
+
 #: rostopic pub -1 keeps its latched message up this long so that subscribers can connect.
 ONCE_DELAY = 3.0
 #: rostopic hz's default window ("-1": effectively everything).
@@ -299,7 +301,8 @@ class Echo:
                 if self.offset:
                     self.text.offset_ns = time.time_ns()
                 type_info = self._type_info(cls) if self.fields else None
-                self._pending.append((self.text.render(value, type_info) + SEPARATOR).encode())
+                self._pending.append(self.text.render_bytes(value, type_info))
+                self._pending.append(_SEPARATOR_BYTES)
         except (MrosError, KeyError) as exc:
             self.error = exc
             self.done.set()

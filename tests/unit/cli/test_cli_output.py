@@ -219,3 +219,10 @@ def test_bool_arrays_print_as_bools_and_numeric_array_objects_as_lists() -> None
     text = TextRenderer().render(msg)
     assert text == "bits: [True, False]\nvalues: [0.5, 2.0]\nchars: b'ab'\npair: [1, 2]"
     assert JsonRenderer().render(msg) == b'{"bits":[1,0],"values":[0.5,2.0],"chars":"YWI=","pair":"AQI="}'
+
+
+def test_render_bytes_equals_render_encoded_with_big_uint8_arrays_spliced_in() -> None:
+    msg = Cloud(header=Header(frame_id="cam"), data=os.urandom(10_000), names=["x"])
+    renderer = TextRenderer()
+    assert renderer.render_bytes(msg) == renderer.render(msg).encode()
+    assert renderer.render_bytes(Text("é")) == TextRenderer().render(Text("é")).encode()
