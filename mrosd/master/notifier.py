@@ -5,7 +5,8 @@ were queued, one at a time, each bounded by a timeout, and a dead or slow node o
 own queue. A pending publisherUpdate for a (target, topic) is replaced in place by a newer one,
 since only the latest publisher list matters. Drop policy when a queue is full: the oldest queued
 call is dropped (and logged). After ``max_failures`` consecutive failed calls the target's backlog
-is discarded (the node is considered dead until a later call succeeds). Idle workers exit.
+is discarded and the worker backs off (50 ms doubling to 5 s) before its next attempt, so a dead
+node costs one attempt per period, not one per notification. Idle workers exit.
 """
 
 from __future__ import annotations
@@ -25,6 +26,9 @@ log = logging.getLogger(__name__)
 
 #: Caller id the master uses for its own calls, as rosmaster does.
 MASTER_CALLER_ID = "/master"
+
+#: Longest pause between attempts to a target that keeps failing.
+MAX_BACKOFF = 5.0
 
 #: Result callback: ``(notification, reply or None on failure)``.
 ResultHook = Callable[[Notification, Any], None]
@@ -144,16 +148,20 @@ class Notifier:
                     self._progress.set()
                 if reply is None:
                     target.failures += 1
-                    if target.failures >= self._max_failures and target.queue:
-                        self.dropped += len(target.queue)
-                        log.warning(
-                            "%s failed %d calls in a row: dropped %d queued calls",
-                            api,
-                            target.failures,
-                            len(target.queue),
-                        )
-                        target.queue.clear()
-                        target.pending.clear()
+                    if target.failures >= self._max_failures:
+                        if target.queue:
+                            self.dropped += len(target.queue)
+                            log.warning(
+                                "%s failed %d calls in a row: dropped %d queued calls",
+                                api,
+                                target.failures,
+                                len(target.queue),
+                            )
+                            target.queue.clear()
+                            target.pending.clear()
+                        # Back off: a dead node costs one attempt per period, not one per notification.
+                        extra = target.failures - self._max_failures
+                        await asyncio.sleep(min(MAX_BACKOFF, 0.05 * 2 ** min(extra, 10)))
                 else:
                     target.failures = 0
         except asyncio.CancelledError:

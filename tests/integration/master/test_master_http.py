@@ -109,3 +109,14 @@ async def test_a_full_notification_queue_drops_its_oldest_entries() -> None:
         assert notifier.dropped >= 6
         await notifier.drain()
         await notifier.aclose()
+
+
+async def test_a_dead_target_is_backed_off_instead_of_retried_for_every_notification() -> None:
+    async with XmlRpcClient() as client:
+        notifier = Notifier(client, timeout=0.5, max_failures=2)
+        dead = f"http://127.0.0.1:{free_port()}/"
+        for i in range(40):
+            notifier.submit([publisher_update(dead, f"/t{i}", [])])
+            await asyncio.sleep(0.005)
+        assert notifier.failed < 20
+        await notifier.aclose()
