@@ -143,3 +143,34 @@ def test_check_config_validates_the_ixm_access_rules_naming_the_key(tmp_path: Pa
     assert out.returncode == 2
     assert str(bad) in out.stderr
     assert 'ixm.rules.keys."/cam".read_uids' in out.stderr
+
+
+@needs_master
+def test_sighup_reloads_the_ixm_rules_and_keeps_running_on_a_broken_file(procs: Processes, tmp_path: Path) -> None:
+    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    notify_path = str(tmp_path / "notify.sock")
+    notify.bind(notify_path)
+    config = tmp_path / "mrosd.toml"
+    config.write_text('[ixm.rules]\ndefault = "creator"\n[rosout]\nenabled = false\n')
+    port = free_port()
+    env = _daemon_env(tmp_path, notify_path)
+    proc = procs.our_python(["-m", "mrosd.daemon", "--config", str(config), "--port", str(port)], env)
+    try:
+        _receive_until(notify, "READY=1", timeout=30)
+        config.write_text('[ixm.rules]\ndefault = "deny"\n[rosout]\nenabled = false\n')
+        proc.send_signal(signal.SIGHUP)
+        _receive_until(notify, "RELOADING=1", timeout=10)
+        _receive_until(notify, "READY=1", timeout=10)
+        config.write_text('[ixm.rules]\ndefault = "sometimes"\n')
+        proc.send_signal(signal.SIGHUP)
+        _receive_until(notify, "RELOADING=1", timeout=10)
+        _receive_until(notify, "READY=1", timeout=10)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=10) == 0
+    finally:
+        notify.close()
+    assert proc.stderr is not None
+    log = proc.stderr.read().decode()
+    assert "SIGHUP: IXM access rules reloaded" in log
+    assert "reload failed, keeping the running configuration" in log
+    assert "ixm.rules.default" in log
