@@ -121,3 +121,54 @@ async def test_a_publisher_dying_in_the_middle_of_a_frame_delivers_only_whole_me
             assert received[0] == "whole"
             assert set(received) == {"whole", "next"}, received[:5]
             del sub
+
+
+BIG_TALKER = """
+import asyncio, sys, mrosd
+from mrosd.msg import get_message_class
+Image = get_message_class("sensor_msgs/Image")
+async def main():
+    async with mrosd.Node("big_talker", argv=[], watchdog_interval=0.2) as node:
+        pub = await node.advertise("/images", Image, queue_size=4)
+        print("ready", flush=True)
+        n = 0
+        while True:
+            n += 1
+            data = bytes([n % 251]) * (2 << 20)
+            await pub.publish(Image(height=n, width=1024, step=2048, encoding="mono16", data=data))
+            await asyncio.sleep(0)
+asyncio.run(main())
+"""
+
+
+async def test_a_publisher_process_killed_while_streaming_2_mb_images_never_delivers_a_partial_one(
+    procs: Processes, tmp_path: Path
+) -> None:
+    _, uri = start_master(procs)
+    env = node_env(uri, tmp_path)
+    image = get_message_class("sensor_msgs/Image")
+    got: list[tuple[int, int, bool]] = []
+    first = asyncio.Event()
+
+    def on_image(msg: object) -> None:
+        data = bytes(msg.data)  # type: ignore[attr-defined]
+        n = msg.height  # type: ignore[attr-defined]
+        got.append((n, len(data), data == bytes([n % 251]) * len(data)))
+        first.set()
+
+    async with mrosd.Node("image_sink", master_uri=uri, host="127.0.0.1", argv=[]) as node:
+        await node.subscribe("/images", image, callback=on_image)
+        talker = procs.our_python(["-c", BIG_TALKER], env)
+        assert await asyncio.to_thread(lambda: next(iter_lines_until(talker, 1, 20.0))) == "ready"
+        await asyncio.wait_for(first.wait(), 20)
+        await asyncio.sleep(0.3)
+        kill9(talker)  # at a random point of a 2 MiB frame, most likely
+        await asyncio.sleep(0.5)
+        count = len(got)
+        assert count >= 1
+        assert all(length == 2 << 20 and whole for _, length, whole in got), "a partial or mixed image was delivered"
+        # a new publisher process on the same topic is followed
+        first.clear()
+        talker = procs.our_python(["-c", BIG_TALKER], env)
+        await asyncio.wait_for(first.wait(), 20)
+        assert len(got) > count
