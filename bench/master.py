@@ -90,32 +90,77 @@ async def raw_call(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, r
     return not close
 
 
+class _LoadProtocol(asyncio.Protocol):
+    """One closed-loop client connection: send a prepared request, wait for its full response, repeat."""
+
+    def __init__(self, requests: list[bytes], stop_at: float, done: asyncio.Future[int], offset: int) -> None:
+        self.requests = requests
+        self.stop_at = stop_at
+        self.done = done
+        self.k = offset
+        self.count = 0
+        self.buf = b""
+        self.transport: asyncio.Transport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+        self._send()
+
+    def _send(self) -> None:
+        assert self.transport is not None
+        self.transport.write(self.requests[self.k % len(self.requests)])
+        self.k += 1
+
+    def data_received(self, data: bytes) -> None:
+        self.buf += data
+        while True:
+            end = self.buf.find(b"\r\n\r\n")
+            if end < 0:
+                return
+            head = self.buf[:end].lower()
+            at = head.find(b"content-length:")
+            length = int(head[at + 15 :].split(b"\r\n", 1)[0])
+            if len(self.buf) < end + 4 + length:
+                return
+            payload = self.buf[end + 4 : end + 4 + length]
+            self.buf = self.buf[end + 4 + length :]
+            if b"<int>1</int>" not in payload[:400] and b"<i4>1</i4>" not in payload[:400]:
+                raise RuntimeError(f"unexpected reply: {payload[:200]!r}")
+            self.count += 1
+            if time.perf_counter() >= self.stop_at:
+                assert self.transport is not None
+                self.transport.close()
+                if not self.done.done():
+                    self.done.set_result(self.count)
+                return
+            self._send()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if not self.done.done():
+            self.done.set_result(self.count)
+
+
 async def worker(uri: str, concurrency: int, duration: float, tag: str) -> int:
+    """Closed-loop load: ``concurrency`` kept-alive connections, each one call at a time."""
     bodies = mix_bodies(tag)
     async with aiohttp.ClientSession() as session:
         await post(session, uri, bodies[0])  # register once so lookupNode succeeds
         await post(session, uri, body("setParam", "/probe", "/bench/param", 42))
     requests = [http_request(uri, b) for b in bodies]
     host, port = uri.split("//", 1)[1].rstrip("/").split(":")
-    count = 0
+    loop = asyncio.get_running_loop()
     stop_at = time.perf_counter() + duration
-
-    async def loop(i: int) -> None:
-        nonlocal count
-        k = i
-        reader, writer = await asyncio.open_connection(host, int(port))
-        try:
-            while time.perf_counter() < stop_at:
-                if not await raw_call(reader, writer, requests[k % len(requests)]):
-                    writer.close()
-                    reader, writer = await asyncio.open_connection(host, int(port))
-                k += 1
-                count += 1
-        finally:
-            writer.close()
-
-    await asyncio.gather(*(loop(i) for i in range(concurrency)))
-    return count
+    futures: list[asyncio.Future[int]] = []
+    for i in range(concurrency):
+        fut: asyncio.Future[int] = loop.create_future()
+        futures.append(fut)
+        await loop.create_connection(
+            lambda fut=fut, i=i: _LoadProtocol(requests, stop_at, fut, i),  # type: ignore[misc]
+            host,
+            int(port),
+        )
+    counts = await asyncio.wait_for(asyncio.gather(*futures), duration + 30)
+    return sum(counts)
 
 
 def throughput(uri: str, clients: int, duration: float) -> float:
@@ -221,6 +266,12 @@ async def registration(uri: str, nodes: int, topics: int, dead: bool, tag: str) 
 # --- driver -------------------------------------------------------------------------------------
 
 
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process (Linux /proc), in seconds."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def start_ours(procs: Processes) -> str:
     port = free_port()
     uri = f"http://127.0.0.1:{port}/"
@@ -259,14 +310,23 @@ def main(argv: list[str]) -> int:
     with TemporaryDirectory() as tmp:
         procs = Processes(Path(tmp))
         try:
-            masters = {"mrosd": start_ours(procs), "rosmaster": start_rosmaster(procs)}
+            masters = {"mrosd": start_ours(procs)}
+            pids = {"mrosd": procs._procs[-1].pid}  # the helper keeps the Popen objects it started
+            masters["rosmaster"] = start_rosmaster(procs)
+            pids["rosmaster"] = procs._procs[-1].pid
             results: dict[str, dict[str, float]] = {name: {} for name in masters}
             for name, uri in masters.items():
                 for call, us in asyncio.run(latency(uri, lat_n)).items():
                     results[name][f"latency {call} (us)"] = us
             for clients in (1, 8, 32):
                 for name, uri in masters.items():
-                    results[name][f"throughput {clients} clients (calls/s)"] = throughput(uri, clients, duration)
+                    cpu0 = cpu_seconds(pids[name])
+                    rate = throughput(uri, clients, duration)
+                    results[name][f"throughput {clients} clients (calls/s)"] = rate
+                    if clients == 32:
+                        used = cpu_seconds(pids[name]) - cpu0
+                        results[name]["server CPU per call at 32 clients (us)"] = used / (rate * duration) * 1e6
+                        results[name]["server CPU capacity (calls/s per core)"] = rate * duration / used
             for name, uri in masters.items():
                 base, _ = asyncio.run(registration(uri, nodes, topics, dead=False, tag="base"))
                 dead, probe = asyncio.run(registration(uri, nodes, topics, dead=True, tag="dead"))
