@@ -161,7 +161,7 @@ def decode_request(body: bytes | memoryview) -> Request:
     """Raises: RemoteProtocolError when the body is not a known request."""
     try:
         request: Request = _request_decoder.decode(body)
-    except msgspec.DecodeError as exc:
+    except (msgspec.DecodeError, UnicodeDecodeError) as exc:
         raise RemoteProtocolError(f"malformed IXM request: {exc}") from exc
     return request
 
@@ -170,7 +170,7 @@ def decode_reply(body: bytes | memoryview) -> Reply:
     """Raises: RemoteProtocolError when the body is not a known reply."""
     try:
         reply: Reply = _reply_decoder.decode(body)
-    except msgspec.DecodeError as exc:
+    except (msgspec.DecodeError, UnicodeDecodeError) as exc:
         raise RemoteProtocolError(f"malformed IXM reply: {exc}") from exc
     return reply
 

@@ -15,6 +15,7 @@ before they allocate or loop.
 from __future__ import annotations
 
 import keyword
+import math
 import re
 import struct
 from collections.abc import Callable
@@ -650,7 +651,7 @@ def generate_class(spec: MsgSpec, md5: str, full_text: str, lookup: Lookup, tag:
         "    _slot_types: _ClassVar[tuple[str, ...]] = _field_types",
     ]
     for c in spec.constants:
-        lines.append(f"    {c.name}: _ClassVar[{type(c.value).__name__}] = {c.value!r}")
+        lines.append(f"    {c.name}: _ClassVar[{type(c.value).__name__}] = {_literal(c.value)}")
     lines.append("")
     lines += ser
     lines.append("")
@@ -696,3 +697,10 @@ from mrosd.msg.runtime import trailing as _trailing
 from mrosd.msg.runtime import truncated as _truncated
 from mrosd.msg.runtime import truncated_message as _truncated_message
 """
+
+
+def _literal(value: object) -> str:
+    """Python source for a constant's value; repr() of inf/nan is not valid source."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return f"float({str(value)!r})"
+    return repr(value)

@@ -57,7 +57,6 @@ async def test_the_xmlrpc_server_keeps_answering_after_those_bodies() -> None:
         assert decode_response(last) == [1, "", 42]
 
 
-@pytest.mark.xfail(strict=True, reason="mrosd/ixm/protocol.py decode_request lets msgspec's UnicodeDecodeError escape")
 def test_an_ixm_request_with_invalid_utf8_is_a_protocol_error() -> None:
     from mrosd.ixm.protocol import decode_reply, decode_request
 
@@ -82,7 +81,6 @@ async def test_the_ixm_daemon_disconnects_a_client_sending_invalid_utf8(tmp_path
             assert await asyncio.wait_for(loop.sock_recv(bad, 100), 2.0) == b""
 
 
-@pytest.mark.xfail(strict=True, reason="mrosd/msg/codegen.py emits repr(inf)/repr(nan) for float constants: NameError")
 def test_a_message_definition_with_an_infinite_or_nan_float_constant_loads() -> None:
     from mrosd.msg import load_type
 
