@@ -263,7 +263,9 @@ class Subscriber:
             msg: Any = RawMessage(body, link.header)
         else:
             try:
-                msg = self.msg_class.deserialize(body)
+                # A large frame arrives as its own bytearray: decode through a view so uint8[] fields are
+                # views into it, not copies.
+                msg = self.msg_class.deserialize(memoryview(body) if type(body) is bytearray else body)
             except MrosError as exc:
                 log.warning("%s: dropping a message from %s that does not decode: %s", self.topic, link.uri, exc)
                 return
