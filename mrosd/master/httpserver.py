@@ -40,6 +40,10 @@ log = logging.getLogger(__name__)
 #: Largest request line + headers accepted.
 MAX_HEADER_SIZE = 64 * 1024
 
+#: Time a client has to complete a request once its first byte arrived (slowloris defence). Idle keep-alive
+#: connections with nothing pending are not timed out: rospy and roscpp keep theirs open between calls.
+REQUEST_TIMEOUT = 30.0
+
 # Header fields, matched on the lower-cased header block (which starts with the line break).
 _CONTENT_LENGTH = re.compile(rb"\r\ncontent-length:[ \t]*(?:([0-9]{1,12})[ \t]*(?=\r\n|$)|.*)")
 _CONNECTION = re.compile(rb"\r\nconnection:[ \t]*(close|keep-alive)[ \t]*(?=\r\n|$)")
@@ -51,6 +55,7 @@ _REASONS = {
     400: b"Bad Request",
     403: b"Forbidden",
     405: b"Method Not Allowed",
+    408: b"Request Timeout",
     411: b"Length Required",
     413: b"Payload Too Large",
     431: b"Request Header Fields Too Large",
@@ -233,6 +238,7 @@ class HttpProtocol(asyncio.Protocol):
         self._busy = False
         self._closed = False
         self._reading_paused = False
+        self._timer: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self._transport = cast(asyncio.Transport, transport)  # uvloop's transports are not subclasses
@@ -255,15 +261,35 @@ class HttpProtocol(asyncio.Protocol):
             self._live.discard(self._transport)
         self._closed = True
         self._buf.clear()
+        self._disarm()
 
     def data_received(self, data: bytes) -> None:
         if self._closed:
             return
         self._buf += data
         self._process()
+        if self._buf and self._timer is None and not self._closed:
+            # Armed once per pending request, not per byte: trickling bytes cannot extend it.
+            self._timer = asyncio.get_running_loop().call_later(REQUEST_TIMEOUT, self._timed_out)
         if self._busy and len(self._buf) > MAX_HEADER_SIZE and self._transport is not None:
             self._transport.pause_reading()  # a pipelining client waits while a slow call runs
             self._reading_paused = True
+
+    def _disarm(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+
+    def _timed_out(self) -> None:
+        self._timer = None
+        if self._closed or not self._buf:
+            return
+        if self._busy:  # the pending bytes wait on our own slow call, not on the client
+            self._timer = asyncio.get_running_loop().call_later(REQUEST_TIMEOUT, self._timed_out)
+            return
+        peer = self._transport.get_extra_info("peername") if self._transport is not None else None
+        log.info("master: closing %s: request incomplete after %g s", peer, REQUEST_TIMEOUT)
+        self._fail(408, b"request not completed in time\n")
 
     def pause_writing(self) -> None:
         # The client does not read its responses: stop reading its requests until it does.
@@ -344,6 +370,7 @@ class HttpProtocol(asyncio.Protocol):
             body = bytes(self._buf[req.body_start : stop])
             del self._buf[:stop]
             self._request = None
+            self._disarm()
             result = self._handler.handle(body)
             if isinstance(result, bytes):
                 self._respond(result, req.keep_alive)

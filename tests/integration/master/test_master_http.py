@@ -120,3 +120,30 @@ async def test_a_dead_target_is_backed_off_instead_of_retried_for_every_notifica
             await asyncio.sleep(0.005)
         assert notifier.failed < 20
         await notifier.aclose()
+
+
+async def test_a_client_trickling_a_request_is_cut_off_while_idle_keep_alive_clients_stay(
+    master: Master, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from mrosd.master import httpserver
+
+    monkeypatch.setattr(httpserver, "REQUEST_TIMEOUT", 0.3)
+    slow_reader, slow_writer = await asyncio.open_connection("127.0.0.1", master.port)
+    idle_reader, idle_writer = await asyncio.open_connection("127.0.0.1", master.port)
+    try:
+        idle_writer.write(request(encode_call("getUri", ("/c",))))
+        await read_response(idle_reader)
+        for chunk in (b"POST / HTTP/1.1\r\n", b"Content-Le", b"ngth: 10\r\n"):
+            slow_writer.write(chunk)
+            await asyncio.sleep(0.1)
+        head = await asyncio.wait_for(slow_reader.readuntil(b"\r\n\r\n"), 5)
+        assert head.split(b" ")[1] == b"408"
+        # read() returning at all means the server closed the connection after its explanation
+        assert await asyncio.wait_for(slow_reader.read(), 5) == b"request not completed in time\n"
+        # the idle keep-alive connection had nothing pending: it is still served
+        idle_writer.write(request(encode_call("getUri", ("/c",))))
+        _, body = await read_response(idle_reader)
+        assert decode_response(body)[2] == master.uri
+    finally:
+        slow_writer.close()
+        idle_writer.close()
