@@ -16,6 +16,7 @@ from mrosd.msg.spec import (
     CONSTANT_TYPES,
     HEADER,
     HEADER_FULL_NAME,
+    INT_RANGES,
     Constant,
     Field,
     MsgSpec,
@@ -27,19 +28,6 @@ _RESOURCE_NAME = re.compile(r"[A-Za-z][\w/]*\Z")
 _BASE_NAME = re.compile(r"[A-Za-z]\w*\Z")
 _ARRAY = re.compile(r"\[(\d*)\]\Z")
 
-#: Integer bounds for constants, as genmsg checks them.
-_INT_BOUNDS: dict[str, tuple[int, int]] = {
-    "int8": (-(2**7), 2**7 - 1),
-    "uint8": (0, 2**8 - 1),
-    "byte": (-(2**7), 2**7 - 1),
-    "char": (0, 2**8 - 1),
-    "int16": (-(2**15), 2**15 - 1),
-    "uint16": (0, 2**16 - 1),
-    "int32": (-(2**31), 2**31 - 1),
-    "uint32": (0, 2**32 - 1),
-    "int64": (-(2**63), 2**63 - 1),
-    "uint64": (0, 2**64 - 1),
-}
 
 #: The separator genpy writes between the definitions of a message_definition (80 '=').
 DEFINITION_SEPARATOR = "=" * 80
@@ -82,7 +70,7 @@ def _convert_constant(type_: str, text: str) -> bool | int | float | str:
     if type_ == "bool":
         return bool(ast.literal_eval(text))
     value = int(text)
-    low, high = _INT_BOUNDS[type_]
+    low, high = INT_RANGES[type_]
     if not low <= value <= high:
         raise ValueError(f"{value} is out of bounds for {type_} [{low}, {high}]")
     return value

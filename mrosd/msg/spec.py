@@ -29,6 +29,13 @@ PRIMITIVE_FORMATS: dict[str, tuple[str, int]] = {
     "float64": ("d", 8),
 }
 
+#: Integer type -> (lowest, highest) value, derived from the struct formats (lower case = signed).
+INT_RANGES: dict[str, tuple[int, int]] = {
+    name: ((-(2 ** (8 * size - 1)), 2 ** (8 * size - 1) - 1) if fmt.islower() else (0, 2 ** (8 * size) - 1))
+    for name, (fmt, size) in PRIMITIVE_FORMATS.items()
+    if fmt in "bBhHiIqQ"
+}
+
 #: Types allowed for constants (genmsg's PRIMITIVE_TYPES).
 CONSTANT_TYPES = frozenset([*PRIMITIVE_FORMATS, "string"])
 
