@@ -12,9 +12,11 @@ the daemon its memory. The node name is ``/rosout``, as in roscore, so ``rosnode
 
 from __future__ import annotations
 
-import importlib
 import logging
 from typing import Any
+
+from mrosd.msg import get_message_class
+from mrosd.tcpros import Node, Publisher
 
 log = logging.getLogger(__name__)
 
@@ -36,25 +38,17 @@ class RosoutAggregator:
     def __init__(self, master_uri: str) -> None:
         self.master_uri = master_uri
         self.forwarded = 0
-        self._node: Any = None
-        self._pub: Any = None
+        self._node: Node | None = None
+        self._pub: Publisher | None = None
 
     async def start(self) -> None:
         """Register the node, its subscription and its publication.
 
         Raises:
-            ImportError: the Node API is missing from this build.
             MrosError: the master refused a registration.
         """
-        from mrosd.msg import get_message_class
-
-        # Imported by name: the Node API is a sibling part, and the daemon must start without it.
-        try:
-            node_cls: Any = importlib.import_module("mrosd").Node
-        except AttributeError as exc:
-            raise ImportError("mrosd.Node is not available in this build") from exc
         log_cls = get_message_class("rosgraph_msgs/Log")
-        node = node_cls(NODE_NAME, master_uri=self.master_uri, argv=[])
+        node = Node(NODE_NAME, master_uri=self.master_uri, argv=[])
         await node.__aenter__()
         self._node = node
         try:
@@ -65,8 +59,11 @@ class RosoutAggregator:
             raise
 
     async def _forward(self, msg: Any) -> None:
+        pub = self._pub
+        if pub is None:
+            return
         try:
-            await self._pub.publish(msg)
+            await pub.publish(msg)
         except Exception:
             # A bad record or a closing publisher must not end the subscription.
             log.exception("rosout: could not forward a message to %s", OUT_TOPIC)

@@ -15,7 +15,7 @@ from typing import Any
 
 import click
 
-from mros_cli.main import Graph, run
+from mros_cli.main import master_client, run
 from mrosd.errors import MrosError
 
 
@@ -61,16 +61,16 @@ def status(wait_s: float, ixm_socket: str | None) -> None:
 
     async def main() -> dict[str, Any]:
         deadline = time.monotonic() + wait_s
-        async with Graph() as graph:
+        async with master_client() as master:
             while True:
                 try:
-                    pid = await graph.master("getPid")
+                    pid = await master.call("getPid")
                     break
                 except MrosError:
                     if time.monotonic() >= deadline:
                         raise
                     await asyncio.sleep(0.1)
-            state = await graph.master("getSystemState")
+            state = await master.get_system_state()
             nodes = {n for section in state for _t, ns in section for n in ns}
             return {
                 "pid": pid,
@@ -78,8 +78,8 @@ def status(wait_s: float, ixm_socket: str | None) -> None:
                 "publications": len(state[0]),
                 "subscriptions": len(state[1]),
                 "services": len(state[2]),
-                "params": len(await graph.master("getParamNames")),
-                "uri": graph.uri,
+                "params": len(await master.get_param_names()),
+                "uri": master.master_uri,
             }
 
     info = run(main())

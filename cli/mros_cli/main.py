@@ -1,7 +1,8 @@
 """The root click group `mros`; each noun lives in its own module and is added here.
 
 Also owns what every noun shares: the global ``--master-uri`` option, running one coroutine per command,
-the calls to the master (``Graph``) and the exit codes scripts rely on: 0 success, 1 error (one line on
+the clients of the master (``master_client``, a ``mrosd.master.client.MasterClient``) and of nodes'
+slave APIs (``slave_call``) and the exit codes scripts rely on: 0 success, 1 error (one line on
 stderr, ``mros: error: ...``), 2 usage error (click's), 130 interrupted.
 """
 
@@ -13,11 +14,15 @@ import importlib.util
 import os
 import sys
 from collections.abc import Awaitable, Coroutine
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from mrosd.errors import MasterError, MasterUnreachableError, MrosError, XmlRpcError
+from mrosd.errors import MasterError, MrosError
+
+if TYPE_CHECKING:
+    from mrosd.master.client import MasterClient
+    from mrosd.xmlrpc import XmlRpcClient
 
 #: noun -> module that defines a click group named ``group`` (imported lazily so `mros msg` never pays for
 #: aiohttp and `mros topic` never pays for the codegen until it needs it).
@@ -61,54 +66,31 @@ def master_uri(ctx: click.Context | None = None) -> str:
     return master_uri_from_env()
 
 
-class Graph:
-    """The CLI's calls to the master and to nodes' slave APIs, over one XML-RPC client.
+def master_client(xmlrpc: XmlRpcClient | None = None) -> MasterClient:
+    """A ``MasterClient`` for this invocation's master URI, as ``CALLER_ID``, bounded by ``CALL_TIMEOUT``.
 
-    Each master call returns the value on code 1 and raises ``MasterError`` (with the master's status
-    text) otherwise, or ``MasterUnreachableError`` when nothing answers.
+    Without ``xmlrpc`` it owns (and ``aclose()`` closes) its own XML-RPC client; pass one to share it
+    with slave API calls (``slave_call``). Imported here, not at module top, so ``mros --help`` and
+    ``mros msg`` never load aiohttp.
     """
+    from mrosd.master.client import MasterClient
 
-    def __init__(self, uri: str | None = None, timeout: float = CALL_TIMEOUT) -> None:
-        from mrosd.xmlrpc import XmlRpcClient
-
-        self.uri = uri or master_uri()
-        self.timeout = timeout
-        self.xmlrpc = XmlRpcClient(timeout=timeout)
-
-    async def master(self, method: str, *args: Any) -> Any:
-        """Call a Master or Parameter Server API method with our caller id prepended."""
-        from mrosd.xmlrpc import Fault
-
-        try:
-            reply = await self.xmlrpc.call(self.uri, method, CALLER_ID, *args, timeout=self.timeout)
-        except Fault as exc:
-            raise MasterError(method, -1, exc.message) from exc
-        except XmlRpcError as exc:
-            raise MasterUnreachableError(self.uri, str(exc).split(": ", 1)[-1]) from exc
-        return _unwrap(method, reply)
-
-    async def node(self, uri: str, method: str, *args: Any, timeout: float | None = None) -> Any:
-        """Call a node's slave API method; raises ``MasterError`` on a failure code, ``XmlRpcError`` if down."""
-        reply = await self.xmlrpc.call(uri, method, CALLER_ID, *args, timeout=timeout or self.timeout)
-        return _unwrap(method, reply)
-
-    async def aclose(self) -> None:
-        """Close the pooled connections."""
-        await self.xmlrpc.aclose()
-
-    async def __aenter__(self) -> Graph:
-        return self
-
-    async def __aexit__(self, *exc_info: object) -> None:
-        await self.aclose()
+    return MasterClient(master_uri(), CALLER_ID, xmlrpc, timeout=CALL_TIMEOUT)
 
 
-def _unwrap(method: str, reply: Any) -> Any:
-    if not isinstance(reply, list | tuple) or len(reply) != 3:
-        raise MasterError(method, -1, f"malformed reply {reply!r}")
+async def slave_call(xmlrpc: XmlRpcClient, uri: str, method: str, *args: Any, timeout: float | None = None) -> Any:
+    """Call a node's slave API ``method`` as ``CALLER_ID`` and return the value of a code-1 answer.
+
+    Raises:
+        MasterError: the node answered with a failure code or a malformed triple.
+        XmlRpcError: the node is unreachable, timed out or sent a fault.
+    """
+    reply = await xmlrpc.call(uri, method, CALLER_ID, *args, timeout=CALL_TIMEOUT if timeout is None else timeout)
+    if not isinstance(reply, list | tuple) or len(reply) != 3 or not isinstance(reply[0], int):
+        raise MasterError(method, -1, f"malformed reply {reply!r:.200}")
     code, status, value = reply
     if code != 1:
-        raise MasterError(method, int(code) if isinstance(code, int) else -1, str(status))
+        raise MasterError(method, code, str(status))
     return value
 
 

@@ -10,12 +10,17 @@ import contextlib
 import re
 import sys
 import time
-from typing import Any
+from collections.abc import AsyncIterator, Sequence
+from typing import TYPE_CHECKING, Any
 
 import click
 
-from mros_cli.main import CALLER_ID, Graph, fail, run
+from mros_cli.main import CALL_TIMEOUT, CALLER_ID, fail, master_client, run, slave_call
 from mrosd.errors import MasterError, MasterUnreachableError, MrosError, XmlRpcError
+
+if TYPE_CHECKING:
+    from mrosd.master.client import MasterClient
+    from mrosd.xmlrpc import XmlRpcClient
 
 #: The free-text connection description roscpp/rospy put in getBusInfo, shown as rosnode shows it.
 CONNECTION_PATTERN = re.compile(r"\w+ connection on port (\d+) to \[(.*) on socket (\d+)\]")
@@ -31,7 +36,7 @@ def resolve(name: str) -> str:
     return resolve_name(name)
 
 
-def node_names(state: list[Any]) -> list[str]:
+def node_names(state: Sequence[Any]) -> list[str]:
     """Every node that appears in a getSystemState answer, sorted."""
     names: set[str] = set()
     for section in state:
@@ -40,14 +45,23 @@ def node_names(state: list[Any]) -> list[str]:
     return sorted(names)
 
 
-async def _lookup(graph: Graph, name: str) -> str | None:
+async def _lookup(master: MasterClient, name: str) -> str | None:
     try:
-        uri: str = await graph.master("lookupNode", name)
+        uri: str = await master.lookup_node(name)
     except MasterUnreachableError:
         raise
     except MasterError:
         return None
     return uri
+
+
+@contextlib.asynccontextmanager
+async def _clients() -> AsyncIterator[tuple[MasterClient, XmlRpcClient]]:
+    """A master client and the XML-RPC client it shares with the slave API calls, closed on exit."""
+    from mrosd.xmlrpc import XmlRpcClient
+
+    async with XmlRpcClient(timeout=CALL_TIMEOUT) as xmlrpc:
+        yield master_client(xmlrpc), xmlrpc
 
 
 @click.group(name="node")
@@ -77,14 +91,14 @@ def list_(show_uri: bool, show_all: bool, namespace: str | None) -> None:
     """
 
     async def main() -> list[tuple[str, str]]:
-        async with Graph() as graph:
-            names = node_names(await graph.master("getSystemState"))
+        async with master_client() as master:
+            names = node_names(await master.get_system_state())
             if namespace:
                 prefix = resolve(namespace).rstrip("/") + "/"
                 names = [n for n in names if n.startswith(prefix)]
             if not (show_uri or show_all):
                 return [(n, "") for n in names]
-            return [(n, await _lookup(graph, n) or "unknown address") for n in names]
+            return [(n, await _lookup(master, n) or "unknown address") for n in names]
 
     rows = run(main())
     if show_all:
@@ -97,7 +111,7 @@ def list_(show_uri: bool, show_all: bool, namespace: str | None) -> None:
         click.echo("\n".join(lines))
 
 
-def _describe(name: str, state: list[Any], pub_topics: list[Any]) -> str:
+def _describe(name: str, state: Sequence[Any], pub_topics: list[Any]) -> str:
     types = {t: ty for t, ty in pub_topics}
 
     def section(title: str, items: list[str], typed: bool) -> str:
@@ -130,16 +144,16 @@ def info(node: str, quiet: bool) -> None:
     name = resolve(node)
 
     async def main() -> tuple[str, str | None, str]:
-        async with Graph() as graph:
-            state = await graph.master("getSystemState")
-            pub_topics = await graph.master("getPublishedTopics", "/")
+        async with _clients() as (master, xmlrpc):
+            state = await master.get_system_state()
+            pub_topics = await master.get_published_topics("/")
             head = _describe(name, state, pub_topics)
-            uri = await _lookup(graph, name)
+            uri = await _lookup(master, name)
             if uri is None or quiet:
                 return head, uri, ""
             try:
-                pid = await graph.node(uri, "getPid")
-                bus = await graph.node(uri, "getBusInfo")
+                pid = await slave_call(xmlrpc, uri, "getPid")
+                bus = await slave_call(xmlrpc, uri, "getBusInfo")
             except (XmlRpcError, MasterError) as exc:
                 raise MrosError(f"Communication with node[{uri}] failed! ({exc})") from exc
             uris: dict[str, str] = {}
@@ -147,7 +161,7 @@ def info(node: str, quiet: bool) -> None:
                 for _t, nodes in section:
                     for n in nodes:
                         if n not in uris:
-                            uris[n] = await _lookup(graph, n) or ""
+                            uris[n] = await _lookup(master, n) or ""
             return head, uri, _connections(pid, bus, uris)
 
     head, uri, conns = run(main())
@@ -198,24 +212,24 @@ def ping(node: str | None, ping_all: bool, count: int | None) -> None:
         raise click.UsageError("give a NODE or --all")
 
     async def main() -> bool:
-        async with Graph() as graph:
+        async with _clients() as (master, xmlrpc):
             if ping_all:
-                names = node_names(await graph.master("getSystemState"))
+                names = node_names(await master.get_system_state())
                 click.echo("Will ping the following nodes: \n" + "".join(f" * {n}\n" for n in names))
-                dead = [n for n in names if not await _ping(graph, n, 1)]
+                dead = [n for n in names if not await _ping(master, xmlrpc, n, 1)]
                 if dead:
                     click.echo("ERROR: connection refused to " + ", ".join(dead), err=True)
                 return not dead
-            return await _ping(graph, resolve(node or ""), count)
+            return await _ping(master, xmlrpc, resolve(node or ""), count)
 
     if not run(main()):
         sys.exit(1)
 
 
-async def _ping(graph: Graph, name: str, count: int | None) -> bool:
+async def _ping(master: MasterClient, xmlrpc: XmlRpcClient, name: str, count: int | None) -> bool:
     import asyncio
 
-    uri = await _lookup(graph, name)
+    uri = await _lookup(master, name)
     if uri is None:
         click.echo(f"cannot ping [{name}]: unknown node", err=True)
         return False
@@ -226,7 +240,7 @@ async def _ping(graph: Graph, name: str, count: int | None) -> bool:
             await asyncio.sleep(1.0)
         start = time.perf_counter()
         try:
-            await graph.node(uri, "getPid", timeout=PING_TIMEOUT)
+            await slave_call(xmlrpc, uri, "getPid", timeout=PING_TIMEOUT)
         except (XmlRpcError, MasterError) as exc:
             click.echo(f"connection to [{name}] failed: {exc}", err=True)
             return False
@@ -250,17 +264,17 @@ def kill(nodes: tuple[str, ...], kill_all: bool) -> None:
 
     async def main() -> list[str]:
         failed: list[str] = []
-        async with Graph() as graph:
-            names = node_names(await graph.master("getSystemState")) if kill_all else [resolve(n) for n in nodes]
+        async with _clients() as (master, xmlrpc):
+            names = node_names(await master.get_system_state()) if kill_all else [resolve(n) for n in nodes]
             for name in names:
-                uri = await _lookup(graph, name)
+                uri = await _lookup(master, name)
                 click.echo(f"killing {name}")
                 if uri is None:
                     failed.append(name)
                     continue
                 # A node may tear down while answering, so a broken reply still counts as killed (as rosnode).
                 with contextlib.suppress(XmlRpcError, MasterError):
-                    await graph.node(uri, "shutdown", "user request")
+                    await slave_call(xmlrpc, uri, "shutdown", "user request")
         return failed
 
     failed = run(main())
@@ -279,20 +293,24 @@ def cleanup(yes: bool) -> None:
       mros node cleanup -y
     """
 
-    async def dead_nodes(graph: Graph) -> tuple[list[Any], list[tuple[str, str]]]:
-        state = await graph.master("getSystemState")
+    async def dead_nodes(master: MasterClient, xmlrpc: XmlRpcClient) -> tuple[Sequence[Any], list[tuple[str, str]]]:
+        state = await master.get_system_state()
         dead: list[tuple[str, str]] = []
         for name in node_names(state):
-            uri = await _lookup(graph, name)
+            uri = await _lookup(master, name)
             if uri is None:
                 continue
             try:
-                await graph.node(uri, "getPid", timeout=PING_TIMEOUT)
+                await slave_call(xmlrpc, uri, "getPid", timeout=PING_TIMEOUT)
             except (XmlRpcError, MasterError):
                 dead.append((name, uri))
         return state, dead
 
-    async def purge(graph: Graph, state: list[Any], dead: list[tuple[str, str]]) -> None:
+    async def purge(
+        master: MasterClient, xmlrpc: XmlRpcClient, state: Sequence[Any], dead: list[tuple[str, str]]
+    ) -> None:
+        from mrosd.master.client import MasterClient as client_class
+
         for name, uri in dead:
             click.echo(f"Unregistering {name}")
             for method, section, extra in (
@@ -303,15 +321,17 @@ def cleanup(yes: bool) -> None:
                 for item, nodes in section:
                     if name not in nodes:
                         continue
-                    api = uri if extra else await _service_uri(graph, item)
+                    api = uri if extra else await _service_uri(master, item)
+                    # Unregister as the dead node itself (its caller id), like rosnode cleanup.
+                    as_node = client_class(master.master_uri, name, xmlrpc, timeout=CALL_TIMEOUT)
                     try:
-                        await graph.xmlrpc.call(graph.uri, method, name, item, api)
-                    except XmlRpcError as exc:
+                        await as_node.call(method, item, api)
+                    except MasterError as exc:
                         click.echo(f"mros: error: {method} {item} for {name}: {exc}", err=True)
 
     async def main() -> None:
-        async with Graph() as graph:
-            state, dead = await dead_nodes(graph)
+        async with _clients() as (master, xmlrpc):
+            state, dead = await dead_nodes(master, xmlrpc)
             if not dead:
                 return
             if not yes:
@@ -321,15 +341,15 @@ def cleanup(yes: bool) -> None:
                 if not click.confirm("Continue?", default=False):
                     click.echo("aborting")
                     return
-            await purge(graph, state, dead)
+            await purge(master, xmlrpc, state, dead)
             click.echo("done")
 
     run(main())
 
 
-async def _service_uri(graph: Graph, service: str) -> str:
+async def _service_uri(master: MasterClient, service: str) -> str:
     try:
-        uri: str = await graph.master("lookupService", service)
+        uri: str = await master.lookup_service(service)
     except MasterError:
         return ""
     return uri

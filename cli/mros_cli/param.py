@@ -11,13 +11,16 @@ from __future__ import annotations
 import os
 import re
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 import yaml
 
-from mros_cli.main import Graph, run
+from mros_cli.main import master_client, run
 from mrosd.errors import MrosError
+
+if TYPE_CHECKING:
+    from mrosd.master.client import MasterClient
 
 #: rosparam's key for a document's namespace in a loaded file.
 NS_KEY = "_ns"
@@ -87,13 +90,13 @@ def _check(value: Any, where: str) -> Any:
     return value
 
 
-async def set_value(graph: Graph, name: str, value: Any) -> None:
+async def set_value(master: MasterClient, name: str, value: Any) -> None:
     """Set a value; a dictionary is an update of its keys, as rosparam set/load do."""
     if isinstance(value, dict) and name != "/":
         for key, item in value.items():
-            await set_value(graph, join(name, key), item)
+            await set_value(master, join(name, key), item)
         return
-    await graph.master("setParam", name, value)
+    await master.set_param(name, value)
 
 
 @click.group(name="param")
@@ -123,8 +126,8 @@ def get(name: str) -> None:
     """
 
     async def main() -> Any:
-        async with Graph() as graph:
-            return await graph.master("getParam", resolve(name))
+        async with master_client() as master:
+            return await master.get_param(resolve(name))
 
     sys.stdout.write(yaml_text(run(main())) + "\n")
 
@@ -190,8 +193,8 @@ def set_(name: str, value: str | None, textfile: Any, binfile: Any) -> None:
         _check(parsed, resolved)
 
     async def main() -> None:
-        async with Graph() as graph:
-            await set_value(graph, resolved, parsed)
+        async with master_client() as master:
+            await set_value(master, resolved, parsed)
 
     run(main())
 
@@ -209,8 +212,8 @@ def list_(namespace: str) -> None:
     prefix = ns if ns.endswith("/") else ns + "/"
 
     async def main() -> list[str]:
-        async with Graph() as graph:
-            names: list[str] = await graph.master("getParamNames")
+        async with master_client() as master:
+            names: list[str] = await master.get_param_names()
             return names
 
     names = sorted(n for n in run(main()) if n.startswith(prefix))
@@ -229,11 +232,11 @@ def delete(name: str) -> None:
     resolved = resolve(name)
 
     async def main() -> None:
-        async with Graph() as graph:
+        async with master_client() as master:
             if resolved == "/":
-                await graph.master("setParam", "/", {})
+                await master.set_param("/", {})
             else:
-                await graph.master("deleteParam", resolved)
+                await master.delete_param(resolved)
 
     run(main())
 
@@ -250,8 +253,8 @@ def dump(file: str, namespace: str) -> None:
     """
 
     async def main() -> Any:
-        async with Graph() as graph:
-            return await graph.master("getParam", resolve(namespace))
+        async with master_client() as master:
+            return await master.get_param(resolve(namespace))
 
     tree = _plain(run(main()))
     if file == "-":
@@ -301,12 +304,12 @@ def load(file: str, namespace: str | None) -> None:
         plan.append((ns, _check(doc, ns)))
 
     async def main() -> None:
-        async with Graph() as graph:
+        async with master_client() as master:
             for ns, doc in plan:
                 if ns == "/" and isinstance(doc, dict):
                     for key, item in doc.items():
-                        await set_value(graph, join("/", key), item)
+                        await set_value(master, join("/", key), item)
                 else:
-                    await set_value(graph, ns, doc)
+                    await set_value(master, ns, doc)
 
     run(main())

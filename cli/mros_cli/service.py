@@ -7,11 +7,14 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
-from mros_cli.main import Graph, run
+from mros_cli.main import master_client, run
+
+if TYPE_CHECKING:
+    from mrosd.master.client import MasterClient
 
 
 @click.group(name="service")
@@ -38,8 +41,8 @@ def list_(nodes: bool, namespace: str | None) -> None:
     """
 
     async def main() -> list[Any]:
-        async with Graph() as graph:
-            state = await graph.master("getSystemState")
+        async with master_client() as master:
+            state = await master.get_system_state()
             services: list[Any] = state[2]
             return services
 
@@ -63,8 +66,8 @@ def uri(service: str) -> None:
     """
 
     async def main() -> str:
-        async with Graph() as graph:
-            value: str = await graph.master("lookupService", service)
+        async with master_client() as master:
+            value: str = await master.lookup_service(service)
             return value
 
     click.echo(run(main()))
@@ -74,7 +77,7 @@ def uri(service: str) -> None:
 PROBE_TIMEOUT = 5.0
 
 
-async def probe_type(graph: Graph, service: str) -> str:
+async def probe_type(master: MasterClient, service: str) -> str:
     """The service's type, asked from the server itself with a ``probe=1`` connection header (as rosservice).
 
     Raises:
@@ -89,7 +92,7 @@ async def probe_type(graph: Graph, service: str) -> str:
     from mrosd.errors import ServiceError
     from mrosd.tcpros.header import MAX_HEADER_SIZE, decode_header, encode_header
 
-    uri: str = await graph.master("lookupService", service)
+    uri: str = await master.lookup_service(service)
     parsed = urllib.parse.urlsplit(uri)
     if parsed.scheme != "rosrpc" or not parsed.hostname or parsed.port is None:
         raise ServiceError(f"service {service}: the master gave an unusable URI {uri!r}")
@@ -131,9 +134,9 @@ def type_(service: str) -> None:
     name = resolve(service)
 
     async def main() -> str | None:
-        async with Graph() as graph:
+        async with master_client() as master:
             try:
-                return await probe_type(graph, name)
+                return await probe_type(master, name)
             except MasterError:
                 return None
 
@@ -156,23 +159,21 @@ def call(service: str, args: tuple[str, ...]) -> None:
       mros service call /add_two_ints 1 2
       mros service call /reset
     """
-    import importlib
-
     from mros_cli.output import TextRenderer
     from mros_cli.param import resolve
     from mros_cli.topic import anonymous, build_message, parse_pub_args
     from mrosd.msg import get_service_class
+    from mrosd.tcpros import Node
 
     name = resolve(service)
     values = parse_pub_args(tuple("''" if a == "" else a for a in args))
 
     async def main() -> Any:
-        async with Graph() as graph:
-            srv_type = await probe_type(graph, name)
+        async with master_client() as master:
+            srv_type = await probe_type(master, name)
         srv = get_service_class(srv_type)
         request = build_message(srv._request_class, values if args else {})
-        mrosd: Any = importlib.import_module("mrosd")
-        async with mrosd.Node(anonymous("call"), master_uri=graph.uri, argv=[]) as node:
+        async with Node(anonymous("call"), master_uri=master.master_uri, argv=[]) as node:
             proxy = node.service_proxy(name, srv)
             try:
                 return await proxy.call(request)

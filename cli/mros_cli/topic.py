@@ -1,7 +1,7 @@
 """``mros topic``: list, inspect, echo, publish and measure topics, with rostopic's output.
 
 ``list``, ``info`` and ``type`` only ask the master. ``echo``, ``hz`` and ``bw`` subscribe in raw mode
-(``mrosd.AnyMsg``) so they need no local definition of the type: echo builds the class from the publisher's
+(``AnyMsg``) so they need no local definition of the type: echo builds the class from the publisher's
 ``message_definition`` (``mrosd.msg.load_type``), the way a ROS user wishes rostopic did. ``pub`` parses
 YAML arguments as rostopic does (one dictionary, or one value per field in order) and checks every value
 against the field's ROS type, naming the field when it is wrong.
@@ -14,20 +14,24 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import importlib
 import math
 import os
 import sys
 import time
 from collections import deque
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 import yaml
 
-from mros_cli.main import Graph, master_uri, run
+from mros_cli.main import master_client, master_uri, run
 from mros_cli.output import SEPARATOR, JsonRenderer, TextRenderer, extract_field
 from mrosd.errors import MrosError
+from mrosd.msg import Duration, Time, get_message_class, load_type
+from mrosd.tcpros import AnyMsg, Node
+
+if TYPE_CHECKING:
+    from mrosd.master.client import MasterClient
 
 _SEPARATOR_BYTES = SEPARATOR.encode()
 
@@ -39,16 +43,6 @@ HZ_WINDOW = 50000
 BW_WINDOW = 100
 #: How often echo/hz/bw look for a topic that is not published yet.
 TOPIC_POLL = 0.5
-
-
-def _runtime() -> Any:
-    """``mrosd`` (Node, AnyMsg), imported when a command first needs a node."""
-    return importlib.import_module("mrosd")
-
-
-def _messages() -> Any:
-    """``mrosd.msg`` (get_message_class, load_type, Time, Duration), imported on first use."""
-    return importlib.import_module("mrosd.msg")
 
 
 def resolve(name: str) -> str:
@@ -63,9 +57,9 @@ def anonymous(name: str) -> str:
     return f"mros_{name}_{os.getpid()}_{int(time.time() * 1000)}"
 
 
-async def topic_types(graph: Graph) -> dict[str, str]:
+async def topic_types(master: MasterClient) -> dict[str, str]:
     """Topic -> type for every topic the master knows (published or subscribed)."""
-    pairs = await graph.master("getTopicTypes")
+    pairs = await master.get_topic_types()
     return {str(t): str(ty) for t, ty in pairs}
 
 
@@ -81,11 +75,11 @@ def split_topic(name: str, types: dict[str, str]) -> tuple[str, str, list[str]] 
     return topic, types[topic], fields
 
 
-async def wait_for_topic(graph: Graph, name: str) -> tuple[str, str, list[str]]:
+async def wait_for_topic(master: MasterClient, name: str) -> tuple[str, str, list[str]]:
     """Block until ``name`` (or its topic prefix) is known to the master, warning once like rostopic."""
     warned = False
     while True:
-        found = split_topic(name, await topic_types(graph))
+        found = split_topic(name, await topic_types(master))
         if found is not None and found[1] != "*":
             return found
         if not warned:
@@ -139,10 +133,10 @@ def list_(verbose: bool, publishers_only: bool, subscribers_only: bool, namespac
     if publishers_only and subscribers_only:
         raise click.UsageError("give only one of -p and -s")
 
-    async def main() -> tuple[list[Any], dict[str, str]]:
-        async with Graph() as graph:
-            state = await graph.master("getSystemState")
-            return state, await topic_types(graph)
+    async def main() -> tuple[tuple[Any, ...], dict[str, str]]:
+        async with master_client() as master:
+            state = await master.get_system_state()
+            return state, await topic_types(master)
 
     state, types = run(main())
     pubs = [(t, types.get(t, "unknown type"), n) for t, n in state[0]]
@@ -190,9 +184,9 @@ def info(topic: str) -> None:
     name = resolve(topic)
 
     async def main() -> str:
-        async with Graph() as graph:
-            state = await graph.master("getSystemState")
-            types = await topic_types(graph)
+        async with master_client() as master:
+            state = await master.get_system_state()
+            types = await topic_types(master)
             pubs = [n for t, nodes in state[0] if t == name for n in nodes]
             subs = [n for t, nodes in state[1] if t == name for n in nodes]
             if not pubs and not subs:
@@ -200,7 +194,7 @@ def info(topic: str) -> None:
 
             async def api(node: str) -> str:
                 try:
-                    uri: str = await graph.master("lookupNode", node)
+                    uri: str = await master.lookup_node(node)
                 except MrosError:
                     return "unknown"
                 return uri
@@ -231,8 +225,8 @@ def type_(topic: str) -> None:
     name = resolve(topic)
 
     async def main() -> tuple[str, str, list[str]] | None:
-        async with Graph() as graph:
-            return split_topic(name, await topic_types(graph))
+        async with master_client() as master:
+            return split_topic(name, await topic_types(master))
 
     found = run(main())
     if found is None:
@@ -246,7 +240,6 @@ def type_(topic: str) -> None:
 
 
 def _field_type(msg_type: str, fields: list[str]) -> str:
-    get_message_class = _messages().get_message_class
     current = msg_type
     for name in fields:
         cls = get_message_class("std_msgs/Header" if current == "Header" else current)
@@ -283,7 +276,7 @@ class Echo:
         md5 = _header_value(header, "md5sum")
         cls = self._classes.get((msg_type, md5))
         if cls is None:
-            cls = _messages().load_type(msg_type, _header_value(header, "message_definition"))
+            cls = load_type(msg_type, _header_value(header, "message_definition"))
             self._classes[(msg_type, md5)] = cls
         return cls
 
@@ -358,12 +351,11 @@ def echo(topic: str, count: int | None, noarr: bool, as_json: bool, offset: bool
     name = resolve(topic)
 
     async def main() -> None:
-        mrosd = _runtime()
-        async with Graph() as graph:
-            real, _type, fields = await wait_for_topic(graph, name)
+        async with master_client() as master:
+            real, _type, fields = await wait_for_topic(master, name)
         echo = Echo(fields, count, noarr=noarr, as_json=as_json, offset=offset)
-        async with mrosd.Node(anonymous("echo"), master_uri=graph.uri, argv=[]) as node:
-            await node.subscribe(real, mrosd.AnyMsg, callback=echo.on_raw)
+        async with Node(anonymous("echo"), master_uri=master.master_uri, argv=[]) as node:
+            await node.subscribe(real, AnyMsg, callback=echo.on_raw)
             await echo.done.wait()
             echo.flush()
         if echo.error is not None:
@@ -389,12 +381,10 @@ _INT_RANGES = {
 
 
 def _class(rostype: str) -> Any:
-    return _messages().get_message_class("std_msgs/Header" if rostype == "Header" else rostype)
+    return get_message_class("std_msgs/Header" if rostype == "Header" else rostype)
 
 
 def _time_value(rostype: str, value: Any, where: str) -> Any:
-    Time = _messages().Time
-    Duration = _messages().Duration
     kind = Time if rostype == "time" else Duration
     if value == "now" and rostype == "time":
         return Time.now()
@@ -541,8 +531,7 @@ def pub(  # noqa: PLR0917  (one parameter per click option)
     latched = latch or rate is None
 
     async def main() -> None:
-        mrosd = _runtime()
-        async with mrosd.Node(anonymous("pub"), master_uri=master_uri(), argv=[]) as node:
+        async with Node(anonymous("pub"), master_uri=master_uri(), argv=[]) as node:
             publisher = await node.advertise(name, cls, latch=latched)
             if rate is None:
                 note = f" for {ONCE_DELAY:g} seconds" if once else ". Press ctrl-C to terminate"
@@ -629,12 +618,11 @@ class BandwidthStats:
 
 
 async def _measure(topic: str, on_raw: Any, tick: Any, duration: float | None) -> None:
-    mrosd = _runtime()
 
-    async with Graph() as graph:
-        real, _type, _fields = await wait_for_topic(graph, resolve(topic))
-    async with mrosd.Node(anonymous("measure"), master_uri=graph.uri, argv=[]) as node:
-        await node.subscribe(real, mrosd.AnyMsg, callback=on_raw)
+    async with master_client() as master:
+        real, _type, _fields = await wait_for_topic(master, resolve(topic))
+    async with Node(anonymous("measure"), master_uri=master.master_uri, argv=[]) as node:
+        await node.subscribe(real, AnyMsg, callback=on_raw)
         click.echo(f"subscribed to [{real}]")
         end = None if duration is None else time.monotonic() + duration
         while end is None or time.monotonic() < end:
