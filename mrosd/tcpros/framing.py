@@ -1,8 +1,12 @@
 """Length-prefixed TCPROS framing: an incremental decoder and the frame encoder.
 
 Bytes go in with ``feed()``; ``maybe_next_frame()`` returns one complete frame body or None while
-incomplete. The length prefix is checked against the decoder's limit before any byte of the body is
-buffered, so a 4 GB claim is refused at once instead of allocating. No sockets, no asyncio.
+incomplete. ``feed_frames()`` is the batch form (one call per socket read). For
+``asyncio.BufferedProtocol`` the decoder also lends the buffer to receive into: ``get_buffer()`` /
+``buffer_updated()``. Once a large frame's length is known, ``get_buffer()`` is a view into that frame's
+own exact-size buffer, so the kernel writes the body straight where it is delivered from (no copies).
+The length prefix is checked against the decoder's limit before any byte of the body is buffered, so a
+4 GB claim is refused at once instead of allocating. No sockets, no asyncio.
 """
 
 from __future__ import annotations
@@ -21,25 +25,35 @@ _U32 = struct.Struct("<I")
 #: below it, joining a straddling tail costs less than a separate allocation.
 LARGE_FRAME = 64 * 1024
 
+#: Size of the receive buffer lent by ``get_buffer()`` while no large frame is pending (allocated on
+#: first use, per connection). Large bodies bypass it, so it only bounds how many small frames one read takes.
+RECV_BUFFER_SIZE = 64 * 1024
+
 #: Compact the buffer once this many consumed bytes sit at its front (amortises the memmove).
 _COMPACT_AT = 64 * 1024
 
 
 def encode_frame(body: bytes | bytearray | memoryview) -> bytes:
-    """Prefix a serialized body with its 4-byte little-endian length."""
+    """Prefix a serialized body with its 4-byte little-endian length (one copy; see ``frame_parts``)."""
     return _U32.pack(len(body)) + bytes(body)
+
+
+def frame_prefix(body: bytes | bytearray | memoryview) -> bytes:
+    """The 4-byte length prefix of ``body``: write ``(frame_prefix(body), body)`` to avoid copying a large body."""
+    return _U32.pack(len(body))
 
 
 class FrameDecoder:
     """Incremental decoder of ``<uint32 length><body>`` frames with a size limit."""
 
-    __slots__ = ("_buf", "_large", "_large_filled", "_pos", "max_size")
+    __slots__ = ("_buf", "_large", "_large_filled", "_pos", "_recv", "max_size")
 
     def __init__(self, max_size: int = MAX_FRAME_SIZE) -> None:
         self._buf = bytearray()
         self._pos = 0
         self._large: bytearray | None = None
         self._large_filled = 0
+        self._recv: bytearray | None = None
         self.max_size = max_size
 
     @property
@@ -103,6 +117,50 @@ class FrameDecoder:
         if pos < size:
             self._buf += view[pos:]
         return frames
+
+    # --- receiving in place (asyncio.BufferedProtocol) -------------------------------------------------
+
+    def get_buffer(self) -> memoryview:
+        """Where the next received bytes go: the rest of a pending large frame, else the receive buffer.
+
+        A pending large frame's view ends exactly at the frame's end, so a read never spills the next
+        frame into it. Follow every call with ``buffer_updated(n)`` (or ``received(n)``).
+        """
+        large = self._large
+        if large is not None:
+            return memoryview(large)[self._large_filled :]
+        if self._recv is None:
+            self._recv = bytearray(RECV_BUFFER_SIZE)
+        return memoryview(self._recv)
+
+    def received(self, nbytes: int) -> memoryview:
+        """The ``nbytes`` just written into the receive buffer, for callers that ``feed()`` them themselves
+        (e.g. until a connection header is parsed). Only valid while no large frame is pending, which
+        holds as long as ``feed_frames``/``buffer_updated`` were not used."""
+        if self._large is not None or self._recv is None:
+            raise RuntimeError("received() is only valid after get_buffer() lent the receive buffer")
+        return memoryview(self._recv)[:nbytes]
+
+    def buffer_updated(self, nbytes: int) -> list[bytes | bytearray]:
+        """``nbytes`` were written into the last ``get_buffer()`` view: return every frame now complete.
+
+        Same results, limits and errors as ``feed_frames`` on those bytes; a completed large frame is the
+        very bytearray the kernel wrote into.
+
+        Raises:
+            RemoteProtocolError: a length prefix exceeds ``max_size``; the connection must be closed.
+        """
+        large = self._large
+        if large is not None:
+            self._large_filled += nbytes
+            if self._large_filled < len(large):
+                return []
+            self._large = None
+            self._large_filled = 0
+            return [large]
+        if self._recv is None:
+            raise RuntimeError("buffer_updated() without get_buffer()")
+        return self.feed_frames(memoryview(self._recv)[:nbytes])
 
     def take(self, count: int) -> bytes | None:
         """Return exactly ``count`` raw bytes (e.g. a service ok byte), or None while fewer are buffered."""

@@ -1,7 +1,9 @@
-"""The thin asyncio layer over the sans-IO cores: one ``asyncio.Protocol`` per TCPROS connection.
+"""The thin asyncio layer over the sans-IO cores: one ``asyncio.BufferedProtocol`` per TCPROS connection.
 
-``TcprosProtocol`` feeds received bytes to a ``FrameDecoder``; the first frame is the peer's connection
-header, every later one goes to ``frame_received``. Malformed or oversized input closes this connection
+``TcprosProtocol`` receives into the buffer its ``FrameDecoder`` lends (``get_buffer``): a small receive
+buffer, or, once a large frame's length is known, that frame's own exact-size buffer, so a big message is
+received by the kernel straight into the bytes that are delivered. The first frame is the peer's
+connection header, every later one goes to ``frame_received``. Malformed or oversized input closes this connection
 with a logged reason and touches nothing else. Writes are plain ``transport.write`` calls; flow control
 (pause/resume_writing) is exposed as ``paused`` and ``drain()`` so the publisher can queue and coalesce.
 """
@@ -25,7 +27,7 @@ log = logging.getLogger(__name__)
 WRITE_HIGH_WATER = 1024 * 1024
 
 
-class TcprosProtocol(asyncio.Protocol):
+class TcprosProtocol(asyncio.BufferedProtocol):
     """A TCPROS connection: header first, then length-prefixed frames."""
 
     def __init__(self) -> None:
@@ -59,20 +61,25 @@ class TcprosProtocol(asyncio.Protocol):
         if peer:
             self.peer = f"{peer[0]}:{peer[1]}"
 
-    def data_received(self, data: bytes) -> None:
+    def get_buffer(self, sizehint: int) -> memoryview:
+        return self.decoder.get_buffer()
+
+    def buffer_updated(self, nbytes: int) -> None:
         decoder = self.decoder
         try:
             if self.header is None:
-                decoder.feed(data)
+                decoder.feed(decoder.received(nbytes))
                 body = decoder.maybe_next_frame()
                 if body is None:
                     return
                 self.header = decode_connection_header(body)
                 decoder.max_size = MAX_FRAME_SIZE
                 self.header_received(self.header)
-                data = decoder.take(decoder.buffered) or b""
+                frames = decoder.feed_frames(decoder.take(decoder.buffered) or b"")
+            else:
+                frames = decoder.buffer_updated(nbytes)
             frame_received = self.frame_received
-            for frame in decoder.feed_frames(data):
+            for frame in frames:
                 transport = self.transport
                 if transport is None or transport.is_closing():
                     return

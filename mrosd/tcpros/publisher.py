@@ -3,7 +3,8 @@
 Each subscriber connection is a ``SubscriberLink``. While its socket keeps up, a frame is written at once
 (one ``transport.write``). When the transport pushes back (pause_writing), frames wait in that link's
 queue of at most ``queue_size`` frames, dropping the OLDEST when full and counting the drop (reported in
-getBusStats); once the socket drains, everything waiting goes out as ONE coalesced write. A slow
+getBusStats); once the socket drains, everything waiting goes out as ONE coalesced write. A large body is
+never copied to prepend its length: it travels as ``(prefix, body)`` to ``transport.writelines``. A slow
 subscriber therefore never delays the others and costs at most WRITE_HIGH_WATER plus its queue.
 Latching keeps the serialized bytes, never the live message object.
 """
@@ -29,6 +30,8 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 _U32 = struct.Struct("<I")
+#: A queued frame: the whole frame, or (length prefix, body) for a large body that is never concatenated.
+Frame = bytes | tuple[bytes, bytes | bytearray | memoryview]
 _connection_ids = itertools.count(1)
 
 #: Default per-subscriber queue length (frames), as rospy's and roscpp's usual queue_size choices.
@@ -43,7 +46,7 @@ class SubscriberLink:
         self.proto = proto
         self.callerid = callerid
         self.queue_size = max(1, queue_size)
-        self.queue: collections.deque[bytes] = collections.deque()
+        self.queue: collections.deque[Frame] = collections.deque()
         self.id = next(_connection_ids)
         self.bytes_sent = 0
         self.messages_sent = 0
@@ -64,6 +67,9 @@ class SubscriberLink:
             self.bytes_sent += len(frame)
             self.messages_sent += 1
             return
+        self._enqueue(frame)
+
+    def _enqueue(self, frame: Frame) -> None:
         if len(self.queue) >= self.queue_size:
             self.queue.popleft()
             self.dropped += 1
@@ -89,7 +95,7 @@ class SubscriberLink:
             self.bytes_sent += len(prefix) + len(body)
             self.messages_sent += 1
             return
-        self.send(prefix + bytes(body))
+        self._enqueue((prefix, body))
 
     async def _flush(self) -> None:
         try:
@@ -97,12 +103,17 @@ class SubscriberLink:
                 await self.proto.drain()
                 if self.proto.transport is None:
                     break
-                batch = list(self.queue)
+                parts: list[bytes | bytearray | memoryview] = []
+                for frame in self.queue:
+                    if isinstance(frame, tuple):
+                        parts.extend(frame)
+                    else:
+                        parts.append(frame)
+                self.messages_sent += len(self.queue)
                 self.queue.clear()
                 # One transport call for everything queued (uvloop writes it with one writev, no join).
-                self.proto.transport.writelines(batch)
-                self.bytes_sent += sum(map(len, batch))
-                self.messages_sent += len(batch)
+                self.proto.transport.writelines(parts)
+                self.bytes_sent += sum(map(len, parts))
         except ConnectionResetError:
             self.queue.clear()
         finally:

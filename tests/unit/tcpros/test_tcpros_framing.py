@@ -140,3 +140,69 @@ def test_large_frames_spanning_reads_come_out_whole(sizes: list[int], cuts: list
         i += 1
     assert out == bodies
     assert dec.buffered == 0
+
+
+def _receive_in_place(dec: FrameDecoder, stream: bytes, cuts: list[int]) -> list[bytes | bytearray]:
+    """Play ``stream`` through get_buffer()/buffer_updated() as a socket would, reads capped by ``cuts``."""
+    out: list[bytes | bytearray] = []
+    pos = 0
+    i = 0
+    while pos < len(stream):
+        buf = dec.get_buffer()
+        assert len(buf) > 0
+        n = min(cuts[i % len(cuts)], len(buf), len(stream) - pos)
+        buf[:n] = stream[pos : pos + n]
+        del buf
+        out.extend(dec.buffer_updated(n))
+        pos += n
+        i += 1
+    return out
+
+
+@settings(deadline=None, max_examples=50)
+@given(
+    st.lists(st.sampled_from([0, 3, 100, 70_000, 200_000]), max_size=6),
+    st.lists(st.integers(1, 150_000) | st.integers(1, 8), min_size=1, max_size=10),
+)
+def test_receiving_into_the_lent_buffer_yields_the_same_frames_however_reads_are_cut(
+    sizes: list[int], cuts: list[int]
+) -> None:
+    bodies = [bytes([i % 251]) * n for i, n in enumerate(sizes)]
+    dec = FrameDecoder()
+    out = _receive_in_place(dec, b"".join(encode_frame(b) for b in bodies), cuts)
+    assert out == bodies
+    assert dec.buffered == 0
+
+
+def test_a_large_frame_is_received_into_its_own_buffer_which_ends_at_the_frame() -> None:
+    body = bytes(range(256)) * 1024  # 256 KiB
+    stream = encode_frame(body) + encode_frame(b"next")
+    dec = FrameDecoder()
+    first = dec.get_buffer()
+    first[:1000] = stream[:1000]
+    del first
+    assert dec.buffer_updated(1000) == []
+    rest = dec.get_buffer()
+    assert len(rest) == len(body) - 996  # exactly the rest of the body: the next frame never lands in it
+    rest[:] = stream[1000 : 4 + len(body)]
+    del rest
+    (frame,) = dec.buffer_updated(len(body) - 996)
+    assert isinstance(frame, bytearray) and frame == body
+    assert _receive_in_place(dec, stream[4 + len(body) :], [100]) == [b"next"]
+
+
+def test_the_lent_buffer_path_refuses_an_oversized_length_before_allocating() -> None:
+    dec = FrameDecoder(max_size=10)
+    buf = dec.get_buffer()
+    buf[:14] = b"\xff\xff\xff\x7f" + b"x" * 10
+    del buf
+    with pytest.raises(RemoteProtocolError):
+        dec.buffer_updated(14)
+
+
+def test_received_hands_back_the_bytes_written_into_the_lent_buffer() -> None:
+    dec = FrameDecoder()
+    buf = dec.get_buffer()
+    buf[:3] = b"abc"
+    del buf
+    assert bytes(dec.received(3)) == b"abc"
