@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -91,11 +92,15 @@ async def raw_call(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, r
 
 
 class _LoadProtocol(asyncio.Protocol):
-    """One closed-loop client connection: send a prepared request, wait for its full response, repeat."""
+    """One closed-loop client connection: send a prepared request, wait for its full response, repeat.
 
-    def __init__(self, requests: list[bytes], stop_at: float, done: asyncio.Future[int], offset: int) -> None:
+    Kept cheap on purpose (it shares the 2 cores with the server under test): a response normally
+    arrives in one ``data_received`` and is checked without copying beyond one slice.
+    """
+
+    def __init__(self, requests: list[bytes], done: asyncio.Future[int], offset: int) -> None:
         self.requests = requests
-        self.stop_at = stop_at
+        self.stop_at = 0.0
         self.done = done
         self.k = offset
         self.count = 0
@@ -104,68 +109,92 @@ class _LoadProtocol(asyncio.Protocol):
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
+
+    def start(self, stop_at: float) -> None:
+        self.stop_at = stop_at
         self._send()
 
     def _send(self) -> None:
         assert self.transport is not None
-        self.transport.write(self.requests[self.k % len(self.requests)])
+        requests = self.requests
+        self.transport.write(requests[self.k % len(requests)])
         self.k += 1
 
     def data_received(self, data: bytes) -> None:
-        self.buf += data
+        buf = self.buf + data if self.buf else data
         while True:
-            end = self.buf.find(b"\r\n\r\n")
+            end = buf.find(b"\r\n\r\n")
             if end < 0:
-                return
-            head = self.buf[:end].lower()
-            at = head.find(b"content-length:")
-            length = int(head[at + 15 :].split(b"\r\n", 1)[0])
-            if len(self.buf) < end + 4 + length:
-                return
-            payload = self.buf[end + 4 : end + 4 + length]
-            self.buf = self.buf[end + 4 + length :]
-            if b"<int>1</int>" not in payload[:400] and b"<i4>1</i4>" not in payload[:400]:
-                raise RuntimeError(f"unexpected reply: {payload[:200]!r}")
+                break
+            at = buf.find(b"Content-Length:", 0, end)
+            if at < 0:
+                at = buf.lower().find(b"content-length:", 0, end)
+            length = int(buf[at + 15 : buf.find(b"\r\n", at, end + 2)])
+            stop = end + 4 + length
+            if len(buf) < stop:
+                break
+            ok = buf.find(b"<int>1</int>", end, min(stop, end + 400)) >= 0 or buf.find(b"<i4>1</i4>", end, stop) >= 0
+            if not ok:
+                raise RuntimeError(f"unexpected reply: {buf[end : end + 200]!r}")
+            buf = buf[stop:]
             self.count += 1
             if time.perf_counter() >= self.stop_at:
                 assert self.transport is not None
                 self.transport.close()
                 if not self.done.done():
                     self.done.set_result(self.count)
-                return
+                break
             self._send()
+        self.buf = buf
 
     def connection_lost(self, exc: Exception | None) -> None:
         if not self.done.done():
             self.done.set_result(self.count)
 
 
-async def worker(uri: str, concurrency: int, duration: float, tag: str) -> int:
-    """Closed-loop load: ``concurrency`` kept-alive connections, each one call at a time."""
+def _cpu_now() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+async def worker(uri: str, concurrency: int, duration: float, tag: str) -> tuple[int, float]:
+    """Closed-loop load: ``concurrency`` kept-alive connections, each one call at a time.
+
+    Returns the calls completed and this process's CPU seconds during the timed window only.
+    """
     bodies = mix_bodies(tag)
-    async with aiohttp.ClientSession() as session:
-        await post(session, uri, bodies[0])  # register once so lookupNode succeeds
-        await post(session, uri, body("setParam", "/probe", "/bench/param", 42))
     requests = [http_request(uri, b) for b in bodies]
     host, port = uri.split("//", 1)[1].rstrip("/").split(":")
+    reader, writer = await asyncio.open_connection(host, int(port))
+    try:  # register once so lookupNode succeeds, and set the parameter getParam reads
+        await raw_call(reader, writer, requests[0])
+        await raw_call(reader, writer, http_request(uri, body("setParam", "/probe", "/bench/param", 42)))
+    finally:
+        writer.close()
     loop = asyncio.get_running_loop()
-    stop_at = time.perf_counter() + duration
     futures: list[asyncio.Future[int]] = []
+    clients: list[_LoadProtocol] = []
     for i in range(concurrency):
         fut: asyncio.Future[int] = loop.create_future()
         futures.append(fut)
-        await loop.create_connection(
-            lambda fut=fut, i=i: _LoadProtocol(requests, stop_at, fut, i),  # type: ignore[misc]
+        _, proto = await loop.create_connection(
+            lambda fut=fut, i=i: _LoadProtocol(requests, fut, i),  # type: ignore[misc]
             host,
             int(port),
         )
+        clients.append(proto)
+    cpu0 = _cpu_now()
+    stop_at = time.perf_counter() + duration
+    for client in clients:
+        client.start(stop_at)
     counts = await asyncio.wait_for(asyncio.gather(*futures), duration + 30)
-    return sum(counts)
+    return sum(counts), _cpu_now() - cpu0
 
 
-def throughput(uri: str, clients: int, duration: float) -> float:
-    """Calls per second with ``clients`` concurrent closed-loop clients spread over up to 2 processes."""
-    procs_n = 1 if clients == 1 else 2
+def throughput(uri: str, clients: int, duration: float, procs_n: int) -> tuple[float, float]:
+    """Calls per second with ``clients`` concurrent closed-loop clients spread over ``procs_n`` processes,
+    and the load generator's own CPU seconds per call (during the timed window)."""
+    procs_n = max(1, min(procs_n, clients))
     per = clients // procs_n
     procs = [
         subprocess.Popen(
@@ -176,10 +205,13 @@ def throughput(uri: str, clients: int, duration: float) -> float:
         for i in range(procs_n)
     ]
     total = 0
+    cpu = 0.0
     for p in procs:
         out, _ = p.communicate(timeout=duration + 60)
-        total += int(out.strip() or 0)
-    return total / duration
+        count, used = out.split()
+        total += int(count)
+        cpu += float(used)
+    return total / duration, cpu / max(total, 1)
 
 
 # --- latency and registration (in process) ------------------------------------------------------
@@ -289,6 +321,15 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.master")
     parser.add_argument("--quick", action="store_true", help="smaller runs (CI smoke)")
     parser.add_argument("--duration", type=float, default=3.0, help="seconds per throughput run")
+    parser.add_argument(
+        "--only",
+        action="append",
+        choices=("latency", "throughput", "registration"),
+        help="run only these parts (repeatable; default: all)",
+    )
+    parser.add_argument(
+        "--procs", type=int, default=1, help="load generator processes for the throughput runs (default 1)"
+    )
     parser.add_argument("--worker", nargs=4, metavar=("URI", "CONC", "DUR", "TAG"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.worker:
@@ -299,7 +340,8 @@ def main(argv: list[str]) -> int:
             uvloop.install()
         except ImportError:  # pragma: no cover
             pass
-        print(asyncio.run(worker(uri, int(conc), float(dur), tag)))
+        count, used = asyncio.run(worker(uri, int(conc), float(dur), tag))
+        print(count, used)
         return 0
     if not ros_available():
         print("bench.master: Debian rosmaster is not installed; nothing to compare against")
@@ -315,19 +357,25 @@ def main(argv: list[str]) -> int:
             masters["rosmaster"] = start_rosmaster(procs)
             pids["rosmaster"] = procs._procs[-1].pid
             results: dict[str, dict[str, float]] = {name: {} for name in masters}
+            parts = set(args.only or ("latency", "throughput", "registration"))
             for name, uri in masters.items():
+                if "latency" not in parts:
+                    break
                 for call, us in asyncio.run(latency(uri, lat_n)).items():
                     results[name][f"latency {call} (us)"] = us
-            for clients in (1, 8, 32):
+            for clients in (1, 8, 32) if "throughput" in parts else ():
                 for name, uri in masters.items():
                     cpu0 = cpu_seconds(pids[name])
-                    rate = throughput(uri, clients, duration)
+                    rate, gen_cpu = throughput(uri, clients, duration, args.procs)
+                    used = cpu_seconds(pids[name]) - cpu0
                     results[name][f"throughput {clients} clients (calls/s)"] = rate
+                    results[name][f"server CPU per call, {clients} clients (us)"] = used / (rate * duration) * 1e6
+                    results[name][f"load generator CPU per call, {clients} clients (us)"] = gen_cpu * 1e6
                     if clients == 32:
-                        used = cpu_seconds(pids[name]) - cpu0
-                        results[name]["server CPU per call at 32 clients (us)"] = used / (rate * duration) * 1e6
                         results[name]["server CPU capacity (calls/s per core)"] = rate * duration / used
             for name, uri in masters.items():
+                if "registration" not in parts:
+                    break
                 base, _ = asyncio.run(registration(uri, nodes, topics, dead=False, tag="base"))
                 dead, probe = asyncio.run(registration(uri, nodes, topics, dead=True, tag="dead"))
                 results[name][f"register {nodes}x{topics} no subscribers (s)"] = base
@@ -342,7 +390,7 @@ def main(argv: list[str]) -> int:
         if "calls/s" in metric:
             ratio = ours / theirs if theirs else float("inf")
             note = "x faster"
-        elif "ratio" in metric:
+        elif "ratio" in metric or "generator" in metric:
             ratio, note = float("nan"), ""
         else:
             ratio = theirs / ours if ours else float("inf")
