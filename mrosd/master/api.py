@@ -34,7 +34,7 @@ class Invalid(Exception):
 
 def canonicalize(name: str) -> str:
     """Collapse repeated slashes and drop a trailing one (the root stays ``/``)."""
-    if not name or name == SEP:
+    if not name or name == SEP or ("//" not in name and name[-1] != SEP):
         return name
     parts = SEP.join(p for p in name.split(SEP) if p)
     return SEP + parts if name[0] == SEP else parts
@@ -179,6 +179,24 @@ def _as_async(handler: Impl) -> Handler:
     return call
 
 
+#: Methods whose reply depends only on their arguments and the registry/parameter state (``state_version``).
+READ_ONLY_METHODS = frozenset(
+    {
+        "lookupNode",
+        "getPublishedTopics",
+        "getTopicTypes",
+        "getSystemState",
+        "getUri",
+        "getPid",
+        "lookupService",
+        "getParam",
+        "searchParam",
+        "hasParam",
+        "getParamNames",
+    }
+)
+
+
 class MasterApi:
     """The state of one master (registry + parameter tree) and its handlers.
 
@@ -243,6 +261,10 @@ class MasterApi:
         }
         #: The same handlers as coroutines, for ``XmlRpcServer`` (multicall and the in-memory tests).
         self.methods: dict[str, Handler] = {name: _as_async(h) for name, h in self.sync_methods.items()}
+
+    def state_version(self) -> tuple[int, int]:
+        """Changes whenever the registry or the parameter tree may have changed."""
+        return self.registry.version, self.params.version
 
     def _send(self, notes: list[Notification]) -> None:
         if not notes:

@@ -178,15 +178,45 @@ def fast_encode_response(value: Any) -> bytes | None:
     return "".join(out).encode()
 
 
-class XmlRpcHttpHandler:
-    """Turns one request body into one response body: sync fast path, else the shared XmlRpcServer."""
+#: Most replies kept by ``XmlRpcHttpHandler``'s reply cache, and the largest request body cached.
+REPLY_CACHE_SIZE = 1024
+REPLY_CACHE_MAX_BODY = 4096
 
-    def __init__(self, sync_methods: dict[str, SyncHandler], fallback: XmlRpcServer) -> None:
+
+class XmlRpcHttpHandler:
+    """Turns one request body into one response body: sync fast path, else the shared XmlRpcServer.
+
+    Replies of read-only methods (``cacheable``) are kept, keyed by the exact request body, for as
+    long as ``state_version()`` returns the same value: a repeated getSystemState/lookupNode/getParam
+    is answered without decoding, running or encoding anything. Any change of state empties the cache.
+    """
+
+    def __init__(
+        self,
+        sync_methods: dict[str, SyncHandler],
+        fallback: XmlRpcServer,
+        *,
+        cacheable: frozenset[str] = frozenset(),
+        state_version: Callable[[], object] | None = None,
+    ) -> None:
         self.sync_methods = sync_methods
         self.fallback = fallback
+        self._cacheable = cacheable if state_version is not None else frozenset()
+        self._state_version = state_version
+        self._cache: dict[bytes, bytes] = {}
+        self._cache_version: object = None
 
     def handle(self, body: bytes) -> bytes | Coroutine[Any, Any, bytes]:
         """The response body, or a coroutine producing it for calls that need the event loop."""
+        if self._state_version is not None:
+            version = self._state_version()
+            if version != self._cache_version:
+                self._cache.clear()
+                self._cache_version = version
+            else:
+                hit = self._cache.get(body)
+                if hit is not None:
+                    return hit
         fast = fast_decode_call(body)
         try:
             method, params = fast if fast is not None else decode_call(body)
@@ -198,12 +228,15 @@ class XmlRpcHttpHandler:
             return self._slow(method, params)
         try:
             reply = handler(*params)
-            return fast_encode_response(reply) or encode_response(reply)
+            out = fast_encode_response(reply) or encode_response(reply)
         except LocalProtocolError as exc:
             return encode_fault(FAULT_INTERNAL_ERROR, str(exc))
         except Exception as exc:  # the handlers catch their own errors; this is the last guard
             log.exception("master: %s failed", method)
             return encode_fault(FAULT_INTERNAL_ERROR, f"{method}: internal error: {exc!r}")
+        if method in self._cacheable and len(body) <= REPLY_CACHE_MAX_BODY and len(self._cache) < REPLY_CACHE_SIZE:
+            self._cache[body] = out
+        return out
 
     async def _slow(self, method: str, params: tuple[Any, ...]) -> bytes:
         try:
@@ -215,12 +248,59 @@ class XmlRpcHttpHandler:
 
 
 class _Request:
+    """A parsed header block; ``body_start`` counts from the first byte of the request."""
+
     __slots__ = ("body_start", "keep_alive", "length")
 
     def __init__(self, body_start: int, length: int, keep_alive: bool) -> None:
         self.body_start = body_start
         self.length = length
         self.keep_alive = keep_alive
+
+
+class _Refused(Exception):
+    def __init__(self, status: int, text: bytes) -> None:
+        super().__init__(status)
+        self.status = status
+        self.text = text
+
+
+@functools.lru_cache(maxsize=256)
+def parse_head(head: bytes) -> tuple[int, bool, bool]:
+    """``(content_length, keep_alive, expect_continue)`` of a header block (without the blank line).
+
+    A pure function of the bytes, so cached: clients repeat the same headers call after call.
+
+    Raises:
+        _Refused: the status and text to answer with before closing.
+    """
+    line_end = head.find(b"\r\n")
+    parts = (head if line_end < 0 else head[:line_end]).split()
+    if len(parts) != 3 or not parts[2].startswith(b"HTTP/1."):
+        raise _Refused(400, b"malformed request line\n")
+    if parts[0] != b"POST":
+        raise _Refused(405, b"only POST is supported\n")
+    keep_alive = parts[2] != b"HTTP/1.0"
+    length: int | None = None
+    expect_continue = False
+    fields = head[line_end:].lower() if line_end >= 0 else b""
+    if fields:
+        if b"\r\ntransfer-encoding" in fields:
+            raise _Refused(411, b"chunked bodies are not supported; send Content-Length\n")
+        m = _CONTENT_LENGTH.search(fields)
+        if m is not None:
+            if m.group(1) is None:
+                raise _Refused(400, b"bad Content-Length\n")
+            length = int(m.group(1))
+        m = _CONNECTION.search(fields)
+        if m is not None:
+            keep_alive = m.group(1) == b"keep-alive"
+        expect_continue = b"\r\nexpect:" in fields and b"100-continue" in fields
+    if length is None:
+        raise _Refused(411, b"Content-Length required\n")
+    if length > MAX_BODY_SIZE:
+        raise _Refused(413, b"request body too large\n")
+    return length, keep_alive, expect_continue
 
 
 class HttpProtocol(asyncio.Protocol):
@@ -266,8 +346,13 @@ class HttpProtocol(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         if self._closed:
             return
-        self._buf += data
-        self._process()
+        if self._buf or self._busy:
+            self._buf += data
+            self._process()
+        else:  # the usual case: whole requests in one read, answered straight from ``data``
+            pos = self._consume(data)
+            if pos < len(data) and not self._closed:
+                self._buf += memoryview(data)[pos:]
         if self._buf and self._timer is None and not self._closed:
             # Armed once per pending request, not per byte: trickling bytes cannot extend it.
             self._timer = asyncio.get_running_loop().call_later(REQUEST_TIMEOUT, self._timed_out)
@@ -313,71 +398,63 @@ class HttpProtocol(asyncio.Protocol):
         self._closed = True
         self._buf.clear()
 
-    def _parse_head(self) -> _Request | None:
-        """Parse the header block at the start of the buffer; None while incomplete (or after failing)."""
-        end = self._buf.find(b"\r\n\r\n", 0, MAX_HEADER_SIZE + 4)
+    def _parse_head(self, buf: bytes | bytearray, pos: int) -> _Request | None:
+        """Parse the header block starting at ``buf[pos]``; None while incomplete (or after failing)."""
+        end = buf.find(b"\r\n\r\n", pos, pos + MAX_HEADER_SIZE + 4)
         if end < 0:
-            if len(self._buf) > MAX_HEADER_SIZE:
+            if len(buf) - pos > MAX_HEADER_SIZE:
                 self._fail(431, b"header block too large\n")
             return None
-        head = bytes(self._buf[:end])
-        line_end = head.find(b"\r\n")
-        parts = (head if line_end < 0 else head[:line_end]).split()
-        if len(parts) != 3 or not parts[2].startswith(b"HTTP/1."):
-            self._fail(400, b"malformed request line\n")
-            return None
-        if parts[0] != b"POST":
-            self._fail(405, b"only POST is supported\n")
-            return None
-        keep_alive = parts[2] != b"HTTP/1.0"
-        length: int | None = None
-        expect_continue = False
-        fields = head[line_end:].lower() if line_end >= 0 else b""
-        if fields:
-            if b"\r\ntransfer-encoding" in fields:
-                self._fail(411, b"chunked bodies are not supported; send Content-Length\n")
-                return None
-            m = _CONTENT_LENGTH.search(fields)
-            if m is not None:
-                if m.group(1) is None:
-                    self._fail(400, b"bad Content-Length\n")
-                    return None
-                length = int(m.group(1))
-            m = _CONNECTION.search(fields)
-            if m is not None:
-                keep_alive = m.group(1) == b"keep-alive"
-            expect_continue = b"\r\nexpect:" in fields and b"100-continue" in fields
-        if length is None:
-            self._fail(411, b"Content-Length required\n")
-            return None
-        if length > MAX_BODY_SIZE:
-            self._fail(413, b"request body too large\n")
+        try:
+            length, keep_alive, expect_continue = parse_head(bytes(buf[pos:end]))
+        except _Refused as exc:
+            self._fail(exc.status, exc.text)
             return None
         if expect_continue and self._transport is not None:
             self._transport.write(b"HTTP/1.1 100 Continue\r\n\r\n")
-        return _Request(end + 4, length, keep_alive)
+        return _Request(end + 4 - pos, length, keep_alive)
 
     def _process(self) -> None:
-        while not self._busy and not self._closed and self._buf:
-            if self._request is None:
-                self._request = self._parse_head()
-                if self._request is None:
-                    return
+        """Answer the complete requests in the buffer (after a slow call, or with a partial request)."""
+        if self._busy or self._closed or not self._buf:
+            return
+        pos = self._consume(self._buf)
+        if pos and not self._closed:
+            del self._buf[:pos]
+
+    def _consume(self, buf: bytes | bytearray) -> int:
+        """Answer every complete request at the start of ``buf``, in order; returns the bytes used.
+
+        Stops at an incomplete request (kept in ``self._request`` once its head is parsed), at a
+        call that needs the event loop (``self._busy``), or when the connection fails.
+        """
+        pos = 0
+        size = len(buf)
+        handle = self._handler.handle
+        while pos < size and not self._busy and not self._closed:
             req = self._request
-            stop = req.body_start + req.length
-            if len(self._buf) < stop:
-                return
-            body = bytes(self._buf[req.body_start : stop])
-            del self._buf[:stop]
+            if req is None:
+                req = self._parse_head(buf, pos)
+                if req is None:
+                    return pos
+                self._request = req
+            start = pos + req.body_start
+            stop = start + req.length
+            if size < stop:
+                return pos
+            body = bytes(buf[start:stop])
+            pos = stop
             self._request = None
-            self._disarm()
-            result = self._handler.handle(body)
-            if isinstance(result, bytes):
+            if self._timer is not None:
+                self._disarm()
+            result = handle(body)
+            if type(result) is bytes:
                 self._respond(result, req.keep_alive)
             else:
                 self._busy = True
-                task = asyncio.get_running_loop().create_task(result)
+                task = asyncio.get_running_loop().create_task(cast(Coroutine[Any, Any, bytes], result))
                 task.add_done_callback(functools.partial(self._finished, keep_alive=req.keep_alive))
+        return pos
 
     def _finished(self, task: asyncio.Task[bytes], *, keep_alive: bool) -> None:
         self._busy = False

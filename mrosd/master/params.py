@@ -35,6 +35,8 @@ class ParamTree:
 
     def __init__(self) -> None:
         self.root: dict[str, Any] = {}
+        #: Bumped by every ``set``/``delete`` (the HTTP layer's reply cache is valid for one version).
+        self.version = 0
 
     def get(self, key: str) -> Any:
         """The value at ``key`` (a dict for a namespace).
@@ -63,6 +65,7 @@ class ParamTree:
         Raises:
             TypeError: the root is set to something other than a dict.
         """
+        self.version += 1
         parts = split_key(key)
         if not parts:
             if not isinstance(value, dict):
@@ -84,6 +87,7 @@ class ParamTree:
         Raises:
             KeyError: nothing is set at ``key``, or ``key`` is the root.
         """
+        self.version += 1
         parts = split_key(key)
         if not parts:
             raise KeyError("cannot delete root of parameter tree")

@@ -89,6 +89,9 @@ class Registry:
         self.topic_types: dict[str, str] = {}
         #: How many nodes currently use each XML-RPC URI (a reused port may briefly be shared).
         self._api_users: dict[str, int] = {}
+        #: Bumped by every method that may change the registry (a repeated identical registration
+        #: does not); replies computed from the registry stay valid while it is unchanged.
+        self.version = 0
 
     # --- nodes -------------------------------------------------------------------------------
 
@@ -145,6 +148,16 @@ class Registry:
 
     # --- topics ------------------------------------------------------------------------------
 
+    def _registered(self, entry: NodeEntry | None, api: str, topic: str, topic_type: str, *, publisher: bool) -> bool:
+        """Whether registering this publisher/subscriber again would change nothing (same URI, same type)."""
+        if entry is None or entry.api != api:
+            return False
+        if publisher:
+            return topic in entry.publications and (
+                (topic_type == ANYTYPE and topic in self.topic_types) or self.topic_types.get(topic) == topic_type
+            )
+        return topic in entry.subscriptions and (topic_type == ANYTYPE or topic in self.topic_types)
+
     def _publisher_updates(self, topic: str) -> list[Notification]:
         pubs = list(self.publishers.get(topic, {}).values())
         return [publisher_update(api, topic, pubs) for api in self.subscribers.get(topic, {}).values()]
@@ -153,6 +166,8 @@ class Registry:
         self, node: str, topic: str, topic_type: str, api: str
     ) -> tuple[list[str], list[Notification]]:
         """Add a publisher; returns the subscribers' URIs and the publisherUpdates to send."""
+        if not self._registered(self.nodes.get(node), api, topic, topic_type, publisher=True):
+            self.version += 1
         out: list[Notification] = []
         entry = self._node(node, api, out)
         entry.publications[topic] = None
@@ -164,6 +179,7 @@ class Registry:
 
     def unregister_publisher(self, node: str, topic: str, api: str) -> tuple[int, list[Notification]]:
         """Remove a publisher if ``api`` matches; returns 0/1 and the publisherUpdates to send."""
+        self.version += 1
         entry = self.nodes.get(node)
         pubs = self.publishers.get(topic, {})
         if entry is None or pubs.get(node) != api:
@@ -177,6 +193,8 @@ class Registry:
         self, node: str, topic: str, topic_type: str, api: str
     ) -> tuple[list[str], list[Notification]]:
         """Add a subscriber; returns the current publishers' URIs (and any replacement notifications)."""
+        if not self._registered(self.nodes.get(node), api, topic, topic_type, publisher=False):
+            self.version += 1
         out: list[Notification] = []
         entry = self._node(node, api, out)
         entry.subscriptions[topic] = None
@@ -187,6 +205,7 @@ class Registry:
 
     def unregister_subscriber(self, node: str, topic: str, api: str) -> int:
         """Remove a subscriber if ``api`` matches; returns 0/1."""
+        self.version += 1
         entry = self.nodes.get(node)
         if entry is None or self.subscribers.get(topic, {}).get(node) != api:
             return 0
@@ -199,6 +218,7 @@ class Registry:
 
     def register_service(self, node: str, service: str, service_api: str, api: str) -> list[Notification]:
         """Make ``node`` the (only) provider of ``service``; the previous provider is replaced."""
+        self.version += 1
         out: list[Notification] = []
         entry = self._node(node, api, out)
         previous = self.services.get(service)
@@ -213,6 +233,7 @@ class Registry:
 
     def unregister_service(self, node: str, service: str, service_api: str) -> int:
         """Remove ``service`` if ``node`` still provides it at ``service_api``; returns 0/1."""
+        self.version += 1
         current = self.services.get(service)
         if current is None or current.node != node or current.service_api != service_api:
             return 0
@@ -232,6 +253,7 @@ class Registry:
 
     def subscribe_param(self, node: str, key: str, api: str) -> list[Notification]:
         """Record that ``node`` caches parameter ``key`` (a canonical key ending in ``/``)."""
+        self.version += 1
         out: list[Notification] = []
         entry = self._node(node, api, out)
         entry.param_subscriptions[key] = None
@@ -240,6 +262,7 @@ class Registry:
 
     def unsubscribe_param(self, node: str, key: str, api: str) -> int:
         """Forget a parameter subscription if ``api`` matches; returns 0/1."""
+        self.version += 1
         entry = self.nodes.get(node)
         if entry is None or self.param_subscribers.get(key, {}).get(node) != api:
             return 0

@@ -14,7 +14,7 @@ import socket
 from collections.abc import Iterable
 from urllib.parse import urlsplit
 
-from mrosd.master.api import MasterApi
+from mrosd.master.api import READ_ONLY_METHODS, MasterApi
 from mrosd.master.httpserver import HttpServer, XmlRpcHttpHandler
 from mrosd.master.notifier import Notifier
 from mrosd.xmlrpc import XmlRpcClient, XmlRpcServer
@@ -93,7 +93,9 @@ class Master:
         )
         self.api.notifier = self.notifier
         self._dispatch = XmlRpcServer(self.api.methods, name="master")  # codec + multicall; never bound
-        self._handler = XmlRpcHttpHandler(self.api.sync_methods, self._dispatch)
+        self._handler = XmlRpcHttpHandler(
+            self.api.sync_methods, self._dispatch, cacheable=READ_ONLY_METHODS, state_version=self.api.state_version
+        )
         self._server = HttpServer(self._handler, self._allow)
         self.port = 0
         self.uri = ""

@@ -147,3 +147,55 @@ async def test_a_client_trickling_a_request_is_cut_off_while_idle_keep_alive_cli
     finally:
         slow_writer.close()
         idle_writer.close()
+
+
+async def test_requests_split_at_every_byte_and_pipelined_with_a_slow_call_keep_their_order(master: Master) -> None:
+    calls = [
+        request(encode_call("setParam", ("/c", "/split", 7))),
+        request(encode_call("system.multicall", ([{"methodName": "getParam", "params": ["/c", "/split"]}],))),
+        request(encode_call("getParam", ("/c", "/split"))),
+        request(encode_call("hasParam", ("/c", "/nope"))),
+    ]
+    stream = b"".join(calls)
+    reader, writer = await asyncio.open_connection("127.0.0.1", master.port)
+    try:
+        for i in range(0, len(stream), 7):  # odd chunks: heads and bodies cut anywhere
+            writer.write(stream[i : i + 7])
+            await writer.drain()
+        replies = [decode_response((await read_response(reader))[1]) for _ in calls]
+        assert replies[0][0] == 1
+        assert replies[1] == [[[1, "Parameter [/split]", 7]]]
+        assert replies[2][2] == 7
+        assert replies[3][2] is False
+    finally:
+        writer.close()
+
+
+async def test_repeated_read_calls_see_every_change_of_state(master: Master) -> None:
+    reader, writer = await asyncio.open_connection("127.0.0.1", master.port)
+
+    async def call(method: str, *params: object) -> list[object]:
+        writer.write(request(encode_call(method, ("/c", *params))))
+        return list(decode_response((await read_response(reader))[1]))
+
+    try:
+        api = "http://127.0.0.1:9/"
+        assert (await call("getSystemState"))[2] == [[], [], []]
+        assert (await call("getSystemState"))[2] == [[], [], []]  # answered again, unchanged
+        await call("registerPublisher", "/t", "std_msgs/String", api)
+        assert (await call("getSystemState"))[2][0] == [["/t", ["/c"]]]
+        assert (await call("getPublishedTopics", ""))[2] == [["/t", "std_msgs/String"]]
+        await call("registerPublisher", "/t", "std_msgs/Int32", api)  # same node, new type
+        assert (await call("getPublishedTopics", ""))[2] == [["/t", "std_msgs/Int32"]]
+        await call("unregisterPublisher", "/t", api)
+        assert (await call("getSystemState"))[2] == [[], [], []]
+        assert (await call("lookupNode", "/c"))[0] == -1
+        await call("setParam", "/p", 1)
+        assert (await call("getParam", "/p"))[2] == 1
+        await call("setParam", "/p", 2)
+        assert (await call("getParam", "/p"))[2] == 2
+        await call("deleteParam", "/p")
+        assert (await call("getParam", "/p"))[0] == -1
+        assert (await call("hasParam", "/p"))[2] is False
+    finally:
+        writer.close()

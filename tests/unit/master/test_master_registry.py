@@ -96,3 +96,41 @@ def test_published_topics_respect_the_subgraph_and_system_state_lists_everything
         [["/ns/only_sub", ["/s"]]],
         [["/srv", ["/p"]]],
     ]
+
+
+def test_the_version_changes_with_every_change_but_not_with_an_identical_registration() -> None:
+    reg = Registry()
+    v = reg.version
+    reg.register_publisher("/n", "/t", "std_msgs/String", "http://a:1/")
+    assert reg.version != v
+    v = reg.version
+    reg.register_publisher("/n", "/t", "std_msgs/String", "http://a:1/")
+    reg.register_publisher("/n", "/t", "*", "http://a:1/")
+    assert reg.version == v
+    reg.register_publisher("/n", "/t", "std_msgs/Int32", "http://a:1/")  # type changes
+    assert reg.version != v
+    v = reg.version
+    reg.register_publisher("/n", "/t", "std_msgs/Int32", "http://a:2/")  # node replaced
+    assert reg.version != v
+    v = reg.version
+    reg.register_subscriber("/s", "/t", "*", "http://b:1/")
+    assert reg.version != v
+    v = reg.version
+    reg.register_subscriber("/s", "/t", "std_msgs/Int32", "http://b:1/")
+    assert reg.version == v
+    reg.register_subscriber("/s", "/u", "*", "http://b:1/")
+    assert reg.version != v
+    v = reg.version
+    reg.register_subscriber("/s", "/u", "std_msgs/String", "http://b:1/")  # type becomes known
+    assert reg.version != v
+    for change in (
+        lambda: reg.unregister_subscriber("/s", "/u", "http://b:1/"),
+        lambda: reg.register_service("/n", "/srv", "rosrpc://a:3", "http://a:2/"),
+        lambda: reg.unregister_service("/n", "/srv", "rosrpc://a:3"),
+        lambda: reg.subscribe_param("/n", "/p/", "http://a:2/"),
+        lambda: reg.unsubscribe_param("/n", "/p/", "http://a:2/"),
+        lambda: reg.unregister_publisher("/n", "/t", "http://a:2/"),
+    ):
+        v = reg.version
+        change()
+        assert reg.version != v
