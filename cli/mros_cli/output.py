@@ -18,6 +18,7 @@ contract of ``mrosd.msg``); it does no I/O.
 from __future__ import annotations
 
 import base64
+import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -48,35 +49,61 @@ def quote_string(value: str) -> str:
     return yaml.dump(value, default_style='"').rstrip("\n")
 
 
-_TEMPLATE: list[bytes] = [b""]
-
-#: uint8[] arrays longer than this are spliced in as bytes by ``render_bytes`` (saves a decode and two copies).
+#: uint8[] arrays longer than this are spliced in as bytes by ``render_chunks`` (saves a decode and two copies).
 _BLOB_MIN = 4096
 
 
-def _separators(n: int) -> bytes:
-    """``n`` five-byte cells ``???, `` (a camera sends the same size every frame, so the last one is cached)."""
-    if len(_TEMPLATE[0]) != 5 * n:
-        _TEMPLATE[0] = b"\0\0\0, " * n
-    return _TEMPLATE[0]
+class _Scratch:
+    """The cell buffer of the last array size, reused while no other thread holds it.
+
+    A camera sends the same size every frame, so the separators (and the brackets) are written once and
+    each frame only overwrites the three digit columns.
+    """
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.buf = bytearray()
+
+
+_SCRATCH = _Scratch()
+
+
+def _cells(n: int) -> bytearray:
+    """``[`` + ``n`` five-byte cells ``???, `` with the last ``, `` turned into ``]`` + NUL."""
+    buf = bytearray(b"[" + b"\0\0\0, " * n)
+    buf[-2:] = b"]\0"
+    return buf
 
 
 def uint8_bytes(data: bytes | bytearray | memoryview) -> bytes:
     """``str(list(data)).encode()`` for a byte string (``b"[1, 2, 255]"``), without a million ints.
 
     Each byte becomes a five-byte cell ``HTU, `` filled by three ``bytes.translate`` passes (one per digit)
-    and strided slice assignment; leading zero digits are marked NUL and deleted in one pass at the end.
+    and strided slice assignment; leading zero digits are marked NUL and deleted by one ``translate`` that
+    also produces the result (brackets included), so a 1 MB array costs one 5 MB pass plus the digit passes.
+    Faster here than a 65536-entry table of ``"a, b"`` pairs joined per element (that is ~8x slower on
+    CPython 3.11: half a million lookups and a join over objects scattered in a 3 MB table).
     """
     n = len(data)
     if n == 0:
         return b"[]"
-    raw = bytes(data)
-    out = bytearray(_separators(n))
-    out[0::5] = raw.translate(_HUNDREDS)
-    out[1::5] = raw.translate(_TENS)
-    out[2::5] = raw.translate(_UNITS)
-    del out[-2:]
-    return b"[" + out.translate(None, b"\0") + b"]"
+    raw = data if type(data) is bytes else bytes(data)
+    scratch = _SCRATCH
+    if not scratch.lock.acquire(blocking=False):
+        return _fill(_cells(n), raw)
+    try:
+        if len(scratch.buf) != 5 * n + 1:
+            scratch.buf = _cells(n)
+        return _fill(scratch.buf, raw)
+    finally:
+        scratch.lock.release()
+
+
+def _fill(buf: bytearray, raw: bytes) -> bytes:
+    buf[1::5] = raw.translate(_HUNDREDS)
+    buf[2::5] = raw.translate(_TENS)
+    buf[3::5] = raw.translate(_UNITS)
+    return bytes(buf.translate(None, b"\0"))
 
 
 def uint8_text(data: bytes | bytearray | memoryview) -> str:
@@ -140,6 +167,10 @@ class TextRenderer:
 
     def render_bytes(self, value: Any, type_info: str | None = None) -> bytes:
         """``render(...).encode()``, but big ``uint8[]`` texts are spliced in as bytes, never decoded."""
+        return b"".join(self.render_chunks(value, type_info))
+
+    def render_chunks(self, value: Any, type_info: str | None = None) -> list[bytes]:
+        """``render_bytes`` as pieces to write in order (no copy of a multi-megabyte ``uint8[]`` text)."""
         blobs: list[bytes] = []
         self._blobs = blobs
         try:
@@ -147,13 +178,14 @@ class TextRenderer:
         finally:
             self._blobs = None
         if not blobs:
-            return text.encode()
+            return [text.encode()]
         parts = text.split("\0")
-        out = [parts[0].encode()]
+        out = [parts[0].encode()] if parts[0] else []
         for blob, part in zip(blobs, parts[1:], strict=True):
             out.append(blob)
-            out.append(part.encode())
-        return b"".join(out)
+            if part:
+                out.append(part.encode())
+        return out
 
     # -- internals ---------------------------------------------------------------------------------------
 
