@@ -84,6 +84,20 @@ def allowed(networks: list[Network] | None, host: str | None) -> bool:
 # returns None and goes through mrosd.xmlrpc.decode_call. Tests check both give identical results.
 
 _WS = rb"[ \t\n\r]*"
+_TEXT = rb"[\t\n\x20-\x25\x27-\x3b\x3d-\x5c\x5e-\x7e]*"  # printable ASCII without < & ]
+# One parameter and the whitespace after it. Every run of whitespace is followed by a literal ``<``
+# (which it cannot contain), so a failing match backtracks linearly, never exponentially.
+
+
+def _one_param(group: bytes) -> bytes:
+    """One parameter and the whitespace after it; ``group`` opens the value groups (capturing or not)."""
+    return (
+        rb"<param>" + _WS + rb"<value>(?:<string>" + group + _TEXT + rb")</string>"
+        rb"|<(?:i4|int)>" + group + rb"[-+]?[0-9]{1,9})</(?:i4|int)>"
+        rb"|<boolean>" + group + rb"[01])</boolean>|" + group + _TEXT + rb"))</value>" + _WS + rb"</param>" + _WS
+    )
+
+
 _CALL = re.compile(
     rb"(?:<\?xml version=(?:'1\.0'|\"1\.0\")(?: encoding=(?:'(?i:utf-8)'|\"(?i:utf-8)\"))?\?>)?"
     + _WS
@@ -91,7 +105,11 @@ _CALL = re.compile(
     + _WS
     + rb"<methodName>([A-Za-z0-9_.]{1,200})</methodName>"
     + _WS
-    + rb"(?:<params>(.*)</params>"
+    + rb"(?:<params>"
+    + _WS
+    + rb"((?:"
+    + _one_param(b"(?:")
+    + rb")*)</params>"
     + _WS
     + rb"|<params/>"
     + _WS
@@ -99,38 +117,28 @@ _CALL = re.compile(
     + _WS,
     re.S,
 )
-_TEXT = rb"[\t\n\x20-\x25\x27-\x3b\x3d-\x5c\x5e-\x7e]*"  # printable ASCII without < & ]
-_PARAM = re.compile(
-    _WS + rb"<param>" + _WS + rb"<value>(?:<string>(" + _TEXT + rb")</string>"
-    rb"|<(?:i4|int)>([-+]?[0-9]{1,9})</(?:i4|int)>"
-    rb"|<boolean>([01])</boolean>|(" + _TEXT + rb"))</value>" + _WS + rb"</param>" + _WS
-)
+_PARAM = re.compile(_one_param(b"("))
 
 
 def fast_decode_call(body: bytes) -> tuple[str, tuple[Any, ...]] | None:
-    """Decode a methodCall made only of ASCII strings, ints and booleans; None for anything else."""
+    """Decode a methodCall made only of ASCII strings, ints and booleans; None for anything else.
+
+    One regex validates the whole call; ``findall`` then walks the (already validated) parameters.
+    """
     call = _CALL.fullmatch(body)
     if call is None:
         return None
-    params: list[Any] = []
     text = call.group(2)
-    if text and text.strip(b" \t\n\r"):
-        pos = 0
-        end = len(text)
-        while pos < end:
-            m = _PARAM.match(text, pos)
-            if m is None:
-                return None
-            s, i, b, untyped = m.groups()
-            if s is not None:
-                params.append(s.decode())
-            elif i is not None:
-                params.append(int(i))
-            elif b is not None:
-                params.append(b == b"1")
-            else:
-                params.append(untyped.decode())
-            pos = m.end()
+    if not text:
+        return call.group(1).decode(), ()
+    params: list[Any] = []
+    for s, i, b, untyped in _PARAM.findall(text):
+        if i:
+            params.append(int(i))
+        elif b:
+            params.append(b == b"1")
+        else:  # <string> or untyped text (an empty string leaves both groups empty)
+            params.append((s or untyped).decode())
     return call.group(1).decode(), tuple(params)
 
 
