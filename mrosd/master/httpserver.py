@@ -186,8 +186,10 @@ def fast_encode_response(value: Any) -> bytes | None:
     return "".join(out).encode()
 
 
-#: Most replies kept by ``XmlRpcHttpHandler``'s reply cache, and the largest request body cached.
+#: Bounds of ``XmlRpcHttpHandler``'s reply cache: entries, total reply bytes, largest request body kept.
+#: When full, new replies are simply not kept until the next change of state empties the cache.
 REPLY_CACHE_SIZE = 1024
+REPLY_CACHE_BYTES = 16 * 1024 * 1024
 REPLY_CACHE_MAX_BODY = 4096
 
 
@@ -212,6 +214,7 @@ class XmlRpcHttpHandler:
         self._cacheable = cacheable if state_version is not None else frozenset()
         self._state_version = state_version
         self._cache: dict[bytes, bytes] = {}
+        self._cache_bytes = 0
         self._cache_version: object = None
 
     def handle(self, body: bytes) -> bytes | Coroutine[Any, Any, bytes]:
@@ -220,6 +223,7 @@ class XmlRpcHttpHandler:
             version = self._state_version()
             if version != self._cache_version:
                 self._cache.clear()
+                self._cache_bytes = 0
                 self._cache_version = version
             else:
                 hit = self._cache.get(body)
@@ -242,8 +246,14 @@ class XmlRpcHttpHandler:
         except Exception as exc:  # the handlers catch their own errors; this is the last guard
             log.exception("master: %s failed", method)
             return encode_fault(FAULT_INTERNAL_ERROR, f"{method}: internal error: {exc!r}")
-        if method in self._cacheable and len(body) <= REPLY_CACHE_MAX_BODY and len(self._cache) < REPLY_CACHE_SIZE:
+        if (
+            method in self._cacheable
+            and len(body) <= REPLY_CACHE_MAX_BODY
+            and len(self._cache) < REPLY_CACHE_SIZE
+            and self._cache_bytes + len(out) <= REPLY_CACHE_BYTES
+        ):
             self._cache[body] = out
+            self._cache_bytes += len(out)
         return out
 
     async def _slow(self, method: str, params: tuple[Any, ...]) -> bytes:
@@ -273,11 +283,11 @@ class _Refused(Exception):
         self.text = text
 
 
-@functools.lru_cache(maxsize=256)
 def parse_head(head: bytes) -> tuple[int, bool, bool]:
     """``(content_length, keep_alive, expect_continue)`` of a header block (without the blank line).
 
-    A pure function of the bytes, so cached: clients repeat the same headers call after call.
+    A pure function of the bytes, so short header blocks are cached (``_parse_short_head``):
+    clients repeat the same headers call after call.
 
     Raises:
         _Refused: the status and text to answer with before closing.
@@ -309,6 +319,11 @@ def parse_head(head: bytes) -> tuple[int, bool, bool]:
     if length > MAX_BODY_SIZE:
         raise _Refused(413, b"request body too large\n")
     return length, keep_alive, expect_continue
+
+
+#: Header blocks up to this size are looked up in ``_parse_short_head``'s cache (256 entries).
+_CACHED_HEAD_SIZE = 1024
+_parse_short_head = functools.lru_cache(maxsize=256)(parse_head)
 
 
 class HttpProtocol(asyncio.Protocol):
@@ -414,7 +429,9 @@ class HttpProtocol(asyncio.Protocol):
                 self._fail(431, b"header block too large\n")
             return None
         try:
-            length, keep_alive, expect_continue = parse_head(bytes(buf[pos:end]))
+            head = bytes(buf[pos:end])
+            parse = _parse_short_head if len(head) <= _CACHED_HEAD_SIZE else parse_head
+            length, keep_alive, expect_continue = parse(head)
         except _Refused as exc:
             self._fail(exc.status, exc.text)
             return None
