@@ -13,6 +13,7 @@ echo keeps up with fast topics (rostopic flushes after every message).
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import contextlib
 import math
 import os
@@ -522,20 +523,80 @@ def parse_pub_args(args: tuple[str, ...]) -> Any:
     return values
 
 
+#: -f/stdin input without -r, -l or -1 is published at this rate, as rostopic does.
+STREAM_RATE = 10.0
+#: How long -f/stdin publishing waits for a first subscriber before it starts (rostopic: 5 s).
+STREAM_SUBSCRIBER_WAIT = 5.0
+
+
+def stdin_is_input() -> bool:
+    """Whether stdin is piped or redirected from a file (a terminal or /dev/null is not message input)."""
+    import stat
+
+    try:
+        mode = os.fstat(sys.stdin.fileno()).st_mode
+    except (OSError, ValueError, AttributeError):
+        return False
+    return stat.S_ISFIFO(mode) or stat.S_ISREG(mode)
+
+
+def file_documents(path: str) -> list[Any]:
+    """Every YAML document in ``path`` (``---``-separated, like a rostopic -f file); empty ones are skipped.
+
+    Raises:
+        MrosError: the file cannot be read or is not valid YAML (nothing is published then).
+    """
+    try:
+        with open(path, encoding="utf-8") as stream:
+            docs = list(yaml.safe_load_all(stream))
+    except OSError as exc:
+        raise MrosError(f"cannot read {path}: {exc.strerror or exc}") from exc
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise MrosError(f"invalid YAML in {path}: {' '.join(str(exc).split())}") from exc
+    return [d for d in docs if d is not None]
+
+
+def load_document(text: str, where: str) -> Any:
+    """One YAML document from stdin; ``None`` when it is empty."""
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise MrosError(f"invalid YAML in {where}: {' '.join(str(exc).split())}") from exc
+
+
 @group.command()
 @click.argument("topic")
 @click.argument("msg_type", metavar="TYPE")
 @click.argument("args", nargs=-1)
 @click.option("-r", "--rate", type=click.FloatRange(min=0, min_open=True), help="Publish at this rate (Hz).")
 @click.option("-1", "--once", is_flag=True, help="Publish one latched message, wait 3 s for subscribers, exit.")
-@click.option("-l", "--latch", is_flag=True, help="Latch the message (with -r; without -r it always latches).")
+@click.option("-l", "--latch", is_flag=True, help="Latch the message (with -r, -f or stdin; otherwise always).")
 @click.option("-n", "count", type=click.IntRange(min=1), help="With -r: exit after N messages.")
+@click.option(
+    "-f",
+    "--file",
+    "path",
+    metavar="FILE",
+    help="Read messages from a YAML file, one document per message ('-' for stdin).",
+)
 def pub(  # noqa: PLR0917  (one parameter per click option)
-    topic: str, msg_type: str, args: tuple[str, ...], rate: float | None, once: bool, latch: bool, count: int | None
+    topic: str,
+    msg_type: str,
+    args: tuple[str, ...],
+    rate: float | None,
+    once: bool,
+    latch: bool,
+    count: int | None,
+    path: str | None,
 ) -> None:
     """Publish a message built from YAML arguments, as rostopic pub does.
 
     Without -r the message is published once, latched, until Ctrl-C. Put ``--`` before negative numbers.
+
+    With -f FILE (or with no values and a pipe on stdin) each YAML document is one message, published at
+    10 Hz unless -r, -l or -1 says otherwise; a file holding a single message with -r is repeated at that
+    rate. On stdin a document ends at a ``---`` line (what ``mros topic echo`` prints), as in rostopic; an
+    unterminated last document is not published and a warning says so.
 
     \b
     Examples:
@@ -543,11 +604,25 @@ def pub(  # noqa: PLR0917  (one parameter per click option)
       mros topic pub -1 /chatter std_msgs/String hello
       mros topic pub /cmd_vel geometry_msgs/Twist "{linear: {x: 0.5}, angular: {z: 0.1}}" -r 5
       mros topic pub -1 /n std_msgs/Int32 -- -5
+      mros topic pub /cmd_vel geometry_msgs/Twist -f twists.yaml
+      mros topic echo /chatter | mros topic pub /copy std_msgs/String
     """
     if once and rate is not None:
         raise click.UsageError("give only one of -r and -1")
+    if path is not None and args:
+        raise click.UsageError("give message values either as arguments or with -f, not both")
     name = resolve(topic)
     cls = _class(msg_type)
+    from_stdin = path == "-" or (path is None and not args and bool(cls.__struct_fields__) and stdin_is_input())
+    if path is not None and path != "-":
+        docs = [build_message(cls, d) for d in file_documents(path)]
+        for m in docs:
+            m.serialize()  # every message is checked before the first one is published
+        _publish_stream(name, cls, iter_list(docs), rate, once, latch, count, repeat_single=len(docs) == 1)
+        return
+    if from_stdin:
+        _publish_stream(name, cls, None, rate, once, latch, count, repeat_single=False)
+        return
     msg = build_message(cls, parse_pub_args(args))
     msg.serialize()  # fail now, with the field named, rather than in the publisher
     latched = latch or rate is None
@@ -564,14 +639,113 @@ def pub(  # noqa: PLR0917  (one parameter per click option)
                 else:
                     await asyncio.Event().wait()
                 return
-            period = 1.0 / rate
+            await _repeat(publisher, msg, rate, count)
+
+    run(main())
+
+
+async def iter_list(items: list[Any]) -> Any:
+    """An async iterator over ``items`` (file input is loaded and checked up front)."""
+    for item in items:
+        yield item
+
+
+#: Lines read ahead from stdin; the reader thread waits (nothing is dropped) while the publisher catches up.
+STDIN_QUEUE = 256
+
+
+def _start_stdin_reader(loop: asyncio.AbstractEventLoop, queue: asyncio.Queue[str]) -> None:
+    """Feed stdin's lines into ``queue`` from a daemon thread ('' at EOF); it never holds up the exit."""
+    import threading
+
+    def read() -> None:
+        while True:
+            line = sys.stdin.readline()
+            try:
+                asyncio.run_coroutine_threadsafe(queue.put(line), loop).result()
+            except (RuntimeError, concurrent.futures.CancelledError):
+                return  # the loop is closed or closing: the command is over
+            if not line:
+                return
+
+    threading.Thread(target=read, name="mros-stdin", daemon=True).start()
+
+
+async def _stdin_messages(cls: Any) -> Any:
+    """Messages from stdin, one per ``---``-terminated YAML document, as they arrive."""
+    queue: asyncio.Queue[str] = asyncio.Queue(maxsize=STDIN_QUEUE)
+    _start_stdin_reader(asyncio.get_running_loop(), queue)
+    buf: list[str] = []
+    number = 0
+    while True:
+        line = await queue.get()
+        if not line:
+            break
+        if line.strip() != "---":
+            buf.append(line)
+            continue
+        number += 1
+        value = load_document("".join(buf), f"stdin document {number}")
+        buf = []
+        if value is not None:
+            msg = build_message(cls, value)
+            msg.serialize()
+            yield msg
+    if "".join(buf).strip():
+        click.echo("WARNING: the last document on stdin has no '---' after it; it was not published", err=True)
+
+
+async def _repeat(publisher: Any, msg: Any, rate: float, count: int | None) -> None:
+    period = 1.0 / rate
+    sent = 0
+    next_at = time.monotonic()
+    while count is None or sent < count:
+        await publisher.publish(msg)
+        sent += 1
+        next_at += period
+        await asyncio.sleep(max(0.0, next_at - time.monotonic()))
+
+
+def _publish_stream(  # noqa: PLR0917
+    name: str,
+    cls: Any,
+    messages: Any,
+    rate: float | None,
+    once: bool,
+    latch: bool,
+    count: int | None,
+    *,
+    repeat_single: bool,
+) -> None:
+    """rostopic's -f/stdin publishing: one message per document, paced by the rate, then exit."""
+    if rate is None and not latch and not once:
+        rate = STREAM_RATE
+    latched = latch or rate is None
+
+    async def main() -> None:
+        source = messages if messages is not None else _stdin_messages(cls)
+        async with Node(anonymous("pub"), master_uri=master_uri(), argv=[]) as node:
+            publisher = await node.advertise(name, cls, latch=latched)
+            with contextlib.suppress(TimeoutError, MrosError):
+                await publisher.wait_for_subscribers(1, timeout=STREAM_SUBSCRIBER_WAIT)
+            if repeat_single and rate is not None and not once:
+                click.echo("Got one message and a rate, publishing repeatedly")
+                async for msg in source:
+                    await _repeat(publisher, msg, rate, count)
+                return
             sent = 0
             next_at = time.monotonic()
-            while count is None or sent < count:
+            async for msg in source:
                 await publisher.publish(msg)
                 sent += 1
-                next_at += period
-                await asyncio.sleep(max(0.0, next_at - time.monotonic()))
+                if once or (count is not None and sent >= count):
+                    break
+                if rate is not None:
+                    next_at += 1.0 / rate
+                    await asyncio.sleep(max(0.0, next_at - time.monotonic()))
+            if once or (latched and sent):
+                # Latched: give subscribers the same grace rostopic -1 gives them before the node goes.
+                await asyncio.sleep(ONCE_DELAY)
 
     run(main())
 
