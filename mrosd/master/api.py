@@ -157,8 +157,10 @@ def _wrap(name: str, error_value: Any, validators: tuple[Validator, ...], impl: 
         caller_id = args[0]
         if not isinstance(caller_id, str):
             return -1, "caller_id must be a string", error_value
+        values = []
         try:
-            values = [check(arg, caller_id) for check, arg in zip(validators, args[1:], strict=True)]
+            for i, check in enumerate(validators, 1):  # a plain loop: no comprehension frame per call
+                values.append(check(args[i], caller_id))
         except Invalid as exc:
             return -1, str(exc), error_value
         try:
