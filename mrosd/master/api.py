@@ -181,14 +181,14 @@ def _as_async(handler: Impl) -> Handler:
     return call
 
 
-#: Methods whose reply depends only on their arguments and the registry/parameter state (``state_version``).
+#: Methods whose reply depends only on their arguments and the registry/parameter state (``state_version``),
+#: so the HTTP layer may cache their replies. Not getUri: ``uri`` is only set once the socket is bound.
 READ_ONLY_METHODS = frozenset(
     {
         "lookupNode",
         "getPublishedTopics",
         "getTopicTypes",
         "getSystemState",
-        "getUri",
         "getPid",
         "lookupService",
         "getParam",
