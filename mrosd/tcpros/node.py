@@ -17,7 +17,8 @@ import sys
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-from mrosd.errors import LocalProtocolError, MasterError, MasterUnreachableError, MrosError, XmlRpcError
+from mrosd.errors import LocalProtocolError, MasterError, MasterUnreachableError, MrosError
+from mrosd.master.client import MasterClient
 from mrosd.names import NodeNames, parse_argv
 from mrosd.tcpros.handshake import error_header
 from mrosd.tcpros.header import ConnectionHeader, encode_header
@@ -25,7 +26,7 @@ from mrosd.tcpros.publisher import DEFAULT_QUEUE_SIZE, Publisher, PublisherProto
 from mrosd.tcpros.service import Service, ServiceProtocol, ServiceProxy
 from mrosd.tcpros.slave import SlaveApi
 from mrosd.tcpros.subscriber import Subscriber
-from mrosd.xmlrpc import Fault, XmlRpcClient, XmlRpcServer
+from mrosd.xmlrpc import XmlRpcClient, XmlRpcServer
 
 log = logging.getLogger(__name__)
 
@@ -132,6 +133,8 @@ class Node:
         self.param_callbacks: list[Callable[[str, Any], None]] = []
         self.shutdown_event = asyncio.Event()
         self.xmlrpc = XmlRpcClient(timeout=MASTER_TIMEOUT)
+        #: The one client of the master (shares ``xmlrpc``); registration calls use its MASTER_TIMEOUT.
+        self.master = MasterClient(self.master_uri, self.name, self.xmlrpc, timeout=MASTER_TIMEOUT)
         self.uri = ""
         self.tcpros_port = 0
         self._server: asyncio.Server | None = None
@@ -163,7 +166,7 @@ class Node:
             )
             await self._slave.start()
             self.uri = f"http://{self._format_host()}:{self._slave.port}/"
-            await self.master_call("getUri")
+            await self.master.get_uri()
         except BaseException:
             await self._close_servers()
             raise
@@ -199,25 +202,22 @@ class Node:
 
     # --- master ----------------------------------------------------------------------------------
 
+    def _master(self, timeout: float) -> MasterClient:
+        """A MasterClient with another per-call timeout, sharing our caller id and XML-RPC client."""
+        if timeout == MASTER_TIMEOUT:
+            return self.master
+        return MasterClient(self.master_uri, self.name, self.xmlrpc, timeout=timeout)
+
     async def master_call(self, method: str, *args: Any, timeout: float = MASTER_TIMEOUT) -> Any:
-        """Call a Master/Parameter Server API method with our caller id; return its value.
+        """Call any Master/Parameter Server API method with our caller id; return its value.
+
+        A raw escape hatch for methods without a typed wrapper; ``node.master`` has the typed ones.
 
         Raises:
             MasterError: the master answered with a failure code.
             MasterUnreachableError: the master could not be reached.
         """
-        try:
-            reply = await self.xmlrpc.call(self.master_uri, method, self.name, *args, timeout=timeout)
-        except Fault as exc:
-            raise MasterError(method, exc.code, exc.message) from exc
-        except XmlRpcError as exc:
-            raise MasterUnreachableError(self.master_uri, str(exc)) from exc
-        if not isinstance(reply, list) or len(reply) != 3:
-            raise MasterError(method, -1, f"malformed reply {reply!r}")
-        code, status, value = reply
-        if code != 1:
-            raise MasterError(method, code, str(status))
-        return value
+        return await self._master(timeout).call(method, *args)
 
     async def get_param(self, key: str) -> Any:
         """A parameter's value (name resolved for this node).
@@ -225,11 +225,11 @@ class Node:
         Raises:
             MasterError: the parameter is not set.
         """
-        return await self.master_call("getParam", self.resolve_name(key))
+        return await self.master.get_param(self.resolve_name(key))
 
     async def set_param(self, key: str, value: Any) -> None:
         """Set a parameter (name resolved for this node)."""
-        await self.master_call("setParam", self.resolve_name(key), value)
+        await self.master.set_param(self.resolve_name(key), value)
 
     def resolve_name(self, name: str) -> str:
         """Resolve a graph name for this node, remappings applied.
@@ -243,7 +243,7 @@ class Node:
         if not self._started:
             return
         try:
-            await self.master_call(method, *args, timeout=UNREGISTER_TIMEOUT)
+            await self._master(UNREGISTER_TIMEOUT).call(method, *args)
         except MrosError as exc:
             log.info("%s: %s%r failed: %s", self.name, method, args, exc)
 
@@ -255,7 +255,7 @@ class Node:
             if not (self.publishers or self.subscribers or self.services):
                 continue
             try:
-                uri = await self.master_call("lookupNode", self.name, timeout=max(1.0, delay * 2))
+                uri = await self._master(max(1.0, delay * 2)).lookup_node(self.name)
                 if down:
                     log.warning("%s: the master at %s is back", self.name, self.master_uri)
                     down = False
@@ -278,18 +278,18 @@ class Node:
     async def _reregister(self) -> None:
         for pub in list(self.publishers.values()):
             try:
-                await self.master_call("registerPublisher", pub.topic, pub.type, self.uri)
+                await self.master.call("registerPublisher", pub.topic, pub.type, self.uri)
             except MrosError as exc:
                 log.warning("%s: re-registering publisher %s failed: %s", self.name, pub.topic, exc)
         for sub in list(self.subscribers.values()):
             try:
-                uris = await self.master_call("registerSubscriber", sub.topic, sub.type, self.uri)
-                sub.update_publishers(list(uris))
+                uris = await self.master.call("registerSubscriber", sub.topic, sub.type, self.uri)
+                sub.update_publishers(list(uris) if isinstance(uris, list) else [])
             except MrosError as exc:
                 log.warning("%s: re-registering subscriber %s failed: %s", self.name, sub.topic, exc)
         for srv in list(self.services.values()):
             try:
-                await self.master_call("registerService", srv.name, self.service_uri, self.uri)
+                await self.master.register_service(srv.name, self.service_uri, self.uri)
             except MrosError as exc:
                 log.warning("%s: re-registering service %s failed: %s", self.name, srv.name, exc)
 
@@ -337,7 +337,7 @@ class Node:
         pub = Publisher(self, name, msg_class, latch=latch, queue_size=queue_size)
         self.publishers[name] = pub
         try:
-            await self.master_call("registerPublisher", name, pub.type, self.uri)
+            await self.master.call("registerPublisher", name, pub.type, self.uri)
         except BaseException:
             self.publishers.pop(name, None)
             raise
@@ -365,7 +365,8 @@ class Node:
         sub = Subscriber(self, name, msg_class, callback=callback, queue_size=queue_size, tcp_nodelay=tcp_nodelay)
         self.subscribers[name] = sub
         try:
-            uris = await self.master_call("registerSubscriber", name, sub.type, self.uri)
+            # Raw call: a malformed publisher list is tolerated (treated as none), not an error.
+            uris = await self.master.call("registerSubscriber", name, sub.type, self.uri)
         except BaseException:
             self.subscribers.pop(name, None)
             sub.closed = True
@@ -387,7 +388,7 @@ class Node:
         srv = Service(self, name, srv_class, handler)
         self.services[name] = srv
         try:
-            await self.master_call("registerService", name, self.service_uri, self.uri)
+            await self.master.register_service(name, self.service_uri, self.uri)
         except BaseException:
             self.services.pop(name, None)
             raise

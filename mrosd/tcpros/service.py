@@ -187,8 +187,8 @@ class ServiceProxy:
         self._lock = asyncio.Lock()
 
     async def _lookup(self) -> tuple[str, int]:
-        uri = await self.node.master_call("lookupService", self.name)
-        if not isinstance(uri, str) or not uri.startswith("rosrpc://"):
+        uri = await self.node.master.lookup_service(self.name)
+        if not uri.startswith("rosrpc://"):
             raise ServiceError(f"service {self.name}: master returned an unusable URI {uri!r}")
         hostport = uri[len("rosrpc://") :].rstrip("/")
         host, _, port = hostport.rpartition(":")
