@@ -1,13 +1,19 @@
 """mrosd: a small, fast ROS 1 runtime in Python.
 
-The public asyncio API is re-exported here; see the submodules for the parts.
+The public asyncio API is re-exported here; see the submodules for the parts. The re-exports are lazy
+(module ``__getattr__``): ``import mrosd.msg`` (the CLI's ``mros msg``) loads only the message code, and
+``mrosd.Node`` imports the TCPROS stack (and aiohttp, via the XML-RPC client) on first use.
 """
 
 from __future__ import annotations
 
-from mrosd.errors import MrosError
-from mrosd.msg import Duration, Time
-from mrosd.tcpros import AnyMsg, Node, Publisher, RawMessage, Service, ServiceProxy, Subscriber
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from mrosd.errors import MrosError
+    from mrosd.msg import Duration, Time
+    from mrosd.tcpros import AnyMsg, Node, Publisher, RawMessage, Service, ServiceProxy, Subscriber
 
 __all__ = [
     "AnyMsg",
@@ -22,3 +28,31 @@ __all__ = [
     "Time",
 ]
 __version__ = "0.1.0"
+
+#: Where each re-exported name lives.
+_EXPORTS = {
+    "MrosError": "mrosd.errors",
+    "Duration": "mrosd.msg",
+    "Time": "mrosd.msg",
+    **dict.fromkeys(
+        ("AnyMsg", "Node", "Publisher", "RawMessage", "Service", "ServiceProxy", "Subscriber"), "mrosd.tcpros"
+    ),
+}
+#: Subpackages that ``import mrosd`` used to load eagerly, still reachable as ``mrosd.<name>`` after it.
+_SUBMODULES = frozenset({"errors", "master", "msg", "names", "tcpros", "xmlrpc"})
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is not None:
+        value = getattr(importlib.import_module(module), name)
+    elif name in _SUBMODULES:
+        value = importlib.import_module(f"{__name__}.{name}")
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value  # cached: later lookups never reach __getattr__
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__, *_SUBMODULES})
