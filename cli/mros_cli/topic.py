@@ -29,7 +29,6 @@ from mros_cli.main import master_client, master_uri, run
 from mros_cli.output import SEPARATOR, JsonRenderer, TextRenderer, extract_field
 from mrosd.errors import MrosError
 from mrosd.msg import Duration, Time, get_message_class, load_type
-from mrosd.tcpros import AnyMsg, Node
 
 if TYPE_CHECKING:
     from mrosd.master.client import MasterClient
@@ -377,6 +376,8 @@ def echo(topic: str, count: int | None, noarr: bool, as_json: bool, offset: bool
         async with master_client() as master:
             real, _type, fields = await wait_for_topic(master, name)
         echo = Echo(fields, count, noarr=noarr, as_json=as_json, offset=offset)
+        from mrosd.tcpros import AnyMsg, Node  # aiohttp and the TCPROS stack: only when a node is needed
+
         async with Node(anonymous("echo"), master_uri=master.master_uri, argv=[]) as node:
             await node.subscribe(real, AnyMsg, callback=echo.on_raw)
             await echo.done.wait()
@@ -628,6 +629,8 @@ def pub(  # noqa: PLR0917  (one parameter per click option)
     latched = latch or rate is None
 
     async def main() -> None:
+        from mrosd.tcpros import Node  # aiohttp and the TCPROS stack: only when a node is needed
+
         async with Node(anonymous("pub"), master_uri=master_uri(), argv=[]) as node:
             publisher = await node.advertise(name, cls, latch=latched)
             if rate is None:
@@ -724,6 +727,8 @@ def _publish_stream(  # noqa: PLR0917
 
     async def main() -> None:
         source = messages if messages is not None else _stdin_messages(cls)
+        from mrosd.tcpros import Node  # aiohttp and the TCPROS stack: only when a node is needed
+
         async with Node(anonymous("pub"), master_uri=master_uri(), argv=[]) as node:
             publisher = await node.advertise(name, cls, latch=latched)
             with contextlib.suppress(TimeoutError, MrosError):
@@ -817,6 +822,8 @@ async def _measure(topic: str, on_raw: Any, tick: Any, duration: float | None) -
 
     async with master_client() as master:
         real, _type, _fields = await wait_for_topic(master, resolve(topic))
+    from mrosd.tcpros import AnyMsg, Node  # aiohttp and the TCPROS stack: only when a node is needed
+
     async with Node(anonymous("measure"), master_uri=master.master_uri, argv=[]) as node:
         await node.subscribe(real, AnyMsg, callback=on_raw)
         click.echo(f"subscribed to [{real}]")
