@@ -148,8 +148,10 @@ class _KeyState:
         fmt = self.type.fmt
         fcntl.flock(self.fd, fcntl.LOCK_EX)
         try:
-            seq = self.layout.begin_write()
-            view = self.layout.payload.cast(fmt)  # type: ignore[call-overload]
+            layout = self.layout
+            seq = layout.begin_write()
+            layout.copy_active_to_target(seq)  # a partial update starts from the published value
+            view = layout.target(seq).cast(fmt)  # type: ignore[call-overload]
             try:
                 yield view
             finally:
@@ -185,7 +187,8 @@ class _KeyState:
     def view(self) -> memoryview:
         if not self.type.is_raw_array:
             raise IxmError(f"{self.key} holds {self.type.describe()}: zero-copy views are for numeric arrays")
-        view: memoryview = self.layout.payload.toreadonly().cast(self.type.fmt)  # type: ignore[call-overload]
+        _seq, slot = self.layout.active()
+        view: memoryview = slot.toreadonly().cast(self.type.fmt)  # type: ignore[call-overload]
         return view
 
     def fresh(self) -> bool:
@@ -236,10 +239,12 @@ class _KeyBase:
         return self._state.layout.seq
 
     def read(self) -> Any:
-        """IxmRead: the latest value, consistent (never torn); None before the first write.
+        """IxmRead: the latest complete value, consistent (never torn); None before the first write.
+
+        A write in progress, or one whose writer died mid-copy, is not visible: readers get the value before it.
 
         Raises:
-            IxmError: the writer died in the middle of a write.
+            IxmError: a live writer kept overwriting the value faster than it could be copied (0.5 s).
         """
         return self._state.read()
 
@@ -250,13 +255,20 @@ class _KeyBase:
     def view(self) -> memoryview:
         """A zero-copy, read-only memoryview of a numeric array key, typed like the array (e.g. format 'd').
 
-        It shows the live segment: values may change under you. Compare ``seq`` before and after use (equal
-        and even means what you read was consistent), or use ``read_into`` for a consistent copy.
+        It shows the slot holding the latest value at the time of the call and does not follow later writes
+        (call ``view()`` again for a newer value). That slot keeps its value through the next write and is
+        overwritten from the one after: take ``s = seq`` before ``view()``; what you read was consistent if
+        ``seq <= (s | 1) + 1`` after use (an unchanged ``seq`` always is). ``read_into`` gives a consistent copy.
         """
         return self._state.view()
 
     def writing(self) -> contextlib.AbstractContextManager[memoryview]:
-        """Zero-copy write of a numeric array key: fill the yielded view; readers are woken on exit."""
+        """Zero-copy write of a numeric array key: update the yielded view; readers are woken on exit.
+
+        The view is the inactive slot, pre-filled with the published value (one internal copy), so a partial
+        update keeps the other elements. Readers keep reading the previous value until the block exits; if
+        the process dies inside the block, they keep it for good (until the next write).
+        """
         return self._state.writing()
 
     def write_bytes(self, data: bytes | bytearray | memoryview) -> None:

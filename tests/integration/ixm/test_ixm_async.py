@@ -63,6 +63,30 @@ async def test_a_raw_array_is_written_and_read_through_zero_copy_views(shm_guard
             (await a.open("/scalar", "float64", mode="w")).view()
 
 
+async def test_a_view_keeps_the_value_it_was_taken_of_across_one_flip_and_partial_writes_keep_the_rest(
+    shm_guard: ShmGuard, tmp_path: Path
+) -> None:
+    sock = str(tmp_path / "ixm.sock")
+    async with IxmServer(sock), AsyncIxmClient(sock) as a:
+        joints = await a.open("/joints", "float64", count=3, mode="rw")
+        joints.write([1.0, 2.0, 3.0])
+        seq = joints.seq
+        old = joints.view()
+        with joints.writing() as jv:  # starts from the published value: only element 0 changes
+            jv[0] = 9.0
+        assert joints.read() == [9.0, 2.0, 3.0]
+        # the old view does not follow the flip, and its slot is untouched until the write after this one
+        assert old.tolist() == [1.0, 2.0, 3.0] and joints.seq <= (seq | 1) + 1
+        new = joints.view()
+        assert new.tolist() == [9.0, 2.0, 3.0]
+        joints.write([4.0, 5.0, 6.0])  # the write after: old's slot now holds the newest value
+        assert joints.seq > (seq | 1) + 1
+        assert old.tolist() == [4.0, 5.0, 6.0] and new.tolist() == [9.0, 2.0, 3.0]
+        old.release()
+        new.release()
+        await joints.close()
+
+
 async def test_reloaded_rules_apply_to_later_opens(shm_guard: ShmGuard, tmp_path: Path) -> None:
     sock = str(tmp_path / "ixm.sock")
     async with IxmServer(sock, {"default": "deny"}) as server, AsyncIxmClient(sock) as a:

@@ -1,4 +1,4 @@
-"""SegmentLayout: header round trip, seqlock semantics, torn-read detection, size limits."""
+"""SegmentLayout: header round trip, double-buffered seqlock semantics, dead writers, size limits."""
 
 from __future__ import annotations
 
@@ -55,19 +55,103 @@ def test_a_value_larger_than_the_capacity_is_refused_and_the_old_value_kept() ->
 
 def test_a_writer_that_died_mid_write_is_repaired_by_the_next_writer() -> None:
     seg = fresh()
-    seg.begin_write()  # and never end_write: the counter stays odd
+    seg.write(b"old")
+    seq = seg.begin_write()  # and never end_write: the counter stays odd
+    seg.target(seq)[:4] = b"torn"
     assert seg.seq & 1
-    seg.write(b"ok")
+    assert seg.write(b"ok") == 4
     assert seg.seq % 2 == 0
-    assert seg.read()[1] == b"ok"
+    assert seg.read() == (4, b"ok")
 
 
-def test_a_reader_gives_up_with_a_clear_error_when_the_counter_stays_odd(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(layout_mod, "MAX_TORN_WAIT", 0.01)
+def test_readers_see_the_last_complete_value_with_no_error_after_a_writer_died_mid_copy() -> None:
     seg = fresh()
-    seg.begin_write()
-    with pytest.raises(IxmError, match="died"):
+    seg.write(b"first")
+    seg.write(b"second")
+    seq = seg.begin_write()
+    seg.target(seq)[:5] = b"XXXXX"  # half a new value, then the writer is gone
+    assert seg.read() == (4, b"second")
+    out = bytearray(64)
+    assert seg.read_into(out) == (4, 6)
+    assert bytes(out[:6]) == b"second"
+
+
+def test_a_write_before_the_first_one_completed_reads_as_never_written() -> None:
+    seg = fresh()
+    seq = seg.begin_write()
+    seg.target(seq)[:3] = b"abc"
+    assert seg.read() == (0, b"")
+
+
+def test_the_new_value_goes_to_the_slot_readers_are_not_directed_to() -> None:
+    seg = fresh(8)
+    seg.write(b"A" * 8)
+    active_seq, active = seg.active()
+    seq = seg.begin_write()
+    assert seg.target(seq) is not active
+    seg.target(seq)[:8] = b"B" * 8
+    assert (active_seq, bytes(active)) == (2, b"A" * 8)  # untouched while the copy is in progress
+    seg.end_write(seq, 8)
+    assert seg.active()[0] == 4 and bytes(seg.active()[1]) == b"B" * 8
+
+
+def test_a_segment_is_the_header_and_two_slots_of_exactly_the_capacity() -> None:
+    assert SegmentLayout.segment_size(48) == HEADER_SIZE + 2 * 48
+    seg = fresh(48)
+    assert [len(s) for s in seg.slots] == [48, 48]
+
+
+class ScriptedCounter:
+    """Stands in for the counter's struct: the reader sees the values of ``script`` in turn (then the last)."""
+
+    size = 8
+
+    def __init__(self, *script: int) -> None:
+        self.script = list(script)
+
+    def unpack_from(self, buf: memoryview, off: int = 0) -> tuple[int]:
+        return (self.script.pop(0) if len(self.script) > 1 else self.script[0],)
+
+
+def test_a_reader_that_raced_one_flip_keeps_its_consistent_copy(monkeypatch: pytest.MonkeyPatch) -> None:
+    seg = fresh()
+    seg.write(b"one")
+    seg.write(b"two")  # counter 4; "one" (counter 2) stays in the other slot until the next write starts
+    # the reader saw counter 2 before its copy and 4 after it: one flip, its slot was not touched
+    monkeypatch.setattr(layout_mod, "_SEQ", ScriptedCounter(2, 4))
+    assert seg.read() == (2, b"one")
+
+
+def test_a_reader_lapped_by_the_writer_retries_and_gets_the_newer_value(monkeypatch: pytest.MonkeyPatch) -> None:
+    seg = fresh()
+    seg.write(b"one")
+    seg.write(b"two")
+    # counter 2 before the copy, 5 after: the write after "two" started in the slot being copied
+    monkeypatch.setattr(layout_mod, "_SEQ", ScriptedCounter(2, 5, 4, 4))
+    assert seg.read() == (4, b"two")
+
+
+def test_a_reader_lapped_by_a_live_writer_for_too_long_gives_up_with_a_clear_error(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(layout_mod, "MAX_LAPPED_WAIT", 0.01)
+    seg = fresh()
+    seg.write(b"a")
+
+    class AlwaysLapped(ScriptedCounter):
+        def __init__(self) -> None:
+            super().__init__()
+            self.calls = 0
+
+        def unpack_from(self, buf: memoryview, off: int = 0) -> tuple[int]:
+            self.calls += 1
+            return (2 if self.calls % 2 else 7,)
+
+    monkeypatch.setattr(layout_mod, "_SEQ", AlwaysLapped())
+    with pytest.raises(IxmError, match="overwrote"):
         seg.read()
+    with pytest.raises(IxmError, match="overwrote"):
+        seg.read_into(bytearray(8))
 
 
 def test_a_buffer_that_is_not_an_ixm_segment_is_rejected() -> None:
@@ -82,6 +166,8 @@ def test_a_header_claiming_more_payload_than_the_mapping_is_rejected() -> None:
     SegmentLayout.initialize(memoryview(buf), 11, 64, 0, "x")
     with pytest.raises(IxmError, match="claims"):
         SegmentLayout(memoryview(buf)[: HEADER_SIZE + 8])
+    with pytest.raises(IxmError, match="claims"):  # room for one slot only
+        SegmentLayout(memoryview(buf)[: HEADER_SIZE + 64])
 
 
 def test_reads_are_never_torn_while_another_thread_writes() -> None:
