@@ -196,3 +196,19 @@ def test_the_generation_is_published_in_the_header() -> None:
     assert seg.generation == 0
     assert seg.bump_generation() == 1
     assert SegmentLayout(seg.buf).generation == 1
+
+
+@given(st.lists(st.tuples(st.binary(max_size=64), st.booleans()), min_size=1, max_size=30))
+def test_after_any_mix_of_complete_and_abandoned_writes_readers_get_the_last_complete_value(
+    writes: list[tuple[bytes, bool]],
+) -> None:
+    seg = fresh()
+    last: tuple[int, bytes] = (0, b"")
+    for value, completes in writes:
+        seq = seg.begin_write()
+        seg.target(seq)[: len(value)] = value
+        if completes:
+            seg.end_write(seq, len(value))
+            last = (seq, value)
+        # else: the writer died here, mid-copy or just before publishing
+        assert seg.read() == last
