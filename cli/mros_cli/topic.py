@@ -29,6 +29,7 @@ from mros_cli.main import master_client, master_uri, run
 from mros_cli.output import SEPARATOR, JsonRenderer, TextRenderer, extract_field
 from mrosd.errors import MrosError
 from mrosd.msg import Duration, Time, get_message_class, load_type
+from mrosd.msg.spec import INT_RANGES
 
 if TYPE_CHECKING:
     from mrosd.master.client import MasterClient
@@ -390,18 +391,6 @@ def echo(topic: str, count: int | None, noarr: bool, as_json: bool, offset: bool
 
 # --- pub ----------------------------------------------------------------------------------------------
 
-_INT_RANGES = {
-    "int8": (-(2**7), 2**7 - 1),
-    "uint8": (0, 2**8 - 1),
-    "byte": (-(2**7), 2**7 - 1),
-    "char": (0, 2**8 - 1),
-    "int16": (-(2**15), 2**15 - 1),
-    "uint16": (0, 2**16 - 1),
-    "int32": (-(2**31), 2**31 - 1),
-    "uint32": (0, 2**32 - 1),
-    "int64": (-(2**63), 2**63 - 1),
-    "uint64": (0, 2**64 - 1),
-}
 
 
 def _class(rostype: str) -> Any:
@@ -423,10 +412,10 @@ def _time_value(rostype: str, value: Any, where: str) -> Any:
 
 
 def _scalar(rostype: str, value: Any, where: str) -> Any:
-    if rostype in _INT_RANGES:
+    if rostype in INT_RANGES:
         if isinstance(value, bool) or not isinstance(value, int):
             raise MrosError(f"field {where}: expected {rostype}, got {type(value).__name__} {value!r}")
-        low, high = _INT_RANGES[rostype]
+        low, high = INT_RANGES[rostype]
         if not low <= value <= high:
             raise MrosError(f"field {where}: {value} is out of range for {rostype} ({low}..{high})")
         return value
