@@ -83,6 +83,38 @@ def _default_name() -> str:
     return os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else f"pid{os.getpid()}"
 
 
+def _open_request(
+    key: str, type: str | None, count: int | None, max_size: int | None, mode: Mode
+) -> tuple[Open, int | None]:
+    """The Open request, and the eventfd this process will be woken through when it reads."""
+    wake = "r" in mode
+    efd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC) if wake else None
+    return Open(key=key, type=type, count=count, max_size=max_size, mode=mode, wake=wake), efd
+
+
+def _state_from_reply(reply: Any, reader: FdReader, efd: int | None) -> _KeyState:
+    """The key state for the daemon's answer to Open (shared by the sync and asyncio clients).
+
+    Raises:
+        IxmError: the daemon refused (the eventfd is closed).
+        RemoteProtocolError: the daemon answered with something other than Opened.
+    """
+    if not isinstance(reply, Opened):
+        _close_all([efd] if efd is not None else [])
+        if isinstance(reply, Error):
+            raise _error_from(reply)
+        raise RemoteProtocolError(f"unexpected {type_name(reply)} in answer to open")
+    fd = reader.take_fds(1)[0]
+    targets = reader.take_fds(reply.wake)
+    try:
+        state = _KeyState(reply, fd, efd)
+    except BaseException:
+        _close_all([*targets, *([efd] if efd is not None else [])])
+        raise
+    state.set_targets(reply.generation, targets)
+    return state
+
+
 class _KeyState:
     """One open key: the mapping, the codec, the reader's eventfd, the writer's list of eventfds to signal."""
 
@@ -449,31 +481,13 @@ class IxmClient:
             IxmPermissionError: the daemon's rules refuse this process the mode.
             IxmError: a bad type or size, a type different from the existing key's, or no daemon.
         """
-        wake = "r" in mode
-        efd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC) if wake else None
+        request, efd = _open_request(key, type, count, max_size, mode)
         try:
-            reply = self._request(
-                Open(key=key, type=type, count=count, max_size=max_size, mode=mode, wake=wake),
-                [efd] if efd is not None else None,
-            )
+            reply = self._request(request, [efd] if efd is not None else None)
         except BaseException:
-            if efd is not None:
-                os.close(efd)
+            _close_all([efd] if efd is not None else [])
             raise
-        if isinstance(reply, Error):
-            if efd is not None:
-                os.close(efd)
-            raise _error_from(reply)
-        if not isinstance(reply, Opened):
-            raise RemoteProtocolError(f"unexpected {type_name(reply)} in answer to open")
-        fd = self._reader.take_fds(1)[0]
-        targets = self._reader.take_fds(reply.wake)
-        try:
-            state = _KeyState(reply, fd, efd)
-        except BaseException:
-            _close_all([*targets, *([efd] if efd is not None else [])])
-            raise
-        state.set_targets(reply.generation, targets)
+        state = _state_from_reply(reply, self._reader, efd)
         state.refresh_targets = self._drain_pushes
         handle = IxmKey(self, state)
         self._keys[key] = handle
@@ -688,32 +702,14 @@ class AsyncIxmClient:
         mode: Mode = "r",
     ) -> AsyncIxmKey:
         """IxmInit; see ``IxmClient.open``."""
-        wake = "r" in mode
-        efd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC) if wake else None
+        request, efd = _open_request(key, type, count, max_size, mode)
         try:
-            reply = await self._request(
-                Open(key=key, type=type, count=count, max_size=max_size, mode=mode, wake=wake),
-                [efd] if efd is not None else None,
-            )
+            reply = await self._request(request, [efd] if efd is not None else None)
         except BaseException:
-            if efd is not None:
-                os.close(efd)
+            _close_all([efd] if efd is not None else [])
             raise
-        if isinstance(reply, Error):
-            if efd is not None:
-                os.close(efd)
-            raise _error_from(reply)
-        if not isinstance(reply, Opened):
-            raise RemoteProtocolError(f"unexpected {type_name(reply)} in answer to open")
         assert self._reader is not None
-        fd = self._reader.take_fds(1)[0]
-        targets = self._reader.take_fds(reply.wake)
-        try:
-            state = _KeyState(reply, fd, efd)
-        except BaseException:
-            _close_all([*targets, *([efd] if efd is not None else [])])
-            raise
-        state.set_targets(reply.generation, targets)
+        state = _state_from_reply(reply, self._reader, efd)
         state.refresh_targets = self._on_readable
         handle = AsyncIxmKey(self, state)
         self._keys[key] = handle
