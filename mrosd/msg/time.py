@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time as _time
-from typing import Any
+from typing import Any, Self
 
 import msgspec
 
@@ -29,26 +29,21 @@ def _sec_to_nsec(value: float) -> int:
     return secs * NSEC_PER_SEC + round((value - secs) * NSEC_PER_SEC)
 
 
-class Time(msgspec.Struct, gc=False, order=True):
-    """A point in time: ``secs`` (uint32 on the wire) and ``nsecs`` since the epoch."""
+class _SecsNsecs(msgspec.Struct, gc=False, order=True):
+    """What Time and Duration share: the two wire fields and the conversions between units."""
 
     secs: int = 0
     nsecs: int = 0
 
     @classmethod
-    def from_sec(cls, value: float) -> Time:
-        """The time ``value`` seconds after the epoch (nanosecond-rounded)."""
+    def from_sec(cls, value: float) -> Self:
+        """``value`` seconds (nanosecond-rounded; negative values get negative secs)."""
         return cls(*_split_nsec(_sec_to_nsec(value)))
 
     @classmethod
-    def from_nsec(cls, value: int) -> Time:
-        """The time ``value`` nanoseconds after the epoch."""
+    def from_nsec(cls, value: int) -> Self:
+        """``value`` nanoseconds."""
         return cls(*_split_nsec(int(value)))
-
-    @classmethod
-    def now(cls) -> Time:
-        """The wall-clock time (ROS simulated time is the node's business, not this class's)."""
-        return cls.from_nsec(_time.time_ns())
 
     def to_sec(self) -> float:
         """Seconds as a float."""
@@ -59,13 +54,25 @@ class Time(msgspec.Struct, gc=False, order=True):
         return self.secs * NSEC_PER_SEC + self.nsecs
 
     def is_zero(self) -> bool:
-        """True for the zero time (ROS's "unset")."""
+        """True for zero (for Time, ROS's "unset")."""
         return self.secs == 0 and self.nsecs == 0
 
-    def canon(self) -> Time:
+    def canon(self) -> Self:
         """Normalise in place so that ``0 <= nsecs < 1e9``; returns self."""
         self.secs, self.nsecs = _split_nsec(self.to_nsec())
         return self
+
+    def __bool__(self) -> bool:
+        return not self.is_zero()
+
+
+class Time(_SecsNsecs):
+    """A point in time: ``secs`` (uint32 on the wire) and ``nsecs`` since the epoch."""
+
+    @classmethod
+    def now(cls) -> Time:
+        """The wall-clock time (ROS simulated time is the node's business, not this class's)."""
+        return cls.from_nsec(_time.time_ns())
 
     def __add__(self, other: Any) -> Time:
         if isinstance(other, Duration):
@@ -81,45 +88,12 @@ class Time(msgspec.Struct, gc=False, order=True):
             return Time.from_nsec(self.to_nsec() - other.to_nsec())
         return NotImplemented
 
-    def __bool__(self) -> bool:
-        return not self.is_zero()
-
     def __hash__(self) -> int:
         return hash(("Time", self.to_nsec()))
 
 
-class Duration(msgspec.Struct, gc=False, order=True):
+class Duration(_SecsNsecs):
     """A signed span of time: ``secs`` (int32 on the wire) and ``nsecs``."""
-
-    secs: int = 0
-    nsecs: int = 0
-
-    @classmethod
-    def from_sec(cls, value: float) -> Duration:
-        """A duration of ``value`` seconds (nanosecond-rounded; negative durations have negative secs)."""
-        return cls(*_split_nsec(_sec_to_nsec(value)))
-
-    @classmethod
-    def from_nsec(cls, value: int) -> Duration:
-        """A duration of ``value`` nanoseconds."""
-        return cls(*_split_nsec(int(value)))
-
-    def to_sec(self) -> float:
-        """Seconds as a float."""
-        return self.secs + self.nsecs / NSEC_PER_SEC
-
-    def to_nsec(self) -> int:
-        """Nanoseconds as an int."""
-        return self.secs * NSEC_PER_SEC + self.nsecs
-
-    def is_zero(self) -> bool:
-        """True for the zero duration."""
-        return self.secs == 0 and self.nsecs == 0
-
-    def canon(self) -> Duration:
-        """Normalise in place so that ``0 <= nsecs < 1e9``; returns self."""
-        self.secs, self.nsecs = _split_nsec(self.to_nsec())
-        return self
 
     def __add__(self, other: Any) -> Any:
         if isinstance(other, Duration):
@@ -163,9 +137,6 @@ class Duration(msgspec.Struct, gc=False, order=True):
         if isinstance(other, int):
             return Duration.from_nsec(self.to_nsec() // other)
         return NotImplemented
-
-    def __bool__(self) -> bool:
-        return not self.is_zero()
 
     def __hash__(self) -> int:
         return hash(("Duration", self.to_nsec()))
