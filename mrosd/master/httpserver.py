@@ -40,6 +40,9 @@ log = logging.getLogger(__name__)
 #: Largest request line + headers accepted.
 MAX_HEADER_SIZE = 64 * 1024
 
+#: Largest body a client outside the allow-list may send before its 403 (it is read, never handled).
+MAX_REFUSED_BYTES = 64 * 1024
+
 #: Time a client has to complete a request once its first byte arrived (slowloris defence). Idle keep-alive
 #: connections with nothing pending are not timed out: rospy and roscpp keep theirs open between calls.
 REQUEST_TIMEOUT = 30.0
@@ -342,6 +345,7 @@ class HttpProtocol(asyncio.Protocol):
         self._closed = False
         self._reading_paused = False
         self._timer: asyncio.TimerHandle | None = None
+        self._refused = False
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self._transport = cast(asyncio.Transport, transport)  # uvloop's transports are not subclasses
@@ -349,8 +353,10 @@ class HttpProtocol(asyncio.Protocol):
         peer = transport.get_extra_info("peername")
         host = peer[0] if isinstance(peer, tuple) and peer else None
         if not allowed(self._networks, host):
-            log.warning("master: refused connection from %s (not in the allow-list)", host)
-            self._fail(403, b"client address not allowed\n")
+            # Answered once its request is in (closing at once races the client's send into a broken pipe
+            # instead of a readable 403); MAX_REFUSED_BYTES bounds what such a client may send first.
+            log.warning("master: refusing connection from %s (not in the allow-list)", host)
+            self._refused = True
             return
         sock = transport.get_extra_info("socket")
         if sock is not None:
@@ -465,6 +471,9 @@ class HttpProtocol(asyncio.Protocol):
                 self._request = req
             start = pos + req.body_start
             stop = start + req.length
+            if self._refused and (size >= stop or req.length > MAX_REFUSED_BYTES):
+                self._fail(403, b"client address not allowed\n")
+                return pos
             if size < stop:
                 return pos
             body = bytes(buf[start:stop])
