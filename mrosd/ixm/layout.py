@@ -2,7 +2,8 @@
 
 This module owns the layout of a shared-memory segment and the seqlock protocol over it, on a plain
 ``memoryview``: it knows nothing of sockets, file descriptors or the daemon, so that it can be tested on a
-``bytearray``. Layout (little-endian, 64-byte header so the first slot starts on its own cache line)::
+``bytearray``. Layout (the host's byte order: a segment never leaves its host; 64-byte header so the first
+slot starts on its own cache line)::
 
     0   4s  magic b"IXM1"
     4   H   layout version (2: two slots)
@@ -29,10 +30,12 @@ Why a seqlock as well: a writer must never wait for readers (a slow or stopped r
 loop), so a reader copying slot ``k & 1`` can be lapped: the writer publishes ``k + 1`` and then starts
 ``k + 2`` into the very slot being copied. The reader reads the counter before and after its copy and retries
 only in that case (counter after >= ``2k + 3``); a reader that merely raced one flip keeps its consistent copy.
-CPython performs each ``pack_into``/slice copy as one C call, and x86-64 keeps stores (and loads) in program
-order, so the counter updates are seen no earlier than the data they guard. Several writers on one key are
-serialised by the client with ``flock`` on the segment's file (not here): this module assumes one writer at
-a time.
+The counter and the lengths are read and written through ``memoryview.cast`` items: one aligned 8-byte (or
+4-byte) load or store each, which x86-64 performs atomically. (``struct.pack_into`` is not usable here: it
+zeroes its target before packing, so a reader spinning on the counter saw 0 between two values.) x86-64 keeps
+stores (and loads) in program order, so the counter updates are seen no earlier than the data they guard.
+Several writers on one key are serialised by the client with ``flock`` on the segment's file (not here): this
+module assumes one writer at a time.
 """
 
 from __future__ import annotations
@@ -60,12 +63,10 @@ SLOTS = 2
 #: only when the writer completes two writes during one copy, over and over) before it gives up.
 MAX_LAPPED_WAIT = 0.5
 
-_HEAD = struct.Struct("<4sHHQIIIIII24s")
-_SEQ = struct.Struct("<Q")
-_U32 = struct.Struct("<I")
+_HEAD = struct.Struct("=4sHHQIIIIII24s")
 _SEQ_OFF = 8
 _GEN_OFF = 24
-_LEN_OFF = (32, 36)
+_LEN_OFF = 32  # two 4-byte lengths, one per slot
 assert _HEAD.size == HEADER_SIZE
 
 
@@ -76,7 +77,7 @@ class SegmentLayout:
     the write methods raise ``TypeError`` from memoryview itself (and the kernel refuses the mapping first).
     """
 
-    __slots__ = ("buf", "capacity", "slots")
+    __slots__ = ("_generation", "buf", "capacity", "counter", "lengths", "slots")
 
     def __init__(self, buf: memoryview) -> None:
         if len(buf) < HEADER_SIZE:
@@ -90,6 +91,11 @@ class SegmentLayout:
                 f"segment header claims {SLOTS} slots of {capacity} bytes but the mapping has {len(buf)}"
             )
         self.capacity: int = capacity
+        #: The sequence counter as one native 8-byte item (atomic loads and stores, see the module doc).
+        self.counter = buf[_SEQ_OFF : _SEQ_OFF + 8].cast("Q")
+        #: The value lengths of slot 0 and slot 1.
+        self.lengths = buf[_LEN_OFF : _LEN_OFF + 8].cast("I")
+        self._generation = buf[_GEN_OFF : _GEN_OFF + 4].cast("I")
         self.slots = (
             buf[HEADER_SIZE : HEADER_SIZE + capacity],
             buf[HEADER_SIZE + capacity : HEADER_SIZE + 2 * capacity],
@@ -111,19 +117,19 @@ class SegmentLayout:
 
     def release(self) -> None:
         """Release the views so that the underlying mmap can be closed."""
-        for slot in self.slots:
-            slot.release()
+        for view in (*self.slots, self.counter, self.lengths, self._generation):
+            view.release()
         self.buf.release()
 
     # header fields -------------------------------------------------------------------------------------
 
     @property
     def type_code(self) -> int:
-        return int(struct.unpack_from("<H", self.buf, 6)[0])
+        return int(struct.unpack_from("=H", self.buf, 6)[0])
 
     @property
     def count(self) -> int:
-        return int(_U32.unpack_from(self.buf, 20)[0])
+        return int(struct.unpack_from("=I", self.buf, 20)[0])
 
     @property
     def type_name(self) -> str:
@@ -133,17 +139,17 @@ class SegmentLayout:
     @property
     def seq(self) -> int:
         """The sequence counter; ``seq // 2`` completed writes, odd while one is in progress."""
-        return int(_SEQ.unpack_from(self.buf, _SEQ_OFF)[0])
+        return int(self.counter[0])
 
     @property
     def generation(self) -> int:
         """The reader-set generation the daemon last published."""
-        return int(_U32.unpack_from(self.buf, _GEN_OFF)[0])
+        return int(self._generation[0])
 
     def bump_generation(self) -> int:
         """Daemon side: announce that the set of readers to wake changed; returns the new generation."""
         gen = (self.generation + 1) & 0xFFFFFFFF
-        _U32.pack_into(self.buf, _GEN_OFF, gen)
+        self._generation[0] = gen
         return gen
 
     @staticmethod
@@ -153,7 +159,7 @@ class SegmentLayout:
 
     def active(self) -> tuple[int, memoryview]:
         """The published counter (even) and the slot holding its value; no copy, no consistency check."""
-        seq = _SEQ.unpack_from(self.buf, _SEQ_OFF)[0] & ~1
+        seq = self.counter[0] & ~1
         return seq, self.slots[(seq >> 1) & 1]
 
     # writing -------------------------------------------------------------------------------------------
@@ -164,9 +170,9 @@ class SegmentLayout:
         The new value goes into ``slots[slot_of(returned value)]``, the slot readers are not directed to.
         An odd counter means a writer died mid-copy: its slot is the inactive one, so it is simply reused.
         """
-        seq = self.seq
+        seq = self.counter[0]
         if not seq & 1:
-            _SEQ.pack_into(self.buf, _SEQ_OFF, seq + 1)
+            self.counter[0] = seq + 1
         return (seq | 1) + 1
 
     def target(self, seq: int) -> memoryview:
@@ -175,8 +181,8 @@ class SegmentLayout:
 
     def end_write(self, seq: int, length: int) -> None:
         """Publish ``length`` bytes of the target slot: set its length, then flip slot and counter at once."""
-        _U32.pack_into(self.buf, _LEN_OFF[(seq >> 1) & 1], length)
-        _SEQ.pack_into(self.buf, _SEQ_OFF, seq)
+        self.lengths[(seq >> 1) & 1] = length
+        self.counter[0] = seq
 
     def write(self, data: bytes | bytearray | memoryview) -> int:
         """Copy ``data`` into the inactive slot and publish it; returns the new counter value.
@@ -195,7 +201,7 @@ class SegmentLayout:
     def copy_active_to_target(self, seq: int) -> None:
         """Start the write ``seq`` from the published value (for in-place partial updates)."""
         current = seq - 2
-        n = _U32.unpack_from(self.buf, _LEN_OFF[(current >> 1) & 1])[0]
+        n = self.lengths[(current >> 1) & 1]
         n = min(n, self.capacity)
         self.slots[(seq >> 1) & 1][:n] = self.slots[(current >> 1) & 1][:n]
 
@@ -208,16 +214,16 @@ class SegmentLayout:
         Raises:
             IxmError: a live writer overwrote the slot being copied for ``MAX_LAPPED_WAIT`` seconds.
         """
-        buf = self.buf
+        counter = self.counter
         slots = self.slots
         deadline = 0.0
         while True:
-            seq = _SEQ.unpack_from(buf, _SEQ_OFF)[0] & ~1
+            seq = counter[0] & ~1
             slot = (seq >> 1) & 1
-            n = _U32.unpack_from(buf, _LEN_OFF[slot])[0]
+            n = self.lengths[slot]
             if n <= self.capacity:
                 data = bytes(slots[slot][:n])
-                if _SEQ.unpack_from(buf, _SEQ_OFF)[0] <= seq + 2:
+                if counter[0] <= seq + 2:
                     return seq, data
             deadline = self._spin(deadline)
 
@@ -227,18 +233,18 @@ class SegmentLayout:
         Raises:
             IxmError: ``out`` is too small, or a live writer kept overwriting the slot being copied.
         """
-        buf = self.buf
+        counter = self.counter
         slots = self.slots
         deadline = 0.0
         while True:
-            seq = _SEQ.unpack_from(buf, _SEQ_OFF)[0] & ~1
+            seq = counter[0] & ~1
             slot = (seq >> 1) & 1
-            n = _U32.unpack_from(buf, _LEN_OFF[slot])[0]
+            n = self.lengths[slot]
             if n <= self.capacity:
                 if n > len(out):
                     raise IxmError(f"buffer of {len(out)} bytes is too small for a {n}-byte value")
                 out[:n] = slots[slot][:n]
-                if _SEQ.unpack_from(buf, _SEQ_OFF)[0] <= seq + 2:
+                if counter[0] <= seq + 2:
                     return seq, n
             deadline = self._spin(deadline)
 

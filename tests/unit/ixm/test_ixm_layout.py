@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import threading
 
 import pytest
@@ -102,15 +103,13 @@ def test_a_segment_is_the_header_and_two_slots_of_exactly_the_capacity() -> None
 
 
 class ScriptedCounter:
-    """Stands in for the counter's struct: the reader sees the values of ``script`` in turn (then the last)."""
-
-    size = 8
+    """Stands in for the counter view: the reader sees the values of ``script`` in turn (then the last)."""
 
     def __init__(self, *script: int) -> None:
         self.script = list(script)
 
-    def unpack_from(self, buf: memoryview, off: int = 0) -> tuple[int]:
-        return (self.script.pop(0) if len(self.script) > 1 else self.script[0],)
+    def __getitem__(self, index: int) -> int:
+        return self.script.pop(0) if len(self.script) > 1 else self.script[0]
 
 
 def test_a_reader_that_raced_one_flip_keeps_its_consistent_copy(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -118,7 +117,7 @@ def test_a_reader_that_raced_one_flip_keeps_its_consistent_copy(monkeypatch: pyt
     seg.write(b"one")
     seg.write(b"two")  # counter 4; "one" (counter 2) stays in the other slot until the next write starts
     # the reader saw counter 2 before its copy and 4 after it: one flip, its slot was not touched
-    monkeypatch.setattr(layout_mod, "_SEQ", ScriptedCounter(2, 4))
+    monkeypatch.setattr(seg, "counter", ScriptedCounter(2, 4))
     assert seg.read() == (2, b"one")
 
 
@@ -127,7 +126,7 @@ def test_a_reader_lapped_by_the_writer_retries_and_gets_the_newer_value(monkeypa
     seg.write(b"one")
     seg.write(b"two")
     # counter 2 before the copy, 5 after: the write after "two" started in the slot being copied
-    monkeypatch.setattr(layout_mod, "_SEQ", ScriptedCounter(2, 5, 4, 4))
+    monkeypatch.setattr(seg, "counter", ScriptedCounter(2, 5, 4, 4))
     assert seg.read() == (4, b"two")
 
 
@@ -143,11 +142,11 @@ def test_a_reader_lapped_by_a_live_writer_for_too_long_gives_up_with_a_clear_err
             super().__init__()
             self.calls = 0
 
-        def unpack_from(self, buf: memoryview, off: int = 0) -> tuple[int]:
+        def __getitem__(self, index: int) -> int:
             self.calls += 1
-            return (2 if self.calls % 2 else 7,)
+            return 2 if self.calls % 2 else 7
 
-    monkeypatch.setattr(layout_mod, "_SEQ", AlwaysLapped())
+    monkeypatch.setattr(seg, "counter", AlwaysLapped())
     with pytest.raises(IxmError, match="overwrote"):
         seg.read()
     with pytest.raises(IxmError, match="overwrote"):
@@ -212,3 +211,47 @@ def test_after_any_mix_of_complete_and_abandoned_writes_readers_get_the_last_com
             last = (seq, value)
         # else: the writer died here, mid-copy or just before publishing
         assert seg.read() == last
+
+
+def test_a_reader_spinning_on_the_counter_of_a_live_writer_in_another_process_never_sees_it_go_back() -> None:
+    """Regression: ``struct.pack_into`` zeroes its target before packing, so a reader that polled the counter
+    while another process stored it saw 0 (about 1% of reads); values read then came from the wrong slot.
+    The counter is now one aligned 8-byte store: it only ever grows, and every value read is whole."""
+    import mmap
+    import os
+    import time
+
+    capacity = 16
+    shared = mmap.mmap(-1, SegmentLayout.segment_size(capacity))
+    seg = SegmentLayout.initialize(memoryview(shared), type_code=11, capacity=capacity, count=0, type_name="x")
+    seg.write((0).to_bytes(16, "little"))
+    pid = os.fork()
+    if pid == 0:  # the writer: value k is k written twice, so a torn or mixed copy shows
+        try:
+            k = 0
+            end = time.monotonic() + 0.4
+            while time.monotonic() < end:
+                for _ in range(200):
+                    k += 1
+                    seg.write(k.to_bytes(8, "little") * 2)
+        finally:
+            os._exit(0)
+    try:
+        last = 0
+        reads = 0
+        deadline = time.monotonic() + 10
+        while os.waitpid(pid, os.WNOHANG) == (0, 0):
+            assert time.monotonic() < deadline
+            counter = seg.seq
+            assert counter >= last, f"counter went back from {last} to {counter}"
+            last = counter
+            seq, data = seg.read()
+            assert data[:8] == data[8:], f"mixed value at counter {seq}"
+            assert int.from_bytes(data[:8], "little") == seq // 2 - 1
+            reads += 1
+        assert reads > 100
+    finally:
+        with contextlib.suppress(ChildProcessError):
+            os.waitpid(pid, 0)
+        seg.release()
+        shared.close()
