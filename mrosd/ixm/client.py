@@ -57,6 +57,10 @@ from mrosd.ixm.protocol import (
     encode,
 )
 from mrosd.ixm.types import IxmType, codec
+from mrosd.spin import AdaptiveSpin, default_max_ns, loop_spinner
+
+_now_ns = time.monotonic_ns
+_yield = os.sched_yield
 
 __all__ = ["DEFAULT_TIMEOUT", "AsyncIxmClient", "AsyncIxmKey", "IxmClient", "IxmKey"]
 
@@ -324,6 +328,8 @@ class IxmKey(_KeyBase):
         self._client = client
         self._state = state
         self._poll: select.poll | None = None
+        #: spin-then-block (mrosd.spin): how long ``wait`` watches the sequence counter before sleeping
+        self._spin = AdaptiveSpin(default_max_ns())
         if state.wake_fd is not None:
             self._poll = select.poll()
             self._poll.register(state.wake_fd, select.POLLIN)
@@ -349,13 +355,28 @@ class IxmKey(_KeyBase):
         st = self._state
         if self._poll is None:
             raise IxmError(f"{st.key} is open for writing only; open it with mode 'r' or 'rw' to wait")
+        fresh = st.fresh
+        if fresh():
+            return
+        spin = self._spin
+        if spin.window_ns:
+            # Watch the shared sequence counter for the window, yielding the CPU at each step: when the
+            # writer is runnable on this same CPU it runs at once instead of after our window. The writer's
+            # eventfd signal that comes with a write caught here is drained by the next blocking wait.
+            end = _now_ns() + spin.window_ns
+            while _now_ns() < end:
+                if fresh():
+                    return
+                _yield()
+        blocked = _now_ns()
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
-            if st.fresh():
+            if fresh():
+                spin.blocked(_now_ns() - blocked)
                 return
             remaining = -1 if deadline is None else max(0, int((deadline - time.monotonic()) * 1000))
             if not self._poll.poll(remaining) and deadline is not None and time.monotonic() >= deadline:
-                if st.fresh():
+                if fresh():
                     return
                 raise TimeoutError(f"no write to {st.key} within {timeout} s")
             st.drain_wake()
@@ -554,11 +575,13 @@ class AsyncIxmKey(_KeyBase):
         self._client = client
         self._state = state
         self._event = asyncio.Event()
+        self._poke = loop_spinner(client._loop).poke
         if state.wake_fd is not None:
             client._loop.add_reader(state.wake_fd, self._on_wake)
 
     def _on_wake(self) -> None:
         self._state.drain_wake()
+        self._poke()
         self._event.set()
 
     async def wait(self, timeout: float | None = None) -> Any:

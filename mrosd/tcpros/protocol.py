@@ -16,6 +16,7 @@ import socket
 from typing import Any, cast
 
 from mrosd.errors import RemoteProtocolError
+from mrosd.spin import loop_spinner
 from mrosd.tcpros.framing import MAX_FRAME_SIZE, FrameDecoder
 from mrosd.tcpros.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header
 
@@ -37,7 +38,10 @@ class TcprosProtocol(asyncio.BufferedProtocol):
         self.peer = "?"
         self.paused = False
         self._drain: asyncio.Future[None] | None = None
-        self.closed: asyncio.Future[BaseException | None] = asyncio.get_running_loop().create_future()
+        loop = asyncio.get_running_loop()
+        self.closed: asyncio.Future[BaseException | None] = loop.create_future()
+        #: Keeps the loop polling briefly after traffic (mrosd.spin): the answer to what we receive is near.
+        self._poke = loop_spinner(loop).poke
 
     # --- hooks for subclasses ---------------------------------------------------------------
 
@@ -65,6 +69,7 @@ class TcprosProtocol(asyncio.BufferedProtocol):
         return self.decoder.get_buffer()
 
     def buffer_updated(self, nbytes: int) -> None:
+        self._poke()
         decoder = self.decoder
         try:
             if self.header is None:

@@ -19,6 +19,7 @@ import struct
 from typing import TYPE_CHECKING, Any
 
 from mrosd.errors import HandshakeError, LocalProtocolError
+from mrosd.spin import loop_spinner
 from mrosd.tcpros.framing import LARGE_FRAME
 from mrosd.tcpros.handshake import error_header, publisher_reply
 from mrosd.tcpros.header import ConnectionHeader, encode_header
@@ -167,6 +168,7 @@ class Publisher:
         self.messages_published = 0
         self.closed = False
         self._subscriber_change = asyncio.Event()
+        self._poke = loop_spinner().poke
 
     # --- publishing ------------------------------------------------------------------------------
 
@@ -199,6 +201,7 @@ class Publisher:
         if self.closed:
             raise LocalProtocolError(f"publisher of {self.topic} is closed")
         self.messages_published += 1
+        self._poke()
         prefix = _U32.pack(len(body))
         if len(body) > LARGE_FRAME and not self.latch:
             # Large bodies are not concatenated with their prefix: writelines hands both to the transport.

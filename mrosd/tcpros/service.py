@@ -23,6 +23,7 @@ from mrosd.errors import (
     RemoteProtocolError,
     ServiceError,
 )
+from mrosd.spin import loop_spinner
 from mrosd.tcpros.framing import MAX_FRAME_SIZE
 from mrosd.tcpros.handshake import check_service_reply, error_header, service_reply
 from mrosd.tcpros.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header, encode_header
@@ -244,6 +245,7 @@ class ServiceProxy:
                     conn = await self._connect()
                 reader, writer = conn
                 writer.write(_U32.pack(len(body)) + body)
+                loop_spinner().poke()  # the answer is near: keep the loop polling for it
                 ok = await reader.readexactly(1)
                 payload = await _read_frame(reader, MAX_FRAME_SIZE)
             except HandshakeError:

@@ -1,0 +1,158 @@
+"""Adaptive spin-then-block: stay awake for a short, self-tuning window before going to sleep.
+
+Why: on a virtual machine without guest halt-polling (``/sys/module/haltpoll/parameters/guest_halt_poll_ns``
+= 0, as here) a CPU that goes idle halts, and waking the process that sleeps on it takes an inter-processor
+interrupt through the hypervisor: 50 us to several ms. For a request/answer exchange (a TCPROS ping/pong, a
+service call, an IXM write and its acknowledgement) that wake-up, paid on every hop, is most of the latency.
+Spinning a little before sleeping keeps the CPU out of halt when the answer is about to arrive.
+
+The window adapts as the kernel's haltpoll governor does, so that spinning costs CPU only where it pays:
+
+- an event that arrives while spinning is a hit (the window stays);
+- an event that arrives ``gap`` after the spin ended, with ``gap <= max``, would have been caught by a
+  longer spin: the window doubles (starting at ``max / 4``, at most ``max``);
+- an event that arrives later than ``max`` after the spin ended could not have been caught: the window
+  halves, and below ``max / 4`` it is 0, so periodic or sparse traffic (a 100 Hz sensor, a 1 kHz timer) does
+  not spin at all after a few events.
+
+So the CPU spent spinning is at most ``max`` per event, and only while events come less than ``max`` apart.
+A process allowed on a single CPU never spins (it would only take the CPU its peer needs). A peer that
+shares a CPU with a spinning process is not starved: the scheduler preempts the spinner when the peer wakes
+(a ``sched_yield`` in each spin step was measured and cost a third of the small-message throughput).
+
+``MROSD_SPIN_US`` sets ``max`` in microseconds (default 200, as the kernel's ``guest_halt_poll_ns``); 0 turns
+spinning off. ``AdaptiveSpin`` is the pure policy; ``LoopSpinner`` keeps an asyncio event loop polling
+(``epoll`` with a zero timeout) for the window after each ``poke()``; the IXM sync ``wait`` spins on the
+shared-memory sequence counter itself.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import time
+import weakref
+
+__all__ = ["DEFAULT_SPIN_US", "AdaptiveSpin", "LoopSpinner", "default_max_ns", "loop_spinner"]
+
+#: Default upper bound of the spin window, in microseconds.
+DEFAULT_SPIN_US = 200
+
+_now = time.monotonic_ns
+
+#: A spin step that took less than this found the event loop idle (an empty poll and our own task step).
+_IDLE_STEP_NS = 20_000
+
+
+def default_max_ns(environ: dict[str, str] | None = None) -> int:
+    """The spin bound in ns: ``MROSD_SPIN_US`` (default 200 us); 0 when this process may use only one CPU.
+
+    Raises:
+        ValueError: ``MROSD_SPIN_US`` is not a non-negative integer.
+    """
+    env = os.environ if environ is None else environ
+    raw = env.get("MROSD_SPIN_US", "").strip()
+    if raw:
+        try:
+            us = int(raw)
+        except ValueError:
+            raise ValueError(f"MROSD_SPIN_US must be a whole number of microseconds, got {raw!r}") from None
+        if us < 0:
+            raise ValueError(f"MROSD_SPIN_US must not be negative, got {us}")
+    else:
+        us = DEFAULT_SPIN_US
+    try:
+        if len(os.sched_getaffinity(0)) < 2:
+            return 0  # a spinning process would only take the CPU its peer needs
+    except (AttributeError, OSError):
+        pass
+    return us * 1000
+
+
+class AdaptiveSpin:
+    """The window policy (pure): how long to spin before blocking, tuned by how long blocking lasted.
+
+    Args:
+        max_ns: upper bound of the window; 0 never spins.
+    """
+
+    __slots__ = ("max_ns", "start_ns", "window_ns")
+
+    def __init__(self, max_ns: int) -> None:
+        self.max_ns = max(0, max_ns)
+        self.start_ns = self.max_ns // 4
+        #: The current window: spin this long before blocking.
+        self.window_ns = 0
+
+    def blocked(self, gap_ns: int) -> None:
+        """The event came ``gap_ns`` after the spin ended (the time spent blocked): adapt the window."""
+        if gap_ns <= self.max_ns:
+            self.window_ns = min(self.max_ns, max(self.start_ns, self.window_ns * 2))
+        else:
+            window = self.window_ns // 2
+            self.window_ns = window if window >= self.start_ns else 0
+
+
+class LoopSpinner:
+    """Keeps one event loop polling for the adaptive window after each ``poke()`` (an I/O event).
+
+    While spinning, a task repeats ``await asyncio.sleep(0)``: the loop then polls its selector with a zero
+    timeout instead of sleeping, so a socket becoming readable is seen at once. Works
+    with any event loop (asyncio's or uvloop). ``poke`` is cheap (a clock read and a comparison).
+    """
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, max_ns: int | None = None) -> None:
+        self._loop = loop
+        self.policy = AdaptiveSpin(default_max_ns() if max_ns is None else max_ns)
+        self._until = 0
+        self._task: asyncio.Task[None] | None = None
+        #: Spins started and events that arrived while spinning (for tests and statistics).
+        self.spins = 0
+        self.hits = 0
+
+    def poke(self) -> None:
+        """Note an I/O event now: extend the spin, or adapt and start one."""
+        policy = self.policy
+        if not policy.max_ns:
+            return
+        now = _now()
+        if self._task is not None:
+            self.hits += 1
+        else:
+            policy.blocked(now - self._until)
+            if policy.window_ns and not self._loop.is_closed():
+                self.spins += 1
+                self._task = self._loop.create_task(self._spin())
+        self._until = now + policy.window_ns
+
+    async def _spin(self) -> None:
+        try:
+            last = _now()
+            while last < self._until:
+                await asyncio.sleep(0)
+                now = _now()
+                if now - last < _IDLE_STEP_NS:
+                    # the loop had nothing else to run: let a peer that waits for this CPU have it now
+                    os.sched_yield()
+                last = now
+        finally:
+            self._task = None
+            self._until = min(self._until, _now())
+
+    def cancel(self) -> None:
+        """Stop spinning now (the next ``poke`` starts again)."""
+        if self._task is not None:
+            self._task.cancel()
+
+
+_spinners: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, LoopSpinner] = weakref.WeakKeyDictionary()
+
+
+def loop_spinner(loop: asyncio.AbstractEventLoop | None = None) -> LoopSpinner:
+    """The one ``LoopSpinner`` of ``loop`` (default: the running loop), shared by every node and key on it."""
+    if loop is None:
+        loop = asyncio.get_running_loop()
+    spinner = _spinners.get(loop)
+    if spinner is None:
+        spinner = _spinners[loop] = LoopSpinner(loop)
+    return spinner

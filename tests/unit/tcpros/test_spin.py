@@ -1,0 +1,117 @@
+"""mrosd.spin: the adaptive spin window (pure policy) and the event-loop spinner on a real loop."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from mrosd.spin import DEFAULT_SPIN_US, AdaptiveSpin, LoopSpinner, default_max_ns, loop_spinner
+
+MAX = 200_000
+
+
+def test_the_window_starts_closed_and_opens_when_an_event_came_soon_after_blocking() -> None:
+    spin = AdaptiveSpin(MAX)
+    assert spin.window_ns == 0
+    spin.blocked(150_000)  # a longer spin would have caught it
+    assert spin.window_ns == MAX // 4
+    spin.blocked(10_000)
+    assert spin.window_ns == MAX // 2
+    spin.blocked(10_000)
+    spin.blocked(10_000)
+    assert spin.window_ns == MAX  # capped
+
+
+def test_the_window_halves_then_closes_when_events_come_later_than_the_bound() -> None:
+    spin = AdaptiveSpin(MAX)
+    for _ in range(3):
+        spin.blocked(0)
+    assert spin.window_ns == MAX
+    spin.blocked(MAX + 1)
+    assert spin.window_ns == MAX // 2
+    spin.blocked(10 * MAX)
+    assert spin.window_ns == MAX // 4
+    spin.blocked(10 * MAX)
+    assert spin.window_ns == 0  # a 1 kHz timer or a 100 Hz sensor does not spin at all
+    spin.blocked(10 * MAX)
+    assert spin.window_ns == 0
+
+
+@given(st.lists(st.integers(min_value=0, max_value=10**9), max_size=50), st.integers(0, 10**6))
+def test_the_window_never_exceeds_the_bound_and_is_zero_or_at_least_a_quarter(gaps: list[int], bound: int) -> None:
+    spin = AdaptiveSpin(bound)
+    for gap in gaps:
+        spin.blocked(gap)
+        assert 0 <= spin.window_ns <= bound
+        assert spin.window_ns == 0 or spin.window_ns >= bound // 4
+
+
+def test_a_zero_bound_never_spins() -> None:
+    spin = AdaptiveSpin(0)
+    for _ in range(5):
+        spin.blocked(0)
+    assert spin.window_ns == 0
+
+
+def test_the_bound_comes_from_mrosd_spin_us(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
+    assert default_max_ns({}) == DEFAULT_SPIN_US * 1000
+    assert default_max_ns({"MROSD_SPIN_US": "50"}) == 50_000
+    assert default_max_ns({"MROSD_SPIN_US": "0"}) == 0
+    with pytest.raises(ValueError, match="MROSD_SPIN_US must be a whole number"):
+        default_max_ns({"MROSD_SPIN_US": "fast"})
+    with pytest.raises(ValueError, match="must not be negative"):
+        default_max_ns({"MROSD_SPIN_US": "-5"})
+
+
+def test_a_process_confined_to_one_cpu_never_spins(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {3})
+    assert default_max_ns({"MROSD_SPIN_US": "500"}) == 0
+
+
+async def wait_idle(spinner: LoopSpinner, timeout: float = 5.0) -> None:
+    if spinner._task is not None:
+        await asyncio.wait_for(spinner._task, timeout)  # the spin ends by itself at the window's end
+
+
+async def test_the_loop_spinner_spins_after_close_events_and_stops_by_itself() -> None:
+    spinner = LoopSpinner(asyncio.get_running_loop(), max_ns=50_000_000)  # 50 ms: far above scheduling noise
+    spinner.poke()  # first event ever: nothing to learn from, no spin
+    assert spinner._task is None
+    spinner.poke()  # a second event right after: the window opens and the loop spins
+    assert spinner.spins == 1 and spinner._task is not None
+    spinner.poke()  # an event while spinning is a hit and extends the spin
+    assert spinner.hits == 1
+    await wait_idle(spinner)  # the window ends without any further event
+    assert spinner.policy.window_ns == 50_000_000 // 4
+
+
+async def test_the_loop_spinner_stays_asleep_for_sparse_events() -> None:
+    spinner = LoopSpinner(asyncio.get_running_loop(), max_ns=1_000_000)  # 1 ms
+    spinner.poke()
+    spinner.poke()
+    await wait_idle(spinner)
+    for _ in range(3):  # events 20 ms apart: the window halves, then closes
+        await asyncio.sleep(0.02)
+        spinner.poke()
+        await wait_idle(spinner)
+    assert spinner.policy.window_ns == 0
+    spins = spinner.spins
+    await asyncio.sleep(0.02)
+    spinner.poke()
+    assert spinner._task is None and spinner.spins == spins
+
+
+async def test_a_disabled_spinner_does_nothing() -> None:
+    spinner = LoopSpinner(asyncio.get_running_loop(), max_ns=0)
+    for _ in range(3):
+        spinner.poke()
+    assert spinner._task is None and spinner.spins == 0
+
+
+async def test_one_spinner_per_loop_is_shared() -> None:
+    assert loop_spinner() is loop_spinner(asyncio.get_running_loop())
