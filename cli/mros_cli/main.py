@@ -85,13 +85,10 @@ async def slave_call(xmlrpc: XmlRpcClient, uri: str, method: str, *args: Any, ti
         MasterError: the node answered with a failure code or a malformed triple.
         XmlRpcError: the node is unreachable, timed out or sent a fault.
     """
+    from mrosd.master.client import unwrap_reply  # here: the CLI's start-up does not import the XML-RPC stack
+
     reply = await xmlrpc.call(uri, method, CALLER_ID, *args, timeout=CALL_TIMEOUT if timeout is None else timeout)
-    if not isinstance(reply, list | tuple) or len(reply) != 3 or not isinstance(reply[0], int):
-        raise MasterError(method, -1, f"malformed reply {reply!r:.200}")
-    code, status, value = reply
-    if code != 1:
-        raise MasterError(method, code, str(status))
-    return value
+    return unwrap_reply(method, reply)
 
 
 def run(coro: Coroutine[Any, Any, T] | Awaitable[T]) -> T:

@@ -19,6 +19,20 @@ TopicType = tuple[str, str]
 GraphList = list[tuple[str, list[str]]]
 
 
+def unwrap_reply(method: str, reply: Any) -> Any:
+    """The value of a ROS API ``(code, statusMessage, value)`` reply to ``method`` (master or slave API).
+
+    Raises:
+        MasterError: the code is not 1 (success), or the reply is not such a triple.
+    """
+    if not isinstance(reply, list | tuple) or len(reply) != 3 or not isinstance(reply[0], int):
+        raise MasterError(method, -1, f"malformed reply {reply!r:.200}")
+    code, status, value = reply
+    if code != 1:
+        raise MasterError(method, code, str(status))
+    return value
+
+
 class MasterClient:
     """One caller id talking to one master URI.
 
@@ -67,12 +81,7 @@ class MasterClient:
             raise MasterError(method, exc.code, exc.message) from exc
         except XmlRpcError as exc:
             raise MasterUnreachableError(self.master_uri, str(exc)) from exc
-        if not isinstance(reply, list | tuple) or len(reply) != 3 or not isinstance(reply[0], int):
-            raise MasterError(method, -1, f"malformed reply {reply!r:.200}")
-        code, status, value = reply
-        if code != 1:
-            raise MasterError(method, code, str(status))
-        return value
+        return unwrap_reply(method, reply)
 
     # --- Master API: registration ------------------------------------------------------------
 
