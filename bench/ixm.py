@@ -8,8 +8,7 @@ invocation under the same conditions: unpinned; both processes pinned to one CPU
 condition); both at real-time priority (SCHED_FIFO; the paper's "highest priority" condition used nice);
 both pinned and real-time (the configuration a control loop on a busy machine would use).
 
-The TCPROS comparison uses ``mrosd.Node`` publisher/subscriber of std_msgs/Float64 on loopback when
-``mrosd.Node`` is available; otherwise a plain asyncio TCP length-prefixed stream (said in the output).
+The TCPROS comparison uses ``mrosd.Node`` publisher/subscriber of std_msgs/Float64 on loopback.
 
 Usage: ``python -m bench.ixm [--n 1000] [--image-mb 8]``.
 """
@@ -20,14 +19,13 @@ import argparse
 import asyncio
 import multiprocessing as mp
 import os
-import statistics
-import struct
 import sys
 import tempfile
 import time
 from collections.abc import Callable
 from typing import Any
 
+from bench.stats import latency_summary
 from mrosd.ixm.client import IxmClient
 from mrosd.ixm.server import IxmServer
 
@@ -114,73 +112,7 @@ def ixm_latency(sock: str, n: int, place: Placement) -> list[int]:
     return lat
 
 
-# the TCP comparison ---------------------------------------------------------------------------------------
-
-
-def _tcp_reader(port_out: Any, n: int, place: Placement, out: Any) -> None:
-    _place(place)
-
-    async def main() -> None:
-        done = asyncio.get_running_loop().create_future()
-        lat: list[int] = []
-
-        async def handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-            for i in range(n):
-                head = await reader.readexactly(4)
-                body = await reader.readexactly(struct.unpack("<I", head)[0])
-                t1 = _now()
-                lat.append(t1 - int(struct.unpack("<d", body)[0]))
-                writer.write(struct.pack("<Iq", 8, i))
-            done.set_result(None)
-
-        server = await asyncio.start_server(handle, "127.0.0.1", 0)
-        port_out.send(server.sockets[0].getsockname()[1])
-        await done
-        server.close()
-        out.send(lat)
-
-    asyncio.run(main())
-
-
-def _tcp_writer(port: int, n: int, place: Placement) -> None:
-    _place(place)
-
-    async def main() -> None:
-        reader, writer = await asyncio.open_connection("127.0.0.1", port)
-        sock = writer.get_extra_info("socket")
-        import socket
-
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        for _ in range(n):
-            writer.write(struct.pack("<Id", 8, float(_now())))
-            await reader.readexactly(12)
-        writer.close()
-
-    asyncio.run(main())
-
-
-def tcp_latency(n: int, place: Placement) -> list[int]:
-    ctx = mp.get_context("fork")
-    recv, send = ctx.Pipe(duplex=False)
-    port_recv, port_send = ctx.Pipe(duplex=False)
-    reader = ctx.Process(target=_tcp_reader, args=(port_send, n, place, send))
-    reader.start()
-    port = port_recv.recv()
-    writer = ctx.Process(target=_tcp_writer, args=(port, n, place))
-    writer.start()
-    lat: list[int] = recv.recv()
-    writer.join(10)
-    reader.join(10)
-    return lat
-
-
-def _node_available() -> bool:
-    try:
-        import mrosd
-
-        return hasattr(mrosd, "Node")
-    except ImportError:
-        return False
+# the TCPROS comparison ------------------------------------------------------------------------------------
 
 
 def _node_reader(uri: str, n: int, place: Placement, out: Any) -> None:
@@ -372,16 +304,6 @@ def image_throughput(sock: str, size: int, rounds: int) -> float:
 # report --------------------------------------------------------------------------------------------------
 
 
-def summary(lat_ns: list[int]) -> dict[str, float]:
-    us = sorted(x / 1000 for x in lat_ns)
-    return {
-        "median": statistics.median(us),
-        "mean": statistics.fmean(us),
-        "p99": us[min(len(us) - 1, int(len(us) * 0.99))],
-        "max": us[-1],
-    }
-
-
 def _row(name: str, s: dict[str, float]) -> str:
     return f"  {name:<34} median {s['median']:8.1f}  mean {s['mean']:8.1f}  p99 {s['p99']:8.1f}  max {s['max']:8.1f} us"
 
@@ -404,9 +326,7 @@ def main(argv: list[str]) -> int:
         try:
             cpu = sorted(os.sched_getaffinity(0))[0]
             results: dict[str, dict[str, float]] = {}
-            use_node = _node_available()
-            base_name = "TCPROS (mrosd.Node)" if use_node else "asyncio TCP stream"
-            tcp: Callable[[int, Placement], list[int]] = node_latency if use_node else tcp_latency
+            base_name = "TCPROS (mrosd.Node)"
             print(f"IXM one-way latency, float64, {args.n} exchanges (writer clock -> reader after read)")
             conditions: list[tuple[str, Placement]] = [
                 ("not pinned", (None, False)),
@@ -415,15 +335,8 @@ def main(argv: list[str]) -> int:
                 ("pinned + real-time", (cpu, True)),
             ]
             for label, pin in conditions:
-                results[f"ixm {label}"] = summary(ixm_latency(sock, args.n, pin))
-                try:
-                    results[f"{base_name} {label}"] = summary(tcp(args.n, pin))
-                except Exception as exc:  # the Node stack may be unfinished: fall back, and say so
-                    if tcp is tcp_latency:
-                        raise
-                    print(f"  ({base_name} failed: {exc!r}; falling back to a plain asyncio TCP stream)")
-                    base_name, tcp = "asyncio TCP stream", tcp_latency
-                    results[f"{base_name} {label}"] = summary(tcp(args.n, pin))
+                results[f"ixm {label}"] = latency_summary(ixm_latency(sock, args.n, pin))
+                results[f"{base_name} {label}"] = latency_summary(node_latency(args.n, pin))
                 print(_row(f"IXM, {label}", results[f"ixm {label}"]))
                 print(_row(f"{base_name}, {label}", results[f"{base_name} {label}"]))
                 ratio = results[f"{base_name} {label}"]["median"] / results[f"ixm {label}"]["median"]

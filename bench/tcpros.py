@@ -30,6 +30,8 @@ import xmlrpc.client
 from pathlib import Path
 from typing import Any
 
+from bench.stats import latency_summary
+
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT / "tests" / "data" / "tcpros"
 OUT = Path(__file__).resolve().parent / "out"
@@ -285,16 +287,6 @@ def _compile_roscpp(tmp: Path) -> str | None:
     return str(out) if build.returncode == 0 else None
 
 
-def _stats(values_ns: list[int]) -> dict[str, float]:
-    us = sorted(v / 1000 for v in values_ns)
-    return {
-        "mean": statistics.fmean(us),
-        "median": statistics.median(us),
-        "p99": us[min(len(us) - 1, int(len(us) * 0.99))],
-        "max": us[-1],
-    }
-
-
 def _plot(results: dict[str, dict[int, dict[str, float]]], path: Path) -> None:
     import matplotlib
 
@@ -357,11 +349,11 @@ def main(argv: list[str]) -> int:
                 for line in _run_pair(runner, impl, cpp, "ping", "string", sizes, args.count):
                     if line.startswith("RTT "):
                         _, size, *vals = line.split()
-                        rtt[impl][int(size)] = _stats([int(v) for v in vals])
+                        rtt[impl][int(size)] = latency_summary([int(v) for v in vals])
                 if impl != "roscpp":
                     for line in _run_pair(runner, impl, cpp, "ping", "coordinate", [0], args.count):
                         if line.startswith("RTT "):
-                            coord[impl] = _stats([int(v) for v in line.split()[2:]])
+                            coord[impl] = latency_summary([int(v) for v in line.split()[2:]])
                 for line in _run_pair(runner, impl, cpp, "burst", "string", [SMALL], burst_small):
                     if line.startswith("BURST "):
                         _, _, got, secs = line.split()
