@@ -2,25 +2,10 @@
 
 from __future__ import annotations
 
-import importlib
 import subprocess
 import sys
 
-import pytest
-
 from tests.rosenv import Processes, free_port, wait_for_xmlrpc
-
-
-def _ready() -> bool:
-    try:
-        return hasattr(importlib.import_module("mrosd"), "Node") and hasattr(
-            importlib.import_module("mrosd.master"), "Master"
-        )
-    except ImportError:
-        return False
-
-
-pytestmark = pytest.mark.skipif(not _ready(), reason="mrosd.Node or mrosd.master.Master is not built yet")
 
 PUBLISHER = """
 import asyncio, sys

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib
 import subprocess
 import sys
 from pathlib import Path
@@ -10,16 +9,6 @@ from pathlib import Path
 import pytest
 
 from tests.rosenv import Processes, free_port, wait_for_xmlrpc
-
-
-def _master_available() -> bool:
-    try:
-        return hasattr(importlib.import_module("mrosd.master"), "Master")
-    except ImportError:
-        return False
-
-
-pytestmark = pytest.mark.skipif(not _master_available(), reason="mrosd.master.Master is not built yet")
 
 
 @pytest.fixture

@@ -5,7 +5,6 @@ The test plays systemd's part with a real AF_UNIX datagram socket and a real dae
 
 from __future__ import annotations
 
-import importlib
 import os
 import signal
 import socket
@@ -15,19 +14,7 @@ import time
 import xmlrpc.client
 from pathlib import Path
 
-import pytest
-
 from tests.rosenv import Processes, free_port
-
-
-def _master_available() -> bool:
-    try:
-        return hasattr(importlib.import_module("mrosd.master"), "Master")
-    except ImportError:
-        return False
-
-
-needs_master = pytest.mark.skipif(not _master_available(), reason="mrosd.master.Master is not built yet")
 
 
 def _daemon_env(tmp: Path, notify: str, **extra: str) -> dict[str, str]:
@@ -58,7 +45,6 @@ def _receive_until(sock: socket.socket, wanted: str, timeout: float) -> list[str
             return seen
 
 
-@needs_master
 def test_the_daemon_notifies_ready_once_the_master_answers_and_exits_cleanly_on_sigterm(
     procs: Processes, tmp_path: Path
 ) -> None:
@@ -89,7 +75,6 @@ def test_the_daemon_notifies_ready_once_the_master_answers_and_exits_cleanly_on_
     assert not (tmp_path / "run" / "ixm.sock").exists()
 
 
-@needs_master
 def test_a_port_already_in_use_is_a_one_line_error_and_exit_code_1(procs: Processes, tmp_path: Path) -> None:
     with socket.socket() as busy:
         busy.bind(("0.0.0.0", 0))
@@ -102,16 +87,21 @@ def test_a_port_already_in_use_is_a_one_line_error_and_exit_code_1(procs: Proces
     assert "cannot start" in proc.stderr.read().decode()
 
 
-def test_check_config_rejects_a_bad_file_with_exit_code_2_naming_the_key(tmp_path: Path) -> None:
-    bad = tmp_path / "bad.toml"
-    bad.write_text("[master]\nport = 'eleven'\n")
-    out = subprocess.run(
-        [sys.executable, "-m", "mrosd.daemon", "--config", str(bad), "--check-config"],
+def check_config(path: Path) -> subprocess.CompletedProcess[str]:
+    """``mrosd --config PATH --check-config``, its output captured."""
+    return subprocess.run(
+        [sys.executable, "-m", "mrosd.daemon", "--config", str(path), "--check-config"],
         capture_output=True,
         text=True,
         timeout=60,
         check=False,
     )
+
+
+def test_check_config_rejects_a_bad_file_with_exit_code_2_naming_the_key(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[master]\nport = 'eleven'\n")
+    out = check_config(bad)
     assert out.returncode == 2
     assert "master.port" in out.stderr
     assert len(out.stderr.strip().splitlines()) == 1
@@ -119,13 +109,7 @@ def test_check_config_rejects_a_bad_file_with_exit_code_2_naming_the_key(tmp_pat
 
 def test_check_config_accepts_the_packaged_example(tmp_path: Path) -> None:
     example = Path(__file__).resolve().parents[3] / "packaging" / "mrosd.toml"
-    out = subprocess.run(
-        [sys.executable, "-m", "mrosd.daemon", "--config", str(example), "--check-config"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    out = check_config(example)
     assert out.returncode == 0, out.stderr
     assert "configuration OK" in out.stdout
 
@@ -133,19 +117,12 @@ def test_check_config_accepts_the_packaged_example(tmp_path: Path) -> None:
 def test_check_config_validates_the_ixm_access_rules_naming_the_key(tmp_path: Path) -> None:
     bad = tmp_path / "rules.toml"
     bad.write_text('[ixm.rules.keys."/cam"]\nread_uids = ["no-such-user-here"]\n')
-    out = subprocess.run(
-        [sys.executable, "-m", "mrosd.daemon", "--config", str(bad), "--check-config"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    out = check_config(bad)
     assert out.returncode == 2
     assert str(bad) in out.stderr
     assert 'ixm.rules.keys."/cam".read_uids' in out.stderr
 
 
-@needs_master
 def test_sighup_reloads_the_ixm_rules_and_keeps_running_on_a_broken_file(procs: Processes, tmp_path: Path) -> None:
     notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     notify_path = str(tmp_path / "notify.sock")

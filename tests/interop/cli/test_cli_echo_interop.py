@@ -6,7 +6,6 @@ are compared exactly. mros decodes every type from the publisher's message_defin
 
 from __future__ import annotations
 
-import importlib
 import json
 import re
 import subprocess
@@ -19,19 +18,7 @@ import pytest
 from tests.interop.cli.cliutil import mros, ros_tool
 from tests.rosenv import Processes, needs_ros, ros_env, start_rosmaster
 
-
-def _node_available() -> bool:
-    try:
-        return hasattr(importlib.import_module("mrosd"), "Node")
-    except ImportError:
-        return False
-
-
-pytestmark = [
-    needs_ros,
-    pytest.mark.interop,
-    pytest.mark.skipif(not _node_available(), reason="mrosd.Node is not built yet"),
-]
+pytestmark = [needs_ros, pytest.mark.interop]
 
 CORPUS = r'''
 import rospy, genpy

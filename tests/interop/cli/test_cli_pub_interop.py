@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib
 import subprocess
 from pathlib import Path
 
@@ -11,19 +10,7 @@ import pytest
 from tests.interop.cli.cliutil import mros
 from tests.rosenv import Processes, iter_lines_until, needs_ros, ros_env
 
-
-def _node_available() -> bool:
-    try:
-        return hasattr(importlib.import_module("mrosd"), "Node")
-    except ImportError:
-        return False
-
-
-pytestmark = [
-    needs_ros,
-    pytest.mark.interop,
-    pytest.mark.skipif(not _node_available(), reason="mrosd.Node is not built yet"),
-]
+pytestmark = [needs_ros, pytest.mark.interop]
 
 
 def _mros_proc(procs: Processes, master: str, *args: str) -> subprocess.Popen[bytes]:

@@ -2,21 +2,12 @@
 
 from __future__ import annotations
 
-import importlib
 from pathlib import Path
 
 import pytest
 
 from tests.interop.cli.cliutil import mros, ros_tool
 from tests.rosenv import Processes, needs_ros, ros_env
-
-
-def _node_available() -> bool:
-    try:
-        return hasattr(importlib.import_module("mrosd"), "Node")
-    except ImportError:
-        return False
-
 
 pytestmark = [needs_ros, pytest.mark.interop]
 
@@ -50,7 +41,6 @@ def test_service_type_and_uri_match_rosservice(server: str, tmp_path: Path) -> N
     assert missing.stderr == "Unknown service [/nope]\n"
 
 
-@pytest.mark.skipif(not _node_available(), reason="mrosd.Node is not built yet")
 def test_service_call_prints_the_response_as_rosservice(server: str, tmp_path: Path) -> None:
     for argv in (["/set", "{data: true}"], ["/set", "false"], ["/trigger"], ["/empty"]):
         ours = mros(server, tmp_path, "service", "call", *argv)
@@ -59,7 +49,6 @@ def test_service_call_prints_the_response_as_rosservice(server: str, tmp_path: P
         assert ours.stdout == theirs.stdout, argv
 
 
-@pytest.mark.skipif(not _node_available(), reason="mrosd.Node is not built yet")
 def test_a_wrong_request_field_is_a_one_line_error(server: str, tmp_path: Path) -> None:
     out = mros(server, tmp_path, "service", "call", "/set", "{dta: 1}")
     assert out.returncode == 1
