@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import importlib
-import importlib.util
 import sys
 
 PARTS = ["msg", "master", "tcpros", "ixm", "cli"]
@@ -11,14 +10,14 @@ PARTS = ["msg", "master", "tcpros", "ixm", "cli"]
 
 def main(argv: list[str]) -> int:
     wanted = argv or PARTS
+    unknown = [part for part in wanted if part not in PARTS]
+    if unknown:
+        print(f"unknown benchmark {', '.join(unknown)}; choose from {', '.join(PARTS)}", file=sys.stderr)
+        return 2
     status = 0
     for part in wanted:
-        name = f"bench.{part}"
-        if importlib.util.find_spec(name) is None:
-            print(f"== {part}: no benchmark module yet", flush=True)
-            continue
         print(f"== {part}", flush=True)
-        module = importlib.import_module(name)
+        module = importlib.import_module(f"bench.{part}")
         status |= int(module.main([]) or 0)
     return status
 
