@@ -19,6 +19,7 @@ import pytest
 from mrosd.errors import IxmError
 from mrosd.ixm.client import IxmClient
 from mrosd.ixm.server import segment_prefix
+from tests.reliability.relnodes import kill9
 from tests.rosenv import Processes, iter_lines_until
 
 SIZE = 8 << 20  # 8 MiB: copying it takes milliseconds, so a random kill often lands inside the copy
@@ -65,14 +66,6 @@ def consistent(buf: bytearray) -> int:
     first = WORD.unpack_from(buf, 0)[0]
     assert buf == WORD.pack(first) * (len(buf) // 8), "torn value: words of two different writes"
     return int(first)
-
-
-def kill9(proc: subprocess.Popen[bytes]) -> None:
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-    proc.wait(10)
 
 
 def test_a_writer_killed_while_writing_leaves_readers_the_last_complete_value_at_once_and_the_next_writer_recovers(

@@ -66,24 +66,20 @@ def test_an_unreachable_master_is_one_stderr_line_and_exit_code_1() -> None:
     assert lines[0].startswith("mros: error: cannot reach the ROS master at http://127.0.0.1:9/")
 
 
+def bash_complete(words: str, cword: int) -> list[str]:
+    """What click's bash completion of ``mros`` answers for the command line ``words``."""
+    env = dict(os.environ, _MROS_COMPLETE="bash_complete", COMP_WORDS=words, COMP_CWORD=str(cword))
+    out = subprocess.run(
+        [sys.executable, "-c", "from mros_cli.main import cli; cli(prog_name='mros')"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    return out.stdout.splitlines()
+
+
 def test_bash_completion_completes_nouns_and_verbs() -> None:
-    env = dict(os.environ, _MROS_COMPLETE="bash_complete", COMP_WORDS="mros to", COMP_CWORD="1")
-    out = subprocess.run(
-        [sys.executable, "-c", "from mros_cli.main import cli; cli(prog_name='mros')"],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
-    assert "plain,topic" in out.stdout.splitlines()
-    env.update(COMP_WORDS="mros param ", COMP_CWORD="2")
-    out = subprocess.run(
-        [sys.executable, "-c", "from mros_cli.main import cli; cli(prog_name='mros')"],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
-    assert {"plain,get", "plain,set", "plain,dump"} <= set(out.stdout.splitlines())
+    assert "plain,topic" in bash_complete("mros to", 1)
+    assert {"plain,get", "plain,set", "plain,dump"} <= set(bash_complete("mros param ", 2))
