@@ -2,12 +2,25 @@
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Iterator
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mrosd.errors import RemoteProtocolError
 from mrosd.tcpros.framing import MAX_FRAME_SIZE, FrameDecoder, encode_frame
+
+
+def pieces(stream: bytes, cuts: list[int]) -> Iterator[bytes]:
+    """``stream`` in consecutive pieces of the sizes in ``cuts`` (repeated as needed)."""
+    pos = 0
+    for step in itertools.cycle(cuts):
+        if pos >= len(stream):
+            return
+        yield stream[pos : pos + step]
+        pos += step
 
 
 def test_a_frame_is_its_length_then_its_body() -> None:
@@ -73,13 +86,8 @@ def test_frames_split_anywhere_come_out_whole_and_in_order(bodies: list[bytes], 
     stream = b"".join(encode_frame(b) for b in bodies)
     dec = FrameDecoder()
     out: list[bytes] = []
-    pos = 0
-    i = 0
-    while pos < len(stream):
-        step = cuts[i % len(cuts)]
-        dec.feed(stream[pos : pos + step])
-        pos += step
-        i += 1
+    for piece in pieces(stream, cuts):
+        dec.feed(piece)
         while (frame := dec.maybe_next_frame()) is not None:
             out.append(frame)
     assert out == bodies
@@ -103,13 +111,8 @@ def test_feed_frames_agrees_with_maybe_next_frame_however_the_stream_is_cut(
     stream = b"".join(encode_frame(b) for b in bodies)
     dec = FrameDecoder()
     out: list[bytes] = []
-    pos = 0
-    i = 0
-    while pos < len(stream):
-        step = cuts[i % len(cuts)]
-        out.extend(dec.feed_frames(stream[pos : pos + step]))
-        pos += step
-        i += 1
+    for piece in pieces(stream, cuts):
+        out.extend(dec.feed_frames(piece))
     assert out == bodies
     assert dec.buffered == 0
 
@@ -131,13 +134,8 @@ def test_large_frames_spanning_reads_come_out_whole(sizes: list[int], cuts: list
     stream = b"".join(encode_frame(b) for b in bodies)
     dec = FrameDecoder()
     out: list[bytes] = []
-    pos = 0
-    i = 0
-    while pos < len(stream):
-        step = cuts[i % len(cuts)]
-        out.extend(bytes(f) for f in dec.feed_frames(stream[pos : pos + step]))
-        pos += step
-        i += 1
+    for piece in pieces(stream, cuts):
+        out.extend(bytes(f) for f in dec.feed_frames(piece))
     assert out == bodies
     assert dec.buffered == 0
 
