@@ -183,13 +183,6 @@ class Registry:
         del self.processes[conn]
         return effects
 
-    def wake_targets(self, key: str, writer: int) -> list[int]:
-        """The reader connections a writer wakes (itself excluded), in a stable order."""
-        seg = self.segments.get(key)
-        if seg is None:
-            return []
-        return sorted(c for c in seg.readers if c != writer)
-
 
 def _check_compatible(key: str, have: IxmType, type_name: str | None, count: int | None, max_size: int | None) -> None:
     if type_name is None:

@@ -117,6 +117,10 @@ class _Segment:
         #: reader connection -> the daemon's copy of its eventfd
         self.wake_fds: dict[int, int] = {}
 
+    def fds_to_wake(self, writer: int) -> list[int]:
+        """The reader eventfds the writer connection ``writer`` signals (its own excluded), in a stable order."""
+        return [fd for conn, fd in sorted(self.wake_fds.items()) if conn != writer]
+
     def open_fd(self, write: bool) -> int:
         shm = posix_ipc.SharedMemory(self.info.shm_name, 0, read_only=not write)
         return int(shm.fd)
@@ -388,7 +392,7 @@ class IxmServer:
         # that every write that starts after the reader's open returns will wake it
         self._apply(effects, client.id)
         t = info.type
-        wake = [f for conn, f in sorted(seg.wake_fds.items()) if conn != client.id] if "w" in req.mode else []
+        wake = seg.fds_to_wake(client.id) if "w" in req.mode else []
         reply = Opened(
             key=req.key, type=t.name, count=t.count, max_size=t.max_size, capacity=t.capacity,
             mode=req.mode, shm_name=info.shm_name, wake=len(wake), generation=seg.layout.generation,
@@ -429,7 +433,7 @@ class IxmServer:
                     pass
 
     def _send_wake_list(self, writer: _Client, seg: _Segment, gen: int) -> None:
-        fds = [fd for conn, fd in sorted(seg.wake_fds.items()) if conn != writer.id]
+        fds = seg.fds_to_wake(writer.id)
         self._send(writer, WakeList(key=seg.info.key, generation=gen, count=len(fds)), fds=fds)
 
     def _listing(self, key: str | None) -> Listing:

@@ -227,3 +227,13 @@ def test_a_ping_pong_between_processes_sees_every_value_once_with_spin_then_bloc
             assert ack.wait(10.0) == i
     wait_line(child, "done")
     assert child.wait(10) == 0
+
+
+def test_a_read_write_client_is_handed_the_other_readers_eventfds_but_never_its_own(ixm_socket: str) -> None:
+    with IxmClient(ixm_socket, name="both") as mine, IxmClient(ixm_socket, name="other") as theirs:
+        key = mine.open("/rw", "int64", mode="rw")
+        assert key._state.targets == []  # the only reader is this client itself
+        other = theirs.open("/rw", mode="r")
+        key.write(1)  # the generation changed: the writer takes its new list before signalling
+        assert len(key._state.targets) == 1
+        assert other.wait(5.0) == 1

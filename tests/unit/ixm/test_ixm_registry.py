@@ -71,13 +71,6 @@ def test_opening_a_missing_key_without_a_type_or_twice_is_an_error() -> None:
         reg.open(2, "", "bool", None, None, "r")
 
 
-def test_wake_targets_exclude_the_writer_itself() -> None:
-    reg = make()
-    reg.open(1, "/k", "float64", None, None, "rw")
-    reg.open(2, "/k", None, None, None, "r")
-    assert reg.wake_targets("/k", 1) == [2]
-
-
 @given(st.lists(st.tuples(st.sampled_from([1, 2]), st.sampled_from(["/a", "/b"]), st.sampled_from(["open", "close"]))))
 def test_segments_exist_exactly_while_someone_holds_them(ops: list[tuple[int, str, str]]) -> None:
     reg = make()
