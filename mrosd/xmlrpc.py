@@ -163,10 +163,6 @@ class XmlRpcServer:
         self._site: web.TCPSite | None = None
         self.port = 0
 
-    def add_method(self, name: str, handler: Handler) -> None:
-        """Register or replace one method."""
-        self._methods[name] = handler
-
     async def start(self) -> None:
         """Bind and start serving; ``self.port`` holds the bound port afterwards."""
         app = web.Application(client_max_size=MAX_BODY_SIZE)

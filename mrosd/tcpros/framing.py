@@ -34,13 +34,8 @@ _COMPACT_AT = 64 * 1024
 
 
 def encode_frame(body: bytes | bytearray | memoryview) -> bytes:
-    """Prefix a serialized body with its 4-byte little-endian length (one copy; see ``frame_parts``)."""
+    """Prefix a serialized body with its 4-byte little-endian length (one copy of the body)."""
     return _U32.pack(len(body)) + bytes(body)
-
-
-def frame_prefix(body: bytes | bytearray | memoryview) -> bytes:
-    """The 4-byte length prefix of ``body``: write ``(frame_prefix(body), body)`` to avoid copying a large body."""
-    return _U32.pack(len(body))
 
 
 class FrameDecoder:
