@@ -35,6 +35,8 @@ SUBCOMMANDS = {
     "service": "mros_cli.service",
     "ixm": "mros_cli.ixm",
     "daemon": "mros_cli.daemon",
+    "bag": "mros_cli.bag",
+    "graph": "mros_cli.graph",
 }
 
 EXIT_OK = 0
