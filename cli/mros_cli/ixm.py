@@ -92,7 +92,7 @@ def group(ctx: click.Context, socket_path: str | None) -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print the daemon's lists as JSON.")
 @click.pass_context
 def list_(ctx: click.Context, verbose: bool, as_json: bool) -> None:
-    """List the keys (and with -v the processes) the daemon knows."""
+    """List the keys (and with -v the processes) you may open; root sees every key."""
     import msgspec
 
     with _client(ctx) as ixm:

@@ -2,14 +2,16 @@
 
 The ``mrosd`` daemon composes the same ``IxmServer`` with the master; this entry point exists for tests,
 benchmarks and machines that want shared memory without ROS. SIGHUP reloads the access rules from the
-file; SIGTERM/SIGINT unlink every segment and exit 0. Prints ``ready`` on stdout once the socket listens.
+file; SIGTERM/SIGINT free every segment and exit 0. Prints ``ready`` on stdout once the socket listens.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import logging
+import resource
 import signal
 import sys
 import tomllib
@@ -38,8 +40,17 @@ def load_rules_file(path: str | None) -> AccessRules:
     return parse_rules(rules, f"{path}: ixm.rules")
 
 
-async def serve(socket_path: str, config: str | None) -> int:
-    server = IxmServer(socket_path, load_rules_file(config))
+def raise_fd_limit() -> None:
+    """Lift the soft descriptor limit to the hard one: the caps are a share of it (``Limits``)."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft < hard:
+        with contextlib.suppress(ValueError, OSError):
+            resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
+
+
+async def serve(socket_path: str, config: str | None, limits: dict[str, int | None] | None = None) -> int:
+    raise_fd_limit()
+    server = IxmServer(socket_path, load_rules_file(config), **(limits or {}))
     await server.start()
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
@@ -66,10 +77,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--socket", required=True, help="Unix socket path to listen on")
     parser.add_argument("--config", help="TOML file whose [ixm.rules] table holds the access rules")
     parser.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
+    caps = ("max_clients", "max_clients_per_uid", "max_keys", "max_keys_per_uid")
+    for cap in caps:
+        parser.add_argument(
+            "--" + cap.replace("_", "-"), type=int, default=None, help="cap (default: a share of the fd limit)"
+        )
     args = parser.parse_args(argv)
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
-        return asyncio.run(serve(args.socket, args.config))
+        return asyncio.run(serve(args.socket, args.config, {cap: getattr(args, cap) for cap in caps}))
     except MrosError as exc:
         print(f"mrosd.ixm: error: {exc}", file=sys.stderr)
         return 2 if isinstance(exc, ConfigError) else 1

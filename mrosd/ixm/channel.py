@@ -18,7 +18,7 @@ from collections.abc import Sequence
 from mrosd.errors import RemoteProtocolError
 from mrosd.ixm.protocol import FrameDecoder
 
-__all__ = ["MAX_FDS_PER_MESSAGE", "MAX_PENDING_FDS", "FdReader", "send_frame"]
+__all__ = ["MAX_FDS_PER_MESSAGE", "MAX_PENDING_FDS", "FdReader", "recv_with_fds", "send_frame"]
 
 #: The kernel's SCM_MAX_FD: at most 253 fds in one sendmsg.
 MAX_FDS_PER_MESSAGE = 253
@@ -26,6 +26,28 @@ MAX_FDS_PER_MESSAGE = 253
 MAX_PENDING_FDS = 512
 _RECV_SIZE = 65536
 _CMSG_SPACE = socket.CMSG_SPACE(MAX_FDS_PER_MESSAGE * 4)
+
+
+def recv_with_fds(sock: socket.socket, flags: int = 0) -> tuple[bytes, list[int]]:
+    """One recvmsg: the bytes (empty at end of stream) and the descriptors that came with them.
+
+    Raises:
+        RemoteProtocolError: the control data was truncated (the descriptors that did arrive are closed).
+        BlockingIOError: nothing to read on a non-blocking socket.
+    """
+    data, ancdata, msg_flags, _ = sock.recvmsg(_RECV_SIZE, _CMSG_SPACE, flags)
+    fds = array.array("i")
+    for level, kind, payload in ancdata:
+        if level == socket.SOL_SOCKET and kind == socket.SCM_RIGHTS:
+            fds.frombytes(payload[: len(payload) - (len(payload) % fds.itemsize)])
+    if msg_flags & socket.MSG_CTRUNC:
+        for fd in fds:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        raise RemoteProtocolError("file descriptors were truncated in transit (too many in one message)")
+    return data, list(fds)
 
 
 class FdReader:
@@ -42,14 +64,8 @@ class FdReader:
         Raises:
             RemoteProtocolError: the control data was truncated or too many fds are pending.
         """
-        data, ancdata, msg_flags, _ = self.sock.recvmsg(_RECV_SIZE, _CMSG_SPACE, flags)
-        for level, kind, payload in ancdata:
-            if level == socket.SOL_SOCKET and kind == socket.SCM_RIGHTS:
-                fds = array.array("i")
-                fds.frombytes(payload[: len(payload) - (len(payload) % fds.itemsize)])
-                self.fds.extend(fds)
-        if msg_flags & socket.MSG_CTRUNC:
-            raise RemoteProtocolError("file descriptors were truncated in transit (too many in one message)")
+        data, fds = recv_with_fds(self.sock, flags)
+        self.fds.extend(fds)
         if len(self.fds) > MAX_PENDING_FDS:
             raise RemoteProtocolError(f"peer sent more than {MAX_PENDING_FDS} unclaimed file descriptors")
         if not data:

@@ -1,15 +1,18 @@
 """The IXM client API, sync (``IxmClient``) and asyncio (``AsyncIxmClient``): the paper's IxmInit/Write/Read/Free.
 
-This module owns the client's side of a key: asking the daemon for it (``open``, IxmInit), mapping the
-segment it hands over, writing (IxmWrite) and reading (IxmRead) straight in shared memory, waiting for
-writes, and releasing the key (``close``, IxmFree). The daemon is only involved at open and close.
+Both are thin shells around the sans-IO ``ClientConnection`` (framing, descriptors, WakeList pushes) that
+only move bytes and descriptors over the Unix socket and wait; keys (``mrosd.ixm.keys``) read and write
+shared memory without the daemon, which is only involved at open and close.
 
 Wake-ups without polling (the paper's open point): each reader creates an eventfd and gives it to the
 daemon at open; the daemon hands every writer of the key the current readers' eventfds (SCM_RIGHTS) and
-publishes a generation number in the segment header whenever that set changes. A write is: take the
-writers' ``flock``, seqlock-copy the value, release, then one 8-byte ``write`` to each reader's eventfd.
-A reader blocks in ``poll`` (or the event loop) on its own eventfd. Readers never block the writer: a
-reader that does not keep up simply sees the latest value (IXM keys hold the latest value, not a queue).
+counts those pushes in a page the writer maps read-only. A write is: take the writers' ``flock``,
+seqlock-copy the value, release, then one 8-byte ``write`` to each reader's eventfd. A reader blocks in
+``poll`` (or the event loop) on its own eventfd. Readers never block the writer: a reader that does not
+keep up simply sees the latest value (IXM keys hold the latest value, not a queue).
+
+Before anything else a client checks who serves the socket (SO_PEERCRED): root, its own uid, or a uid in
+``trusted_uids`` / ``$MROSD_IXM_TRUSTED_UIDS``; anyone else could hand it memory of their choosing.
 
 Example::
 
@@ -27,36 +30,21 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import fcntl
-import mmap
+import errno
 import os
 import select
 import socket
 import sys
 import time
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import AsyncIterator, Iterable, Iterator
 from typing import Any, Literal
 
 from mrosd.config import default_ixm_socket
-from mrosd.errors import IxmError, IxmPermissionError, RemoteProtocolError
-from mrosd.ixm.channel import FdReader, send_frame
-from mrosd.ixm.layout import SegmentLayout
-from mrosd.ixm.protocol import (
-    MAX_REPLY_SIZE,
-    Close,
-    Error,
-    Hello,
-    List,
-    Listing,
-    Open,
-    Opened,
-    Reply,
-    Request,
-    WakeList,
-    decode_reply,
-    encode,
-)
-from mrosd.ixm.types import IxmType, codec
+from mrosd.errors import IxmError, RemoteProtocolError
+from mrosd.ixm.channel import recv_with_fds, send_frame
+from mrosd.ixm.connection import ClientConnection, check_daemon, close_all, error_from, open_request, trusted_uids
+from mrosd.ixm.keys import KeyBase, KeyState
+from mrosd.ixm.protocol import Close, Error, Hello, List, Listing, Reply, Request
 from mrosd.spin import AdaptiveSpin, default_max_ns, loop_spinner
 
 _now_ns = time.monotonic_ns
@@ -66,265 +54,31 @@ __all__ = ["DEFAULT_TIMEOUT", "AsyncIxmClient", "AsyncIxmKey", "IxmClient", "Ixm
 
 #: Bound on one request/reply exchange with the daemon.
 DEFAULT_TIMEOUT = 5.0
-_ONE = (1).to_bytes(8, sys.byteorder)
+_GONE = (errno.EPIPE, errno.ECONNRESET)
 
 Mode = Literal["r", "w", "rw"]
-
-
-def _error_from(reply: Error) -> IxmError:
-    if reply.kind == "permission":
-        return IxmPermissionError(reply.message)
-    return IxmError(reply.message)
-
-
-def _close_all(fds: list[int]) -> None:
-    for fd in fds:
-        with contextlib.suppress(OSError):
-            os.close(fd)
 
 
 def _default_name() -> str:
     return os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else f"pid{os.getpid()}"
 
 
-def _open_request(
-    key: str, type: str | None, count: int | None, max_size: int | None, mode: Mode
-) -> tuple[Open, int | None]:
-    """The Open request, and the eventfd this process will be woken through when it reads."""
-    wake = "r" in mode
-    efd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC) if wake else None
-    return Open(key=key, type=type, count=count, max_size=max_size, mode=mode, wake=wake), efd
+def type_name(obj: object) -> str:
+    return obj.__class__.__name__
 
 
-def _state_from_reply(reply: Any, reader: FdReader, efd: int | None) -> _KeyState:
-    """The key state for the daemon's answer to Open (shared by the sync and asyncio clients).
-
-    Raises:
-        IxmError: the daemon refused (the eventfd is closed).
-        RemoteProtocolError: the daemon answered with something other than Opened.
-    """
-    if not isinstance(reply, Opened):
-        _close_all([efd] if efd is not None else [])
-        if isinstance(reply, Error):
-            raise _error_from(reply)
-        raise RemoteProtocolError(f"unexpected {type_name(reply)} in answer to open")
-    fd = reader.take_fds(1)[0]
-    targets = reader.take_fds(reply.wake)
-    try:
-        state = _KeyState(reply, fd, efd)
-    except BaseException:
-        _close_all([*targets, *([efd] if efd is not None else [])])
-        raise
-    state.set_targets(reply.generation, targets)
-    return state
+def _listing(reply: Reply) -> Listing:
+    if isinstance(reply, Error):
+        raise error_from(reply)
+    if not isinstance(reply, Listing):
+        raise RemoteProtocolError(f"unexpected {type_name(reply)} in answer to list")
+    return reply
 
 
-class _KeyState:
-    """One open key: the mapping, the codec, the reader's eventfd, the writer's list of eventfds to signal."""
-
-    def __init__(self, opened: Opened, fd: int, wake_fd: int | None) -> None:
-        self.key = opened.key
-        self.mode = opened.mode
-        self.writable = "w" in opened.mode
-        self.fd = fd
-        try:
-            size = os.fstat(fd).st_size
-            prot = mmap.PROT_READ | (mmap.PROT_WRITE if self.writable else 0)
-            self.map = mmap.mmap(fd, size, mmap.MAP_SHARED, prot)
-        except OSError as exc:
-            os.close(fd)
-            raise IxmError(f"cannot map the segment of {opened.key}: {exc}") from exc
-        self.layout = SegmentLayout(memoryview(self.map))
-        self.type = IxmType(
-            name=opened.type, count=opened.count, max_size=opened.max_size, capacity=opened.capacity,
-            code=self.layout.type_code,
-        )
-        self.encode, self.decode = codec(self.type)
-        self.wake_fd = wake_fd
-        self.targets: list[int] = []
-        self.generation = -1
-        #: set by the owning client: reads pending WakeList pushes without blocking
-        self.refresh_targets: Callable[[], None] = lambda: None
-        self.last_seq = 0
-        self.closed = False
-
-    # writing ---------------------------------------------------------------------------------------------
-
-    def write_bytes(self, data: bytes | bytearray | memoryview) -> int:
-        if not self.writable:
-            raise IxmError(f"{self.key} is open for reading only (mode {self.mode!r})")
-        fd = self.fd
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        try:
-            seq = self.layout.write(data)
-        finally:
-            fcntl.flock(fd, fcntl.LOCK_UN)
-        if self.wake_fd is not None:
-            self.last_seq = seq  # in "rw" mode, our own write is not news to our own wait()
-        if self.layout.generation != self.generation:
-            # checked after the data is in place: a reader whose open completed before this point is
-            # already announced by the daemon, and its eventfd is in our socket buffer
-            self.refresh_targets()
-        self.signal()
-        return seq
-
-    def signal(self) -> None:
-        for target in self.targets:
-            try:
-                os.write(target, _ONE)
-            except (BlockingIOError, OSError):
-                pass  # a reader that never reads its eventfd only misses wake-ups it would coalesce anyway
-
-    @contextlib.contextmanager
-    def writing(self) -> Iterator[memoryview]:
-        if not self.writable:
-            raise IxmError(f"{self.key} is open for reading only (mode {self.mode!r})")
-        if not self.type.is_raw_array:
-            raise IxmError(f"{self.key} holds {self.type.describe()}: zero-copy views are for numeric arrays")
-        fmt = self.type.fmt
-        fcntl.flock(self.fd, fcntl.LOCK_EX)
-        try:
-            layout = self.layout
-            seq = layout.begin_write()
-            layout.copy_active_to_target(seq)  # a partial update starts from the published value
-            view = layout.target(seq).cast(fmt)  # type: ignore[call-overload]
-            try:
-                yield view
-            finally:
-                view.release()
-                self.layout.end_write(seq, self.type.capacity)
-        finally:
-            fcntl.flock(self.fd, fcntl.LOCK_UN)
-        if self.layout.generation != self.generation:
-            self.refresh_targets()
-        self.signal()
-
-    def set_targets(self, generation: int, fds: list[int]) -> None:
-        for fd in self.targets:
-            with contextlib.suppress(OSError):
-                os.close(fd)
-        self.targets = fds
-        self.generation = generation
-
-    # reading ---------------------------------------------------------------------------------------------
-
-    def read(self) -> Any:
-        seq, data = self.layout.read()
-        self.last_seq = seq
-        if seq == 0:
-            return None  # never written
-        return self.decode(data)
-
-    def read_into(self, out: bytearray | memoryview) -> int:
-        seq, n = self.layout.read_into(out)
-        self.last_seq = seq
-        return n
-
-    def view(self) -> memoryview:
-        if not self.type.is_raw_array:
-            raise IxmError(f"{self.key} holds {self.type.describe()}: zero-copy views are for numeric arrays")
-        _seq, slot = self.layout.active()
-        view: memoryview = slot.toreadonly().cast(self.type.fmt)  # type: ignore[call-overload]
-        return view
-
-    def fresh(self) -> bool:
-        seq = self.layout.seq
-        return seq != self.last_seq and not seq & 1
-
-    def drain_wake(self) -> None:
-        if self.wake_fd is not None:
-            with contextlib.suppress(BlockingIOError, OSError):
-                os.read(self.wake_fd, 8)
-
-    def close(self) -> None:
-        if self.closed:
-            return
-        self.closed = True
-        self.set_targets(-1, [])
-        self.layout.release()
-        try:
-            self.map.close()
-        except BufferError as exc:
-            raise IxmError(f"{self.key}: release every view() of this key before closing it") from exc
-        for fd in (self.fd, self.wake_fd):
-            if fd is not None:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-
-
-class _KeyBase:
-    """What sync and async keys share: data access never needs the daemon."""
-
-    _state: _KeyState
-
-    @property
-    def key(self) -> str:
-        return self._state.key
-
-    @property
-    def mode(self) -> str:
-        return self._state.mode
-
-    @property
-    def type(self) -> IxmType:
-        return self._state.type
-
-    @property
-    def seq(self) -> int:
-        """The key's write counter (``seq // 2`` writes so far; odd while a write is in progress)."""
-        return self._state.layout.seq
-
-    def read(self) -> Any:
-        """IxmRead: the latest complete value, consistent (never torn); None before the first write.
-
-        A write in progress, or one whose writer died mid-copy, is not visible: readers get the value before it.
-
-        Raises:
-            IxmError: a live writer kept overwriting the value faster than it could be copied (0.5 s).
-        """
-        return self._state.read()
-
-    def read_into(self, out: bytearray | memoryview) -> int:
-        """Copy the latest raw payload into ``out`` (one copy, consistent); returns its length in bytes."""
-        return self._state.read_into(out)
-
-    def view(self) -> memoryview:
-        """A zero-copy, read-only memoryview of a numeric array key, typed like the array (e.g. format 'd').
-
-        It shows the slot holding the latest value at the time of the call and does not follow later writes
-        (call ``view()`` again for a newer value). That slot keeps its value through the next write and is
-        overwritten from the one after: take ``s = seq`` before ``view()``; what you read was consistent if
-        ``seq <= (s | 1) + 1`` after use (an unchanged ``seq`` always is). ``read_into`` gives a consistent copy.
-        """
-        return self._state.view()
-
-    def writing(self) -> contextlib.AbstractContextManager[memoryview]:
-        """Zero-copy write of a numeric array key: update the yielded view; readers are woken on exit.
-
-        The view is the inactive slot, pre-filled with the published value (one internal copy), so a partial
-        update keeps the other elements. Readers keep reading the previous value until the block exits; if
-        the process dies inside the block, they keep it for good (until the next write).
-        """
-        return self._state.writing()
-
-    def write_bytes(self, data: bytes | bytearray | memoryview) -> None:
-        """Write an already-encoded payload (e.g. a serialized message) as it is."""
-        self._state.write_bytes(data)
-
-    def write(self, value: Any) -> None:
-        """IxmWrite: store ``value`` and wake every reader. Never waits for readers.
-
-        Raises:
-            IxmError: the key is read-only here, or the value does not match the key's type or size.
-        """
-        st = self._state
-        st.write_bytes(st.encode(value))
-
-
-class IxmKey(_KeyBase):
+class IxmKey(KeyBase):
     """A key opened by ``IxmClient.open``: ``read``/``write``/``wait``/iteration/``close``."""
 
-    def __init__(self, client: IxmClient, state: _KeyState) -> None:
+    def __init__(self, client: IxmClient, state: KeyState) -> None:
         self._client = client
         self._state = state
         self._poll: select.poll | None = None
@@ -400,37 +154,54 @@ class IxmKey(_KeyBase):
 
 
 class IxmClient:
-    """A blocking connection to the IXM daemon. Not thread-safe: use one client per thread."""
+    """A blocking connection to the IXM daemon. Not thread-safe: use one client per thread.
+
+    ``trusted_uids``: uids besides root and our own that may run the daemon (see ``check_daemon``).
+    """
 
     def __init__(
-        self, socket_path: str | None = None, name: str | None = None, timeout: float = DEFAULT_TIMEOUT
+        self, socket_path: str | None = None, name: str | None = None, timeout: float = DEFAULT_TIMEOUT,
+        *, trusted_uids: Iterable[int] | None = None,
     ) -> None:
         self.socket_path = socket_path or default_ixm_socket()
         self.timeout = timeout
+        trusted = _trusted(trusted_uids)
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         sock.settimeout(timeout)
         try:
             sock.connect(self.socket_path)
+            check_daemon(sock, self.socket_path, trusted)
         except OSError as exc:
             sock.close()
             raise IxmError(f"cannot reach the IXM daemon at {self.socket_path}: {exc.strerror or exc}") from exc
+        except IxmError:
+            sock.close()
+            raise
         # non-blocking from here on: writers drain pushed wake lists without ever waiting; blocking waits
         # for replies go through poll() with the client's timeout
         sock.setblocking(False)
         self._sock = sock
         self._sock_poll = select.poll()
         self._sock_poll.register(sock.fileno(), select.POLLIN)
-        self._reader = FdReader(sock, MAX_REPLY_SIZE)
+        self._conn = ClientConnection()
         self._keys: dict[str, IxmKey] = {}
         self._closed = False
-        self._request(Hello(name or _default_name()))
+        try:
+            hello = self._request(Hello(name or _default_name()))
+            if isinstance(hello, Error):  # refused (a cap): the daemon closes the connection
+                raise error_from(hello)
+        except BaseException:
+            self._closed = True
+            self._conn.close()
+            sock.close()
+            raise
 
     # transport -------------------------------------------------------------------------------------------
 
     def _request(self, request: Request, fds: list[int] | None = None) -> Reply:
         if self._closed:
             raise IxmError("this IXM client is closed")
-        frame = encode(request)
+        frame = self._conn.send(request)
         deadline = time.monotonic() + self.timeout
         try:
             sent = send_frame(self._sock, frame, fds or [])
@@ -445,40 +216,49 @@ class IxmClient:
                 if reply is not None:
                     return reply
         except OSError as exc:
+            if exc.errno in _GONE:
+                self._raise_refusal()
             raise IxmError(f"lost the IXM daemon at {self.socket_path}: {exc}") from exc
 
+    def _receive(self) -> None:
+        """One recvmsg into the connection core; raises BlockingIOError when there is nothing."""
+        data, fds = recv_with_fds(self._sock)
+        self._conn.receive(data, fds)
+        if not data:
+            self._raise_refusal()
+            raise IxmError(f"the IXM daemon at {self.socket_path} closed the connection")
+
+    def _raise_refusal(self) -> None:
+        """The daemon refused us at once (a cap) and closed: raise its one-line reason if it came."""
+        with contextlib.suppress(OSError, RemoteProtocolError):
+            while True:
+                reply = self._conn.next_reply()
+                if reply is None:
+                    data, fds = recv_with_fds(self._sock, socket.MSG_DONTWAIT)
+                    self._conn.receive(data, fds)
+                    if not data:
+                        break
+                    continue
+                if isinstance(reply, Error):
+                    raise error_from(reply)
+
     def _next_reply(self, deadline: float | None) -> Reply | None:
-        """Read until a reply that is not a push arrives (pushes are applied).
+        """Read until a reply that is not a push arrives (pushes are applied by the connection core).
 
         ``deadline`` None: do not wait, return None when nothing complete is buffered.
         """
         while True:
-            body = self._reader.decoder.maybe_next()
-            if body is None:
-                try:
-                    if not self._reader.recv():
-                        raise IxmError(f"the IXM daemon at {self.socket_path} closed the connection")
-                except BlockingIOError:
-                    if deadline is None:
-                        return None
-                    remaining = deadline - time.monotonic()
-                    if remaining <= 0 or not self._sock_poll.poll(int(remaining * 1000) + 1):
-                        raise IxmError(f"the IXM daemon did not answer within {self.timeout} s") from None
-                continue
-            reply = decode_reply(body)
-            if isinstance(reply, WakeList):
-                self._apply_wake(reply)
-                continue
-            return reply
-
-    def _apply_wake(self, push: WakeList) -> None:
-        fds = self._reader.take_fds(push.count)
-        key = self._keys.get(push.key)
-        if key is None or key._state.closed:
-            for fd in fds:
-                os.close(fd)
-            return
-        key._state.set_targets(push.generation, fds)
+            reply = self._conn.next_reply()
+            if reply is not None:
+                return reply
+            try:
+                self._receive()
+            except BlockingIOError:
+                if deadline is None:
+                    return None
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or not self._sock_poll.poll(int(remaining * 1000) + 1):
+                    raise IxmError(f"the IXM daemon did not answer within {self.timeout} s") from None
 
     def _drain_pushes(self) -> None:
         try:
@@ -500,58 +280,55 @@ class IxmClient:
 
         Raises:
             IxmPermissionError: the daemon's rules refuse this process the mode.
-            IxmError: a bad type or size, a type different from the existing key's, or no daemon.
+            IxmError: a bad type or size, a type different from the existing key's, a cap, or no daemon.
         """
-        request, efd = _open_request(key, type, count, max_size, mode)
+        request, efd = open_request(key, type, count, max_size, mode)
         try:
             reply = self._request(request, [efd] if efd is not None else None)
         except BaseException:
-            _close_all([efd] if efd is not None else [])
+            close_all([efd])
             raise
-        state = _state_from_reply(reply, self._reader, efd)
+        state = self._conn.opened(reply, efd)
         state.refresh_targets = self._drain_pushes
         handle = IxmKey(self, state)
         self._keys[key] = handle
         return handle
 
     def list(self, key: str | None = None) -> Listing:
-        """The daemon's process and segment lists (``key``: only that key)."""
-        reply = self._request(List(key))
-        if isinstance(reply, Error):
-            raise _error_from(reply)
-        if not isinstance(reply, Listing):
-            raise RemoteProtocolError(f"unexpected {type_name(reply)} in answer to list")
-        return reply
+        """The keys this process's rules let it open and who holds them (``key``: only that key); root sees all."""
+        return _listing(self._request(List(key)))
 
     def _forget(self, handle: IxmKey) -> None:
+        self._conn.forget(handle._state)
         if self._keys.get(handle.key) is handle:
             del self._keys[handle.key]
             if not self._closed:
                 reply = self._request(Close(handle.key))
                 if isinstance(reply, Error):
-                    raise _error_from(reply)
+                    raise error_from(reply)
 
     def close(self) -> None:
         """Release every key and disconnect (the daemon releases them anyway when the socket closes)."""
         if self._closed:
             return
         self._closed = True
-        for handle in list(self._keys.values()):
-            handle._state.close()
         self._keys.clear()
+        self._conn.close()
         # half-close and wait (bounded) for the daemon to close its end: when close() returns, the daemon
-        # has released every key of this client and unlinked the segments no one else holds
+        # has released every key of this client and freed the segments no one else holds
         with contextlib.suppress(OSError):
             self._sock.shutdown(socket.SHUT_WR)
             deadline = time.monotonic() + min(self.timeout, 1.0)
             while time.monotonic() < deadline:
                 try:
-                    if not self._reader.recv():
+                    data, fds = recv_with_fds(self._sock)
+                    close_all(fds)
+                    if not data:
                         break
-                    self._reader.close()
                 except BlockingIOError:
                     self._sock_poll.poll(max(1, int((deadline - time.monotonic()) * 1000)))
-        self._reader.close()
+                except RemoteProtocolError:
+                    break
         self._sock.close()
 
     def __enter__(self) -> IxmClient:
@@ -561,17 +338,17 @@ class IxmClient:
         self.close()
 
 
-def type_name(obj: object) -> str:
-    return obj.__class__.__name__
+def _trusted(given: Iterable[int] | None) -> frozenset[int]:
+    return trusted_uids(given)
 
 
 # asyncio -------------------------------------------------------------------------------------------------
 
 
-class AsyncIxmKey(_KeyBase):
+class AsyncIxmKey(KeyBase):
     """A key opened by ``AsyncIxmClient.open``. ``write``/``read`` are plain calls: they never block."""
 
-    def __init__(self, client: AsyncIxmClient, state: _KeyState) -> None:
+    def __init__(self, client: AsyncIxmClient, state: KeyState) -> None:
         self._client = client
         self._state = state
         self._event = asyncio.Event()
@@ -630,64 +407,70 @@ class AsyncIxmClient:
     """An asyncio connection to the IXM daemon; ``await AsyncIxmClient.connect()`` or ``async with``."""
 
     def __init__(
-        self, socket_path: str | None = None, name: str | None = None, timeout: float = DEFAULT_TIMEOUT
+        self, socket_path: str | None = None, name: str | None = None, timeout: float = DEFAULT_TIMEOUT,
+        *, trusted_uids: Iterable[int] | None = None,
     ) -> None:
         self.socket_path = socket_path or default_ixm_socket()
         self.name = name or _default_name()
         self.timeout = timeout
+        self._trusted = _trusted(trusted_uids)
         self._loop = asyncio.get_running_loop()
         self._sock: socket.socket | None = None
-        self._reader: FdReader | None = None
+        self._conn = ClientConnection()
         self._keys: dict[str, AsyncIxmKey] = {}
         self._lock = asyncio.Lock()
         self._pending: asyncio.Future[Reply] | None = None
         self._closed = False
+        self._failure: IxmError | None = None
 
     async def connect(self) -> AsyncIxmClient:
-        """Raises: IxmError when no daemon answers."""
+        """Raises: IxmError when no trusted daemon answers."""
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         sock.setblocking(False)
         try:
             async with asyncio.timeout(self.timeout):
                 await self._loop.sock_connect(sock, self.socket_path)
+            check_daemon(sock, self.socket_path, self._trusted)
         except (OSError, TimeoutError) as exc:
             sock.close()
             raise IxmError(f"cannot reach the IXM daemon at {self.socket_path}: {exc}") from exc
+        except IxmError:
+            sock.close()
+            raise
         self._sock = sock
-        self._reader = FdReader(sock, MAX_REPLY_SIZE)
         self._loop.add_reader(sock.fileno(), self._on_readable)
-        await self._request(Hello(self.name))
+        hello = await self._request(Hello(self.name))
+        if isinstance(hello, Error):  # refused (a cap): the daemon closes the connection
+            self._shutdown()
+            raise error_from(hello)
         return self
 
     def _on_readable(self) -> None:
-        assert self._reader is not None
+        assert self._sock is not None
+        conn = self._conn
         try:
-            if not self._reader.recv():
-                self._fail(IxmError(f"the IXM daemon at {self.socket_path} closed the connection"))
-                return
             while True:
-                body = self._reader.decoder.maybe_next()
-                if body is None:
-                    return
-                reply = decode_reply(body)
-                if isinstance(reply, WakeList):
-                    fds = self._reader.take_fds(reply.count)
-                    key = self._keys.get(reply.key)
-                    if key is None or key._state.closed:
-                        for fd in fds:
-                            os.close(fd)
+                data, fds = recv_with_fds(self._sock)
+                conn.receive(data, fds)
+                while (reply := conn.next_reply()) is not None:
+                    if self._pending is not None and not self._pending.done():
+                        self._pending.set_result(reply)
+                    elif isinstance(reply, Error):
+                        conn.refusal = reply
                     else:
-                        key._state.set_targets(reply.generation, fds)
-                elif self._pending is not None and not self._pending.done():
-                    self._pending.set_result(reply)
-                else:
-                    raise RemoteProtocolError(f"unexpected {type_name(reply)} from the IXM daemon")
+                        raise RemoteProtocolError(f"unexpected {type_name(reply)} from the IXM daemon")
+                if not data:
+                    self._fail(IxmError(f"the IXM daemon at {self.socket_path} closed the connection"))
+                    return
         except (BlockingIOError, InterruptedError):
             return
         except (OSError, RemoteProtocolError) as exc:
             self._fail(IxmError(f"lost the IXM daemon at {self.socket_path}: {exc}"))
 
     def _fail(self, exc: IxmError) -> None:
+        if self._conn.refusal is not None:
+            exc = error_from(self._conn.refusal)
+        self._failure = exc
         if self._pending is not None and not self._pending.done():
             self._pending.set_exception(exc)
         self._shutdown()
@@ -697,16 +480,15 @@ class AsyncIxmClient:
             with contextlib.suppress(ValueError, OSError):
                 self._loop.remove_reader(self._sock.fileno())
             self._sock.close()
-        if self._reader is not None:
-            self._reader.close()
+        self._conn.close()
         self._closed = True
 
     async def _request(self, request: Request, fds: list[int] | None = None) -> Reply:
         if self._closed or self._sock is None:
-            raise IxmError("this IXM client is closed")
+            raise self._failure or IxmError("this IXM client is closed")
         async with self._lock:
             self._pending = self._loop.create_future()
-            frame = encode(request)
+            frame = self._conn.send(request)
             try:
                 sent = send_frame(self._sock, frame, fds or [])
                 if sent < len(frame):
@@ -716,7 +498,8 @@ class AsyncIxmClient:
             except TimeoutError as exc:
                 raise IxmError(f"the IXM daemon did not answer within {self.timeout} s") from exc
             except OSError as exc:
-                raise IxmError(f"lost the IXM daemon at {self.socket_path}: {exc}") from exc
+                self._on_readable()  # a refusal may be waiting in the socket
+                raise self._failure or IxmError(f"lost the IXM daemon at {self.socket_path}: {exc}") from exc
             finally:
                 self._pending = None
 
@@ -725,34 +508,30 @@ class AsyncIxmClient:
         mode: Mode = "r",
     ) -> AsyncIxmKey:
         """IxmInit; see ``IxmClient.open``."""
-        request, efd = _open_request(key, type, count, max_size, mode)
+        request, efd = open_request(key, type, count, max_size, mode)
         try:
             reply = await self._request(request, [efd] if efd is not None else None)
         except BaseException:
-            _close_all([efd] if efd is not None else [])
+            close_all([efd])
             raise
-        assert self._reader is not None
-        state = _state_from_reply(reply, self._reader, efd)
+        state = self._conn.opened(reply, efd)
         state.refresh_targets = self._on_readable
         handle = AsyncIxmKey(self, state)
         self._keys[key] = handle
         return handle
 
     async def list(self, key: str | None = None) -> Listing:
-        reply = await self._request(List(key))
-        if isinstance(reply, Error):
-            raise _error_from(reply)
-        if not isinstance(reply, Listing):
-            raise RemoteProtocolError(f"unexpected {type_name(reply)} in answer to list")
-        return reply
+        """See ``IxmClient.list``."""
+        return _listing(await self._request(List(key)))
 
     async def _forget(self, handle: AsyncIxmKey) -> None:
+        self._conn.forget(handle._state)
         if self._keys.get(handle.key) is handle:
             del self._keys[handle.key]
             if not self._closed:
                 reply = await self._request(Close(handle.key))
                 if isinstance(reply, Error):
-                    raise _error_from(reply)
+                    raise error_from(reply)
 
     async def aclose(self) -> None:
         """Release every key and disconnect."""
@@ -761,7 +540,6 @@ class AsyncIxmClient:
         for handle in list(self._keys.values()):
             if handle._state.wake_fd is not None:
                 self._loop.remove_reader(handle._state.wake_fd)
-            handle._state.close()
         self._keys.clear()
         self._shutdown()
 
@@ -770,4 +548,3 @@ class AsyncIxmClient:
 
     async def __aexit__(self, *exc_info: object) -> None:
         await self.aclose()
-

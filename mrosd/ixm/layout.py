@@ -11,7 +11,7 @@ slot starts on its own cache line)::
     8   Q   sequence counter: +2 per completed write, odd while a write is in progress
     16  I   capacity of one slot in bytes (exact for fixed-size types)
     20  I   element count for fixed arrays (0 otherwise)
-    24  I   reader-set generation, bumped by the daemon when the set of readers to wake changes
+    24  I   reserved (0; the daemon never writes a segment after handing it out)
     28  I   reserved (0)
     32  I   length of the value in slot 0 (written with that slot's data)
     36  I   length of the value in slot 1
@@ -34,8 +34,8 @@ The counter and the lengths are read and written through ``memoryview.cast`` ite
 4-byte) load or store each, which x86-64 performs atomically. (``struct.pack_into`` is not usable here: it
 zeroes its target before packing, so a reader spinning on the counter saw 0 between two values.) x86-64 keeps
 stores (and loads) in program order, so the counter updates are seen no earlier than the data they guard.
-Several writers on one key are serialised by the client with ``flock`` on the segment's file (not here): this
-module assumes one writer at a time.
+Several writers on one key are serialised by the client with ``flock`` on the writers' lock file (not
+here): this module assumes one writer at a time.
 """
 
 from __future__ import annotations
@@ -65,7 +65,6 @@ MAX_LAPPED_WAIT = 0.5
 
 _HEAD = struct.Struct("=4sHHQIIIIII24s")
 _SEQ_OFF = 8
-_GEN_OFF = 24
 _LEN_OFF = 32  # two 4-byte lengths, one per slot
 assert _HEAD.size == HEADER_SIZE
 
@@ -77,7 +76,7 @@ class SegmentLayout:
     the write methods raise ``TypeError`` from memoryview itself (and the kernel refuses the mapping first).
     """
 
-    __slots__ = ("_generation", "buf", "capacity", "counter", "lengths", "slots")
+    __slots__ = ("buf", "capacity", "counter", "lengths", "slots")
 
     def __init__(self, buf: memoryview) -> None:
         if len(buf) < HEADER_SIZE:
@@ -95,7 +94,6 @@ class SegmentLayout:
         self.counter = buf[_SEQ_OFF : _SEQ_OFF + 8].cast("Q")
         #: The value lengths of slot 0 and slot 1.
         self.lengths = buf[_LEN_OFF : _LEN_OFF + 8].cast("I")
-        self._generation = buf[_GEN_OFF : _GEN_OFF + 4].cast("I")
         self.slots = (
             buf[HEADER_SIZE : HEADER_SIZE + capacity],
             buf[HEADER_SIZE + capacity : HEADER_SIZE + 2 * capacity],
@@ -106,18 +104,23 @@ class SegmentLayout:
         """Bytes to allocate for values of up to ``capacity`` bytes: the header and two slots."""
         return HEADER_SIZE + SLOTS * capacity
 
+    @staticmethod
+    def header(type_code: int, capacity: int, count: int, type_name: str) -> bytes:
+        """A fresh header (counter 0, empty value): the daemon writes it with ``pwrite`` before sealing."""
+        name = type_name.encode("utf-8")[:24]
+        return _HEAD.pack(MAGIC, LAYOUT_VERSION, type_code, 0, capacity, count, 0, 0, 0, 0, name)
+
     @classmethod
     def initialize(cls, buf: memoryview, type_code: int, capacity: int, count: int, type_name: str) -> SegmentLayout:
-        """Write a fresh header (counter 0, empty value) into ``buf``; the daemon does this once at creation."""
+        """Write a fresh header into ``buf`` (tests and in-memory use)."""
         if cls.segment_size(capacity) > len(buf):
             raise IxmError(f"buffer of {len(buf)} bytes cannot hold {SLOTS} slots of {capacity} bytes")
-        name = type_name.encode("utf-8")[:24]
-        _HEAD.pack_into(buf, 0, MAGIC, LAYOUT_VERSION, type_code, 0, capacity, count, 0, 0, 0, 0, name)
+        buf[:HEADER_SIZE] = cls.header(type_code, capacity, count, type_name)
         return cls(buf)
 
     def release(self) -> None:
         """Release the views so that the underlying mmap can be closed."""
-        for view in (*self.slots, self.counter, self.lengths, self._generation):
+        for view in (*self.slots, self.counter, self.lengths):
             view.release()
         self.buf.release()
 
@@ -140,17 +143,6 @@ class SegmentLayout:
     def seq(self) -> int:
         """The sequence counter; ``seq // 2`` completed writes, odd while one is in progress."""
         return int(self.counter[0])
-
-    @property
-    def generation(self) -> int:
-        """The reader-set generation the daemon last published."""
-        return int(self._generation[0])
-
-    def bump_generation(self) -> int:
-        """Daemon side: announce that the set of readers to wake changed; returns the new generation."""
-        gen = (self.generation + 1) & 0xFFFFFFFF
-        self._generation[0] = gen
-        return gen
 
     @staticmethod
     def slot_of(seq: int) -> int:

@@ -89,15 +89,17 @@ class Ok(msgspec.Struct, tag_field="op", tag="ok", gc=False):
 
 
 class Error(msgspec.Struct, tag_field="op", tag="error", gc=False):
-    """Failure; ``kind`` is "permission" (IxmPermissionError), "invalid" or "protocol"."""
+    """Failure; ``kind`` is "permission" (IxmPermissionError), "invalid", "limit" (a cap refused it) or "protocol"."""
 
     kind: str
     message: str
 
 
 class Opened(msgspec.Struct, tag_field="op", tag="opened", gc=False, kw_only=True):
-    """Open granted; 1 + ``wake`` fds follow: the segment (read-only for a reader), then, for a writer, the
-    eventfds of the key's current readers (generation ``generation``); later changes come as WakeList."""
+    """Open granted; fds follow: the segment (read-only for a reader); for a writer, the writers' lock file
+    (``flock`` it around each write); at a connection's first open for writing (``notice``), its notice page
+    (read-only: the count of WakeList pushes sent to it, ``generation`` so far); then, for a writer, the
+    ``wake`` eventfds of the key's current readers; later changes come as WakeList."""
 
     key: str
     type: str
@@ -108,10 +110,12 @@ class Opened(msgspec.Struct, tag_field="op", tag="opened", gc=False, kw_only=Tru
     shm_name: str
     wake: int = 0
     generation: int = 0
+    notice: bool = False
 
 
 class WakeList(msgspec.Struct, tag_field="op", tag="wake", gc=False, kw_only=True):
-    """Pushed to writers: ``count`` reader eventfds follow, replacing the previous list for ``key``."""
+    """Pushed to writers: ``count`` reader eventfds follow, replacing the previous list for ``key``;
+    ``generation`` is the connection's push count, which its notice page shows once this is queued."""
 
     key: str
     generation: int

@@ -87,11 +87,26 @@ def check_key(key: object) -> str:
 class Registry:
     """Processes, segments and the access rules; every mutation returns the effects to perform."""
 
-    def __init__(self, rules: AccessRules, name_segment: Callable[[str], str]) -> None:
+    def __init__(
+        self,
+        rules: AccessRules,
+        name_segment: Callable[[str], str],
+        max_keys: int | None = None,
+        max_keys_per_uid: int | None = None,
+    ) -> None:
         self.rules = rules
         self.processes: dict[int, ProcessInfo] = {}
         self.segments: dict[str, SegmentInfo] = {}
         self._name_segment = name_segment
+        #: keys held (one per process and key) overall and per uid: each may cost the daemon a descriptor
+        self.max_keys = max_keys
+        self.max_keys_per_uid = max_keys_per_uid
+        self.keys_held = 0
+        self.keys_by_uid: dict[int, int] = {}
+
+    def visible(self, peer: Peer, segment: SegmentInfo) -> bool:
+        """Whether ``peer`` may open ``segment`` in some mode (what a listing shows it)."""
+        return any(self.rules.allows(segment.key, peer, write, segment.creator_uid) for write in (False, True))
 
     def connect(self, conn: int, peer: Peer, name: str = "") -> ProcessInfo:
         info = ProcessInfo(conn=conn, name=name or next(iter(sorted(peer.names)), f"pid{peer.pid}"), peer=peer)
@@ -120,7 +135,15 @@ class Registry:
         if key in proc.keys:
             raise IxmError(f"{key} is already open in this process (mode {proc.keys[key]!r}); close it first")
         if len(proc.keys) >= MAX_KEYS_PER_PROCESS:
-            raise IxmError(f"a process may hold at most {MAX_KEYS_PER_PROCESS} keys")
+            raise IxmError(f"a process may hold at most {MAX_KEYS_PER_PROCESS} keys (limit reached); close some")
+        uid = proc.peer.uid
+        held = self.keys_by_uid.get(uid, 0)
+        if self.max_keys_per_uid is not None and held >= self.max_keys_per_uid:
+            raise IxmError(
+                f"uid {uid} already holds {held} IXM keys, the per-user limit (max_keys_per_uid); close some"
+            )
+        if self.max_keys is not None and self.keys_held >= self.max_keys:
+            raise IxmError(f"the IXM daemon holds {self.keys_held} keys, its limit (max_keys); try again later")
         seg = self.segments.get(key)
         creator = seg.creator_uid if seg is not None else None
         for write in (False, True):
@@ -146,6 +169,8 @@ class Registry:
         if "w" in mode:
             seg.writers.add(conn)
         proc.keys[key] = mode
+        self.keys_held += 1
+        self.keys_by_uid[uid] = held + 1
         if effects and isinstance(effects[0], CreateSegment):
             self.segments[key] = seg
         return seg, effects
@@ -160,6 +185,12 @@ class Registry:
         if key not in proc.keys:
             raise IxmError(f"{key} is not open in this process")
         mode = proc.keys.pop(key)
+        self.keys_held -= 1
+        left = self.keys_by_uid[proc.peer.uid] - 1
+        if left:
+            self.keys_by_uid[proc.peer.uid] = left
+        else:
+            del self.keys_by_uid[proc.peer.uid]
         seg = self.segments[key]
         effects: list[Effect] = []
         seg.writers.discard(conn)

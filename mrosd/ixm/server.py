@@ -1,17 +1,24 @@
 """The IXM daemon side (the paper's ixmcore): a Unix-socket server that owns every segment's lifetime.
 
 This module owns the I/O around the pure ``Registry``: accepting clients, learning who they are from the
-kernel (SO_PEERCRED, /proc), creating and unlinking segments with posix_ipc, handing them out as file
-descriptors (SCM_RIGHTS; read-only descriptors to readers, so that their mappings cannot be written), and
-telling writers which reader eventfds to signal. It is not in the data path: writes and reads go straight
-to shared memory, and wake-ups go straight from writer to reader.
+kernel (SO_PEERCRED, /proc), creating segments, handing them out as file descriptors (SCM_RIGHTS; read-only
+descriptors to readers, so that their mappings cannot be written), and telling writers which reader
+eventfds to signal. It is not in the data path: writes and reads go straight to shared memory, and wake-ups
+go straight from writer to reader.
+
+Segments are sealed memfds: sized once, their header written with ``pwrite``, made 0600 (a reader's
+read-only descriptor cannot be reopened read-write through /proc by another uid), then sealed against
+shrinking, growing and further seals, before any client sees them. So a client cannot resize a segment
+(no SIGBUS for anyone), they have no name anyone could squat, and the daemon never maps one. What the
+daemon does write for a client (the count of wake-list pushes it sent, checked by writers after each
+write) lives in a page of its own per writer connection, which that client maps read-only.
 
 Lifetime rules: a client's keys are released when its socket closes, whatever the reason (close, exit,
-crash, kill -9); the last release unlinks the segment. Segment names are
-``/mrosd-ixm-<socket hash>-<run id>-<n>``; at start the server removes every segment with its socket's
-hash (an earlier run on the same socket that crashed), and refuses to start if a live daemon answers on
-the socket. Outgoing data to a client is bounded by ``MAX_OUTBOX``: a client that does not read its
-socket is disconnected (and so loses its keys) rather than growing the daemon's memory.
+crash, kill -9); the last release frees the segment (the kernel frees the memory when the last mapping
+goes). Outgoing data to a client is bounded by ``MAX_OUTBOX``: a client that does not read its socket is
+disconnected (and so loses its keys) rather than growing the daemon's memory. Every resource a client can
+make the daemon hold is capped overall and per uid (``Limits``); the accept loop backs off when the process
+runs out of descriptors and tells the refused client why, in one line.
 """
 
 from __future__ import annotations
@@ -22,9 +29,8 @@ import errno
 import fcntl
 import hashlib
 import logging
-import mmap
 import os
-import secrets
+import resource
 import socket
 import struct
 from collections import deque
@@ -32,11 +38,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import posix_ipc
-
 from mrosd.errors import IxmError, IxmPermissionError, MrosError, RemoteProtocolError
 from mrosd.ixm.channel import MAX_FDS_PER_MESSAGE, FdReader, send_frame
-from mrosd.ixm.layout import SegmentLayout
 from mrosd.ixm.protocol import (
     MAX_REQUEST_SIZE,
     Close,
@@ -54,14 +57,17 @@ from mrosd.ixm.protocol import (
     decode_request,
     encode,
 )
-from mrosd.ixm.registry import CreateSegment, Effect, ReadersChanged, Registry, SegmentInfo, UnlinkSegment
+from mrosd.ixm.registry import CreateSegment, Effect, ReadersChanged, Registry, UnlinkSegment
+from mrosd.ixm.resources import Limits, NoticePage, Segment
 from mrosd.ixm.rules import AccessRules, Peer, names_of, parse_rules
+from mrosd.ixm.rundir import prepare_socket_dir
+from mrosd.lograte import RateLimitedLog
 
-__all__ = ["SHM_DIR", "SHM_PREFIX", "IxmServer", "segment_prefix"]
+__all__ = ["SHM_PREFIX", "IxmServer", "Limits", "segment_prefix"]
 
 log = logging.getLogger("mrosd.ixm")
 
-SHM_DIR = Path("/dev/shm")
+#: Segments are memfds named ``<SHM_PREFIX><socket hash>-<n>`` (visible in /proc/PID/fd, never in /dev/shm).
 SHM_PREFIX = "mrosd-ixm-"
 #: Bytes queued for one client before it is considered stuck and disconnected.
 MAX_OUTBOX = 32 << 20
@@ -69,10 +75,12 @@ MAX_OUTBOX = 32 << 20
 #: wake-ups are refused at open with a clear error.
 MAX_WAKE_READERS = MAX_FDS_PER_MESSAGE
 _PEERCRED = struct.Struct("3i")
+_OUT_OF_FDS = (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM)
+_BACKOFF_MIN, _BACKOFF_MAX = 0.02, 0.25
 
 
 def segment_prefix(socket_path: str) -> str:
-    """The name prefix of every segment served on ``socket_path`` (without the leading slash)."""
+    """The memfd name prefix of every segment served on ``socket_path``."""
     digest = hashlib.blake2s(os.path.abspath(socket_path).encode(), digest_size=4).hexdigest()
     return f"{SHM_PREFIX}{digest}-"
 
@@ -100,42 +108,6 @@ def _is_eventfd(fd: int) -> bool:
         return False
 
 
-class _Segment:
-    """The daemon's own read-write mapping of a segment (to initialise it and publish generations)."""
-
-    def __init__(self, info: SegmentInfo) -> None:
-        size = SegmentLayout.segment_size(info.type.capacity)
-        shm = posix_ipc.SharedMemory(info.shm_name, posix_ipc.O_CREX, mode=0o600, size=size)
-        try:
-            self.map = mmap.mmap(shm.fd, size)
-        finally:
-            shm.close_fd()
-        self.info = info
-        self.layout = SegmentLayout.initialize(
-            memoryview(self.map), info.type.code, info.type.capacity, info.type.count, info.type.name
-        )
-        #: reader connection -> the daemon's copy of its eventfd
-        self.wake_fds: dict[int, int] = {}
-
-    def fds_to_wake(self, writer: int) -> list[int]:
-        """The reader eventfds the writer connection ``writer`` signals (its own excluded), in a stable order."""
-        return [fd for conn, fd in sorted(self.wake_fds.items()) if conn != writer]
-
-    def open_fd(self, write: bool) -> int:
-        shm = posix_ipc.SharedMemory(self.info.shm_name, 0, read_only=not write)
-        return int(shm.fd)
-
-    def close(self) -> None:
-        for fd in self.wake_fds.values():
-            with contextlib.suppress(OSError):
-                os.close(fd)
-        self.wake_fds.clear()
-        self.layout.release()
-        self.map.close()
-        with contextlib.suppress(posix_ipc.ExistentialError):
-            posix_ipc.unlink_shared_memory(self.info.shm_name)
-
-
 class _Client:
     """One connected process: its socket, its decoder and fds, and what is queued to send to it."""
 
@@ -151,22 +123,47 @@ class _Client:
         self.closed = False
         #: a send failed or the outbox overflowed: dropped on the next loop iteration (never re-entrantly)
         self.broken = False
+        #: created at this connection's first open for writing
+        self.notice: NoticePage | None = None
+        self.pushes = 0
 
 
 class IxmServer:
-    """The registry daemon: ``start()``/``aclose()``, ``reload_rules()``; an async context manager."""
+    """The registry daemon: ``start()``/``aclose()``, ``reload_rules()``; an async context manager.
 
-    def __init__(self, socket_path: str, rules: AccessRules | Mapping[str, Any] | None = None) -> None:
+    The caps (``Limits``) default to a share of the process's descriptor limit at ``start()``; a value given
+    here is used as it is. ``max_keys*`` count keys held (one per process and key).
+    """
+
+    def __init__(
+        self,
+        socket_path: str,
+        rules: AccessRules | Mapping[str, Any] | None = None,
+        *,
+        max_clients: int | None = None,
+        max_clients_per_uid: int | None = None,
+        max_keys: int | None = None,
+        max_keys_per_uid: int | None = None,
+    ) -> None:
         self.socket_path = str(socket_path)
         self.prefix = segment_prefix(self.socket_path)
-        self.run_id = secrets.token_hex(3)
+        self._given = {
+            "max_clients": max_clients, "max_clients_per_uid": max_clients_per_uid,
+            "max_keys": max_keys, "max_keys_per_uid": max_keys_per_uid,
+        }
+        self.limits = Limits.for_fd_limit(resource.getrlimit(resource.RLIMIT_NOFILE)[0], **self._given)
         self.registry = Registry(self._resolve_rules(rules), self._name_segment)
         self._counter = 0
-        self._segments: dict[str, _Segment] = {}
+        self._segments: dict[str, Segment] = {}
         self._clients: dict[int, _Client] = {}
+        self._clients_by_uid: dict[int, int] = {}
         self._next_conn = 1
         self._listener: socket.socket | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._spare_fd: int | None = None
+        self._backoff = _BACKOFF_MIN
+        self._paused: asyncio.TimerHandle | None = None
+        self._ratelog = RateLimitedLog(log)
 
     @staticmethod
     def _resolve_rules(rules: AccessRules | Mapping[str, Any] | None) -> AccessRules:
@@ -175,18 +172,21 @@ class IxmServer:
 
     def _name_segment(self, key: str) -> str:
         self._counter += 1
-        return f"/{self.prefix}{self.run_id}-{self._counter}"
+        return f"memfd:{self.prefix}{self._counter}"
 
     # lifecycle -----------------------------------------------------------------------------------------
 
     async def start(self) -> None:
-        """Remove an earlier run's leftovers, bind the socket (mode 0666: the rules decide, not the file).
+        """Check (or create) the socket's directory, bind the socket (mode 0666: the rules decide, not the file).
 
         Raises:
-            IxmError: another daemon answers on the socket path.
+            IxmError: the directory is unsafe, or another daemon answers on the socket path.
             OSError: the socket cannot be bound.
         """
         self._loop = asyncio.get_running_loop()
+        self.limits = Limits.for_fd_limit(resource.getrlimit(resource.RLIMIT_NOFILE)[0], **self._given)
+        self.registry.max_keys = self.limits.max_keys
+        self.registry.max_keys_per_uid = self.limits.max_keys_per_uid
         self._prepare_path()
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
@@ -198,18 +198,17 @@ class IxmServer:
             sock.close()
             raise
         self._listener = sock
+        self._spare_fd = os.open(os.devnull, os.O_RDONLY | os.O_CLOEXEC)
         self._loop.add_reader(sock.fileno(), self._on_accept)
+        log.debug("IXM limits: %s", self.limits)
 
     def _prepare_path(self) -> None:
         path = Path(self.socket_path)
+        prepare_socket_dir(str(path.parent))
         if os.path.lexists(self.socket_path):
             if self._socket_is_live():
                 raise IxmError(f"another IXM daemon is already serving {path}")
             os.unlink(self.socket_path)
-        removed = self.remove_stale_segments()
-        if removed:
-            log.info("removed %d stale IXM segment(s) of an earlier run on %s", removed, path)
-        os.makedirs(path.parent, exist_ok=True)
 
     def _socket_is_live(self) -> bool:
         probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -222,27 +221,21 @@ class IxmServer:
             probe.close()
         return True
 
-    def remove_stale_segments(self) -> int:
-        """Unlink every segment carrying this socket's prefix and not of this run; returns how many."""
-        count = 0
-        mine = f"{self.prefix}{self.run_id}-"
-        with contextlib.suppress(OSError):
-            for name in os.listdir(SHM_DIR):
-                if name.startswith(self.prefix) and not name.startswith(mine):
-                    with contextlib.suppress(posix_ipc.ExistentialError, posix_ipc.PermissionsError):
-                        posix_ipc.unlink_shared_memory("/" + name)
-                        count += 1
-        return count
-
     async def aclose(self) -> None:
-        """Disconnect every client, unlink every segment, remove the socket file."""
+        """Disconnect every client, free every segment, remove the socket file."""
         loop = self._loop
+        if self._paused is not None:
+            self._paused.cancel()
+            self._paused = None
         if self._listener is not None and loop is not None:
             loop.remove_reader(self._listener.fileno())
             self._listener.close()
             self._listener = None
             with contextlib.suppress(OSError):
                 os.unlink(self.socket_path)
+        if self._spare_fd is not None:
+            self._close_fd(self._spare_fd)
+            self._spare_fd = None
         for client in list(self._clients.values()):
             self._drop(client, "daemon shutting down", level=logging.DEBUG)
         for seg in list(self._segments.values()):
@@ -271,21 +264,81 @@ class IxmServer:
             except (BlockingIOError, InterruptedError):
                 return
             except OSError as exc:
-                log.warning("IXM accept failed: %s", exc)
+                if exc.errno in _OUT_OF_FDS:
+                    self._out_of_fds(exc)
+                else:
+                    self._ratelog.warning("accept", "IXM accept failed: %s", exc)
                 return
+            self._backoff = _BACKOFF_MIN
             sock.setblocking(False)
             try:
                 peer = _peer_of(sock)
             except OSError as exc:
-                log.warning("IXM: cannot read the peer's credentials, closing: %s", exc)
+                self._ratelog.warning("peercred", "IXM: cannot read the peer's credentials, closing: %s", exc)
                 sock.close()
+                continue
+            refusal = self._over_client_limits(peer)
+            if refusal:
+                self._ratelog.warning(f"clients-{peer.uid}", "IXM: refused uid %d: %s", peer.uid, refusal)
+                self._refuse(sock, refusal)
                 continue
             client = _Client(self._next_conn, sock, peer)
             self._next_conn += 1
             self._clients[client.id] = client
+            self._clients_by_uid[peer.uid] = self._clients_by_uid.get(peer.uid, 0) + 1
             self.registry.connect(client.id, peer)
             self._loop.add_reader(sock.fileno(), self._on_readable, client)
             log.debug("IXM client %d connected: pid %d uid %d", client.id, peer.pid, peer.uid)
+
+    def _over_client_limits(self, peer: Peer) -> str:
+        lim = self.limits
+        mine = self._clients_by_uid.get(peer.uid, 0)
+        if mine >= lim.max_clients_per_uid:
+            return f"uid {peer.uid} already has {mine} IXM connections, the per-user limit (max_clients_per_uid)"
+        if len(self._clients) >= lim.max_clients:
+            return f"the IXM daemon has {len(self._clients)} connections, its limit (max_clients); try again later"
+        return ""
+
+    @staticmethod
+    def _refuse(sock: socket.socket, message: str) -> None:
+        """Tell a connection we will not serve why (one frame, best effort), then close it."""
+        with contextlib.suppress(OSError):
+            sock.send(encode(Error("limit", message)))
+        sock.close()
+
+    def _out_of_fds(self, exc: OSError) -> None:
+        """EMFILE and friends: refuse the waiting clients through the spare descriptor, pause accepting a while.
+
+        The listener stays readable while connections wait, so accepting again at once would spin; each
+        waiting client gets a one-line error instead of a timeout.
+        """
+        assert self._listener is not None and self._loop is not None
+        self._ratelog.error(
+            "emfile", "IXM: out of file descriptors (%s); refusing connections, next try in %.2f s", exc, self._backoff
+        )
+        if self._spare_fd is not None:
+            os.close(self._spare_fd)
+            self._spare_fd = None
+            for _ in range(256):
+                try:
+                    sock, _ = self._listener.accept()
+                except OSError:
+                    break
+                self._refuse(sock, "the IXM daemon is out of file descriptors; try again later")
+            with contextlib.suppress(OSError):
+                self._spare_fd = os.open(os.devnull, os.O_RDONLY | os.O_CLOEXEC)
+        self._loop.remove_reader(self._listener.fileno())
+        self._paused = self._loop.call_later(self._backoff, self._resume_accept)
+        self._backoff = min(_BACKOFF_MAX, self._backoff * 2)
+
+    def _resume_accept(self) -> None:
+        self._paused = None
+        if self._listener is None or self._loop is None:
+            return
+        if self._spare_fd is None:
+            with contextlib.suppress(OSError):
+                self._spare_fd = os.open(os.devnull, os.O_RDONLY | os.O_CLOEXEC)
+        self._loop.add_reader(self._listener.fileno(), self._on_accept)
 
     def _on_readable(self, client: _Client) -> None:
         try:
@@ -311,7 +364,13 @@ class IxmServer:
         if client.closed:
             return
         client.closed = True
-        log.log(level, "IXM client %d (pid %d, uid %d) %s", client.id, client.peer.pid, client.peer.uid, reason)
+        if level >= logging.WARNING:
+            self._ratelog.log(
+                level, f"drop-{client.peer.uid}", "IXM client %d (pid %d, uid %d) %s",
+                client.id, client.peer.pid, client.peer.uid, reason,
+            )
+        else:
+            log.log(level, "IXM client %d (pid %d, uid %d) %s", client.id, client.peer.pid, client.peer.uid, reason)
         loop = self._loop
         if loop is not None:
             loop.remove_reader(client.sock.fileno())
@@ -319,12 +378,19 @@ class IxmServer:
                 loop.remove_writer(client.sock.fileno())
         for _frame, _fds, to_close in client.outbox:
             for fd in to_close:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
+                self._close_fd(fd)
         client.outbox.clear()
         client.reader.close()
         client.sock.close()
+        if client.notice is not None:
+            client.notice.close()
+            client.notice = None
         del self._clients[client.id]
+        left = self._clients_by_uid.get(client.peer.uid, 1) - 1
+        if left > 0:
+            self._clients_by_uid[client.peer.uid] = left
+        else:
+            self._clients_by_uid.pop(client.peer.uid, None)
         self._apply(self.registry.disconnect(client.id), client.id)
 
     # requests ------------------------------------------------------------------------------------------
@@ -342,7 +408,7 @@ class IxmServer:
                 self._apply(effects, client.id)  # unlinked before the client hears Ok
                 self._send(client, Ok())
             case List(key=key):
-                self._send(client, self._listing(key))
+                self._send(client, self._listing(key, client.peer))
             case Hello(name=name):
                 self.registry.rename(client.id, name)
                 self._send(client, Ok())
@@ -374,30 +440,40 @@ class IxmServer:
             self._close_fd(wake_fd)
             self._send(client, Error("invalid", str(exc)))
             return
+        notice: NoticePage | None = None
+        fds: list[int] = []
         try:
             for effect in effects:
                 if isinstance(effect, CreateSegment):
-                    self._segments[effect.segment.key] = _Segment(effect.segment)
+                    self._segments[effect.segment.key] = Segment(effect.segment)
             seg = self._segments[req.key]
-            fd = seg.open_fd(write="w" in req.mode)
-        except (OSError, posix_ipc.Error, MrosError) as exc:
-            self._close_fd(wake_fd)
+            fds = [seg.open_fd(write="w" in req.mode)]
+            if "w" in req.mode:
+                fds.append(seg.open_lock())
+                if client.notice is None:
+                    notice = client.notice = NoticePage(f"mrosd-ixm-notice-{client.id}")
+        except (OSError, MrosError) as exc:
+            for fd in (wake_fd, *fds):
+                self._close_fd(fd)
             self._apply(self.registry.close(client.id, req.key), client.id)
-            log.warning("IXM: cannot create the segment for %s: %s", req.key, exc)
+            self._ratelog.warning("create", "IXM: cannot create the segment for %s: %s", req.key, exc)
             self._send(client, Error("invalid", f"cannot create shared memory for {req.key}: {exc}"))
             return
         if wake_fd is not None:
             seg.wake_fds[client.id] = wake_fd
-        # writers learn of a new reader (list sent, generation bumped) before the reader hears Opened, so
-        # that every write that starts after the reader's open returns will wake it
+        # writers learn of a new reader (list queued, their notice count raised) before the reader hears
+        # Opened, so that every write that starts after the reader's open returns will wake it
         self._apply(effects, client.id)
         t = info.type
         wake = seg.fds_to_wake(client.id) if "w" in req.mode else []
+        if notice is not None:
+            fds.append(notice.client_fd)
         reply = Opened(
             key=req.key, type=t.name, count=t.count, max_size=t.max_size, capacity=t.capacity,
-            mode=req.mode, shm_name=info.shm_name, wake=len(wake), generation=seg.layout.generation,
+            mode=req.mode, shm_name=info.shm_name, wake=len(wake), generation=client.pushes,
+            notice=notice is not None,
         )
-        self._send(client, reply, fds=[fd, *wake], close_after=[fd])
+        self._send(client, reply, fds=[*fds, *wake], close_after=fds)
 
     @staticmethod
     def _close_fd(fd: int | None) -> None:
@@ -419,25 +495,32 @@ class IxmServer:
                     for conn in list(seg.wake_fds):
                         if conn not in seg.info.readers:
                             self._close_fd(seg.wake_fds.pop(conn))
-                    gen = (seg.layout.generation + 1) & 0xFFFFFFFF
                     for conn in sorted(seg.info.writers):
                         if conn == origin:  # an opening "rw" client gets its list with Opened
                             continue
                         writer = self._clients.get(conn)
                         if writer is not None:
-                            self._send_wake_list(writer, seg, gen)
-                    # published after the lists are queued: a writer that sees the new generation finds its list
-                    if self._segments.get(key) is seg:
-                        seg.layout.bump_generation()
+                            self._send_wake_list(writer, seg)
                 case CreateSegment():
                     pass
 
-    def _send_wake_list(self, writer: _Client, seg: _Segment, gen: int) -> None:
+    def _send_wake_list(self, writer: _Client, seg: Segment) -> None:
         fds = seg.fds_to_wake(writer.id)
-        self._send(writer, WakeList(key=seg.info.key, generation=gen, count=len(fds)), fds=fds)
+        writer.pushes += 1
+        self._send(writer, WakeList(key=seg.info.key, generation=writer.pushes, count=len(fds)), fds=fds)
+        # published after the list is queued: a writer that sees the new count finds the list in its socket
+        if writer.notice is not None:
+            writer.notice.count[0] = writer.pushes
 
-    def _listing(self, key: str | None) -> Listing:
-        pid_of = {c: p.peer.pid for c, p in self.registry.processes.items()}
+    def _listing(self, key: str | None, caller: Peer) -> Listing:
+        """What ``caller`` may see: the keys its rules let it open, and who holds them; root sees all."""
+        registry = self.registry
+        everything = caller.uid in registry.rules.superusers
+        visible = {
+            s.key for s in registry.segments.values()
+            if (key is None or s.key == key) and (everything or registry.visible(caller, s))
+        }
+        pid_of = {c: p.peer.pid for c, p in registry.processes.items()}
         segments = [
             SegmentView(
                 key=s.key, shm_name=s.shm_name, type=s.type.name, count=s.type.count, max_size=s.type.max_size,
@@ -445,14 +528,15 @@ class IxmServer:
                 readers=sorted(pid_of[c] for c in s.readers if c in pid_of),
                 writers=sorted(pid_of[c] for c in s.writers if c in pid_of),
             )
-            for s in sorted(self.registry.segments.values(), key=lambda s: s.key)
-            if key is None or s.key == key
+            for s in sorted(registry.segments.values(), key=lambda s: s.key)
+            if s.key in visible
         ]
-        processes = [
-            ProcessView(name=p.name, pid=p.peer.pid, uid=p.peer.uid, keys=dict(p.keys))
-            for p in self.registry.processes.values()
-            if key is None or key in p.keys
-        ]
+        processes = []
+        for p in registry.processes.values():
+            keys = {k: m for k, m in p.keys.items() if k in visible}
+            own = key is None and (everything or p.peer.uid == caller.uid)
+            if keys or own:
+                processes.append(ProcessView(name=p.name, pid=p.peer.pid, uid=p.peer.uid, keys=keys))
         return Listing(processes=processes, segments=segments)
 
     # output --------------------------------------------------------------------------------------------

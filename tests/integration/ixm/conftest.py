@@ -1,4 +1,8 @@
-"""IXM integration fixtures: a real daemon process, and a guard that no segment leaks into /dev/shm."""
+"""IXM integration fixtures: a real daemon process, and a guard that no segment outlives its holders.
+
+Segments are memfds: they have no name in /dev/shm, but every process holding one shows it in
+/proc/PID/fd as ``/memfd:<segment_prefix><n> (deleted)``.
+"""
 
 from __future__ import annotations
 
@@ -19,11 +23,27 @@ SHM = Path("/dev/shm")
 
 
 def ixm_segments() -> set[str]:
-    return {n for n in os.listdir(SHM) if n.startswith("mrosd-ixm-")}
+    """Names of the IXM segments some process on the machine holds open."""
+    names: set[str] = set()
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            fds = os.listdir(f"/proc/{pid}/fd")
+        except OSError:
+            continue
+        for fd in fds:
+            try:
+                link = os.readlink(f"/proc/{pid}/fd/{fd}")
+            except OSError:
+                continue
+            if link.startswith("/memfd:mrosd-ixm-"):
+                names.add(link.removeprefix("/memfd:").removesuffix(" (deleted)"))
+    return names
 
 
 def own_segments(socket_path: str) -> set[str]:
-    """The segments in /dev/shm of the daemon serving ``socket_path`` (others may run at the same time)."""
+    """The segments of the daemon serving ``socket_path`` (others may run at the same time)."""
     prefix = segment_prefix(socket_path)
     return {n for n in ixm_segments() if n.startswith(prefix)}
 
@@ -74,7 +94,7 @@ class ShmGuard:
 
 @pytest.fixture
 def shm_guard(tmp_path: Path) -> Iterator[ShmGuard]:
-    """Fails the test if its daemons leave a segment in /dev/shm (checked after they stopped).
+    """Fails the test if a segment of its daemons is still held when it ends (checked after they stopped).
 
     ``tmp_path / "ixm.sock"`` is watched by default; call ``watch(path)`` for other socket paths.
     """
@@ -83,6 +103,7 @@ def shm_guard(tmp_path: Path) -> Iterator[ShmGuard]:
     yield guard
     leaked = guard.leftovers()
     assert not leaked, f"leaked shared memory segments: {sorted(leaked)}"
+    assert not {n for n in os.listdir(SHM) if n.startswith("mrosd-ixm-")}, "an IXM segment has a name in /dev/shm"
 
 
 @pytest.fixture

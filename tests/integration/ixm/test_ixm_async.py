@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from mrosd.errors import IxmError, IxmPermissionError
-from mrosd.ixm import AccessRules, AsyncIxmClient
+from mrosd.ixm import AccessRules, AsyncIxmClient, IxmClient
 from mrosd.ixm.server import IxmServer
 from tests.integration.ixm.conftest import ShmGuard
 
@@ -98,3 +98,17 @@ async def test_reloaded_rules_apply_to_later_opens(shm_guard: ShmGuard, tmp_path
         key = await a.open("/x", "float64", mode="rw")
         key.write(1.0)
         assert key.read() == 1.0
+
+
+async def test_a_client_over_a_cap_gets_the_daemons_one_line_reason_sync_or_async(tmp_path: Path) -> None:
+    sock = str(tmp_path / "ixm.sock")
+    async with IxmServer(sock, max_clients_per_uid=1, max_keys_per_uid=1), AsyncIxmClient(sock) as first:
+        await first.open("/one", "int32", mode="w")
+        with pytest.raises(IxmError, match=r"holds 1 IXM keys, the per-user limit \(max_keys_per_uid\)"):
+            await first.open("/two", "int32", mode="w")
+        with pytest.raises(IxmError, match=r"already has 1 IXM connections, the per-user limit") as exc:
+            await AsyncIxmClient(sock).connect()
+        assert "\n" not in str(exc.value)
+        loop = asyncio.get_running_loop()
+        with pytest.raises(IxmError, match=r"the per-user limit \(max_clients_per_uid\)"):
+            await loop.run_in_executor(None, lambda: IxmClient(sock, timeout=2))

@@ -107,7 +107,7 @@ def test_a_denied_reader_cannot_read_and_a_reader_cannot_write(
             f'[ixm.rules.keys."/shared"]\nread_uids = [{other_user.pw_uid}]\n'
         )
         sock = shm_guard.watch(os.path.join(tmp, "ixm.sock"))
-        start_daemon(procs, sock, str(config))
+        daemon = start_daemon(procs, sock, str(config))
         with IxmClient(sock) as ixm:
             ixm.open("/secret", "float64", mode="w").write(42.0)
             writer = ixm.open("/shared", "float64", count=2, mode="w")
@@ -133,7 +133,9 @@ def test_a_denied_reader_cannot_read_and_a_reader_cannot_write(
                     }
 
             result = run_as(other_user, as_other)
-            segment_file = "/dev/shm" + ixm.list("/shared").segments[0].shm_name
+            assert ixm.list("/shared").segments[0].shm_name.startswith("memfd:")
+            daemon_fds = [f"/proc/{daemon.pid}/fd/{fd}" for fd in os.listdir(f"/proc/{daemon.pid}/fd")]
+            segment_file = next(p for p in daemon_fds if os.readlink(p).startswith("/memfd:mrosd-ixm-"))
 
             def open_by_path() -> dict[str, Any]:
                 return {"path": outcome(lambda: os.open(segment_file, os.O_RDWR))}

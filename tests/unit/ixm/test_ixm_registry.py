@@ -88,3 +88,50 @@ def test_segments_exist_exactly_while_someone_holds_them(ops: list[tuple[int, st
                 live.discard(key)
     held = {k for p in reg.processes.values() for k in p.keys}
     assert live == held == set(reg.segments)
+
+
+def test_keys_held_are_capped_per_uid_and_overall_and_released_on_close_and_death() -> None:
+    reg = make()
+    reg.max_keys_per_uid = 2
+    reg.max_keys = 3
+    reg.open(1, "/a", "int32", None, None, "w")
+    reg.open(1, "/b", "int32", None, None, "w")
+    with pytest.raises(IxmError, match="uid 1000 already holds 2 IXM keys, the per-user limit"):
+        reg.open(1, "/c", "int32", None, None, "w")
+    reg.open(2, "/a", None, None, None, "r")
+    with pytest.raises(IxmError, match="holds 3 keys, its limit"):
+        reg.open(2, "/b", None, None, None, "r")
+    reg.close(1, "/a")
+    assert reg.keys_by_uid == {1000: 1, 1001: 1} and reg.keys_held == 2
+    reg.disconnect(1)
+    reg.disconnect(2)
+    assert reg.keys_by_uid == {} and reg.keys_held == 0
+
+
+@given(st.lists(st.tuples(st.sampled_from([1, 2]), st.sampled_from(["/a", "/b", "/c"]), st.booleans()), max_size=40))
+def test_the_key_counts_always_match_what_processes_hold(ops: list[tuple[int, str, bool]]) -> None:
+    reg = make()
+    reg.rules = AccessRules(default="allow")
+    for conn, key, opening in ops:
+        try:
+            if opening:
+                reg.open(conn, key, "int32", None, None, "rw")
+            else:
+                reg.close(conn, key)
+        except IxmError:
+            pass
+        by_uid: dict[int, int] = {}
+        for proc in reg.processes.values():
+            if proc.keys:
+                by_uid[proc.peer.uid] = by_uid.get(proc.peer.uid, 0) + len(proc.keys)
+        assert reg.keys_by_uid == by_uid and reg.keys_held == sum(by_uid.values())
+
+
+def test_a_key_is_visible_to_whoever_may_open_it_in_some_mode() -> None:
+    reg = make()
+    reg.rules = AccessRules(default="deny")
+    reg.connect(3, Peer(pid=33, uid=0, gid=0), "root")
+    info, _ = reg.open(3, "/a", "int32", None, None, "w")
+    assert not reg.visible(reg.processes[2].peer, info)
+    assert not reg.visible(reg.processes[1].peer, info)  # "deny": only root and the daemon's uid
+    assert reg.visible(Peer(pid=1, uid=0, gid=0), info)
