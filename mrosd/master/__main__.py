@@ -13,6 +13,7 @@ import os
 import signal
 import sys
 
+from mrosd.loop import run
 from mrosd.master.server import Master, parse_networks, port_from_master_uri
 
 
@@ -29,7 +30,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         metavar="NET",
         help="client network allowed to call, e.g. 127.0.0.0/8 (repeatable; default: everyone)",
     )
-    parser.add_argument("--no-uvloop", action="store_true", help="use the stock asyncio event loop")
+    parser.add_argument("--no-uvloop", action="store_true", help="use the stock asyncio loop (as MROSD_LOOP=asyncio)")
     parser.add_argument("-v", "--verbose", action="store_true", help="log every notification failure")
     return parser.parse_args(argv)
 
@@ -57,15 +58,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING, format="%(asctime)s %(name)s: %(message)s"
     )
-    if not args.no_uvloop:
-        try:
-            import uvloop
-        except ImportError:  # pragma: no cover - uvloop is a project dependency
-            pass
-        else:
-            uvloop.install()
     try:
-        asyncio.run(serve(args))
+        run(serve(args), use_uvloop=not args.no_uvloop)
     except OSError as exc:
         print(f"mrosd master: cannot listen: {exc}", file=sys.stderr)
         return 1
