@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import ipaddress
 import os
+import re
 import tomllib
 import urllib.parse
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 import msgspec
 
@@ -25,6 +26,7 @@ from mrosd.errors import ConfigError
 
 __all__ = [
     "DEFAULT_CONFIG_PATH",
+    "MAX_DEPTH",
     "Config",
     "IxmConfig",
     "LogConfig",
@@ -32,29 +34,58 @@ __all__ = [
     "RosoutConfig",
     "default_ixm_socket",
     "load_config",
+    "parse_config",
+    "part_options",
+    "valid_host",
 ]
 
 DEFAULT_CONFIG_PATH = Path("/etc/mrosd/mrosd.toml")
 
+#: Tables nested deeper than this are refused before anything walks them (no recursion limit to hit).
+MAX_DEPTH = 32
+
 LogLevel = Literal["debug", "info", "warning", "error"]
+Count = Annotated[int, msgspec.Meta(ge=1)]
+Seconds = Annotated[float, msgspec.Meta(gt=0)]
 
 
 class MasterConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """``[master]``: where the ROS master and parameter server listen and who may call them."""
+    """``[master]``: where the ROS master and parameter server listen, who may call them, and its caps.
+
+    Every key not in ``DAEMON_KEYS`` is a keyword argument of ``mrosd.master.Master`` of the same name,
+    passed only when set (None keeps the master's own default): adding a cap is one line here.
+    """
+
+    DAEMON_KEYS: ClassVar[frozenset[str]] = frozenset({"host", "port", "allow"})
 
     host: str = "0.0.0.0"
     port: int = 11311
     #: networks (CIDR) whose clients may call the master; empty means everyone who can reach the port.
     allow: list[str] = msgspec.field(default_factory=list)
+    max_connections: Count | None = None
+    max_connections_per_host: Count | None = None
+    idle_timeout: Seconds | None = None
+    notify_timeout: Seconds | None = None
+    notify_queue: Count | None = None
 
 
 class IxmConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """``[ixm]``: the shared-memory registry's Unix socket and its access rules (opaque here)."""
+    """``[ixm]``: the shared-memory registry's Unix socket, its caps, and its access rules (opaque here).
+
+    Every key not in ``DAEMON_KEYS`` is a keyword argument of ``mrosd.ixm.server.IxmServer`` of the same
+    name, passed only when set (None keeps the server's own default): adding a cap is one line here.
+    """
+
+    DAEMON_KEYS: ClassVar[frozenset[str]] = frozenset({"enabled", "socket", "rules"})
 
     enabled: bool = True
     #: empty means the default search (``$MROSD_IXM_SOCKET``, ``/run/mrosd``, ``$XDG_RUNTIME_DIR``, ``/tmp``).
     socket: str = ""
     rules: dict[str, Any] = msgspec.field(default_factory=dict)
+    max_clients: Count | None = None
+    max_clients_per_uid: Count | None = None
+    max_keys: Count | None = None
+    max_keys_per_uid: Count | None = None
 
 
 class RosoutConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -78,6 +109,15 @@ class Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     log: LogConfig = msgspec.field(default_factory=LogConfig)
     #: the file this came from, or "" for defaults only (not a TOML key).
     source: str = ""
+
+
+def part_options(section: MasterConfig | IxmConfig) -> dict[str, Any]:
+    """The keyword arguments a section passes to its part: its set keys, minus those the daemon consumes."""
+    return {
+        name: value
+        for name in section.__struct_fields__
+        if name not in section.DAEMON_KEYS and (value := getattr(section, name)) is not None
+    }
 
 
 def default_ixm_socket(environ: Mapping[str, str] | None = None) -> str:
@@ -107,10 +147,41 @@ def _convert(raw: dict[str, Any], source: str) -> Config:
     return cfg
 
 
+_HOST_LABEL = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)")
+
+
+def valid_host(host: str) -> bool:
+    """True for an IPv4 or IPv6 literal or a syntactically valid host name (``999.1.1.1`` is neither)."""
+    try:
+        ipaddress.ip_address(host)
+        return True
+    except ValueError:
+        pass
+    labels = host.removesuffix(".").split(".")
+    if not host or len(host) > 253 or all(label.isdigit() for label in labels):
+        return False  # all-numeric names are addresses, and this one did not parse as one
+    return all(_HOST_LABEL.fullmatch(label) for label in labels)
+
+
+def _check_depth(raw: Any, source: str) -> None:
+    """Refuse tables and arrays nested deeper than MAX_DEPTH, iteratively (a 5000-deep file is data too)."""
+    stack: list[tuple[Any, str, int]] = [(raw, "", 0)]
+    while stack:
+        value, key, depth = stack.pop()
+        if depth > MAX_DEPTH:
+            raise ConfigError(f"{source}: {key or 'the file'} is nested more than {MAX_DEPTH} levels deep")
+        if isinstance(value, dict):
+            stack.extend((v, f"{key}.{k}" if key else str(k), depth + 1) for k, v in value.items())
+        elif isinstance(value, list):
+            stack.extend((v, f"{key}[{i}]", depth + 1) for i, v in enumerate(value))
+
+
 def _validate(cfg: Config) -> None:
     where = cfg.source or "configuration"
     if not 0 <= cfg.master.port <= 65535:
         raise ConfigError(f"{where}: master.port must be 0..65535, got {cfg.master.port}")
+    if not valid_host(cfg.master.host):
+        raise ConfigError(f"{where}: master.host is not an IP address or host name: {cfg.master.host!r}")
     for i, net in enumerate(cfg.master.allow):
         try:
             ipaddress.ip_network(net, strict=False)
@@ -141,6 +212,8 @@ def apply_environment(cfg: Config, environ: Mapping[str, str]) -> Config:
         cfg.master.port = 11311 if port is None else port
     if "MROSD_MASTER_HOST" in environ:
         cfg.master.host = environ["MROSD_MASTER_HOST"]
+        if not valid_host(cfg.master.host):
+            raise ConfigError(f"environment: MROSD_MASTER_HOST is not an IP address or host name: {cfg.master.host!r}")
     if "MROSD_MASTER_PORT" in environ:
         value = environ["MROSD_MASTER_PORT"]
         try:
@@ -173,6 +246,9 @@ def parse_config(text: str, source: str = "<string>") -> Config:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{source}: not valid TOML: {exc}") from exc
+    except RecursionError as exc:  # tomllib recurses once per nesting level
+        raise ConfigError(f"{source}: not valid TOML: nested too deeply (more than {MAX_DEPTH} levels)") from exc
+    _check_depth(raw, source)
     cfg = _convert(raw, source)
     _validate(cfg)
     return cfg

@@ -2,13 +2,24 @@
 
 from __future__ import annotations
 
+import importlib
+import inspect
 from pathlib import Path
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mrosd.config import Config, load_config, parse_config
+from mrosd.config import (
+    MAX_DEPTH,
+    Config,
+    IxmConfig,
+    MasterConfig,
+    load_config,
+    parse_config,
+    part_options,
+    valid_host,
+)
 from mrosd.errors import ConfigError
 
 EXAMPLE = Path(__file__).resolve().parents[3] / "packaging" / "mrosd.toml"
@@ -86,3 +97,63 @@ def test_arbitrary_text_either_parses_or_raises_config_error(text: str) -> None:
         parse_config(text)
     except ConfigError:
         pass
+
+
+@pytest.mark.parametrize("host", ["999.1.1.1", "1.2.3", "", "bad host", "-x.example", "a..b", "x" * 64 + ".com"])
+def test_a_master_host_that_is_no_address_or_name_is_refused(host: str) -> None:
+    with pytest.raises(ConfigError, match=r"master\.host"):
+        parse_config(f"[master]\nhost = {host!r}\n".replace("'", '"'), "mrosd.toml")
+
+
+@pytest.mark.parametrize("host", ["0.0.0.0", "::", "127.0.0.1", "fe80::1", "localhost", "robot-1.lan", "robot.lan."])
+def test_addresses_and_host_names_are_valid_master_hosts(host: str) -> None:
+    assert valid_host(host)
+    assert parse_config(f'[master]\nhost = "{host}"\n').master.host == host
+
+
+def test_the_environment_host_is_validated_too() -> None:
+    with pytest.raises(ConfigError, match="MROSD_MASTER_HOST"):
+        load_config(None, {"MROSD_MASTER_HOST": "999.1.1.1"})
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "a = " + "[" * 5000 + "]" * 5000,
+        "a = " + "{b = " * 3000 + "1" + "}" * 3000,
+        "a = " + "[" * (MAX_DEPTH + 2) + "]" * (MAX_DEPTH + 2),
+        "[ixm.rules]\n" + ".".join(["x"] * (MAX_DEPTH + 2)) + " = 1",
+    ],
+)
+def test_deeply_nested_toml_is_a_config_error_not_a_crash(text: str) -> None:
+    with pytest.raises(ConfigError, match="nested"):
+        parse_config(text, "mrosd.toml")
+
+
+@given(st.integers(1, 4000))
+def test_any_nesting_depth_is_either_accepted_or_a_config_error(depth: int) -> None:
+    try:
+        parse_config("[ixm.rules]\nx = " + "[" * depth + "]" * depth)
+    except ConfigError:
+        assert depth > MAX_DEPTH - 2
+
+
+@pytest.mark.parametrize(
+    ("section", "part"), [(MasterConfig, "mrosd.master:Master"), (IxmConfig, "mrosd.ixm.server:IxmServer")]
+)
+def test_every_cap_of_a_section_is_a_keyword_of_its_part(section: type[MasterConfig | IxmConfig], part: str) -> None:
+    module, name = part.split(":")
+    params = inspect.signature(getattr(importlib.import_module(module), name)).parameters
+    caps = set(section.__struct_fields__) - section.DAEMON_KEYS
+    assert caps, "no caps to pass"
+    assert caps <= {p for p, v in params.items() if v.kind is inspect.Parameter.KEYWORD_ONLY}
+
+
+def test_caps_are_passed_only_when_set_and_must_be_positive() -> None:
+    cfg = parse_config("[master]\nidle_timeout = 30\nmax_connections = 100\n[ixm]\nmax_keys_per_uid = 64\n")
+    assert part_options(cfg.master) == {"idle_timeout": 30.0, "max_connections": 100}
+    assert part_options(cfg.ixm) == {"max_keys_per_uid": 64}
+    assert part_options(Config().master) == {}
+    for bad in ("[master]\nidle_timeout = 0\n", "[ixm]\nmax_clients = -1\n", '[ixm]\nmax_keys = "many"\n'):
+        with pytest.raises(ConfigError, match=r"master\.idle_timeout|ixm\.max_"):
+            parse_config(bad, "mrosd.toml")
