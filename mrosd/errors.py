@@ -1,7 +1,16 @@
-"""Every exception mrosd raises, in one flat hierarchy.
+"""Every exception mrosd raises, in one tree whose first level says who is at fault.
 
-The split says who is at fault: ``LocalProtocolError`` means our caller misused the API,
-``RemoteProtocolError`` means a peer sent bad bytes (only that connection is closed).
+- ``LocalProtocolError``: our own caller misused the API (a bug in the calling code; fix the call).
+- ``RemoteProtocolError``: another process sent bytes or a request we refuse; only that connection or call
+  fails, never the daemon. ``RequestRefused`` (and its ``InvalidArgument``, ``HttpRefused``) is the
+  well-formed request answered with a refusal code rather than a dropped connection.
+- ``ConfigError``: the operator's configuration (file, environment, flags); the message names the key.
+- ``Unavailable``: something needed is not there (a master that does not answer, a daemon that is down);
+  nobody misbehaved, retrying later may work.
+- The rest group errors by subject (``MsgError``, ``XmlRpcError``, ``MasterError``, ``IxmError``, ...);
+  where the subject error also has a culprit it inherits both (``DeserializationError`` is a
+  ``RemoteProtocolError``, ``MasterUnreachableError`` is ``Unavailable``).
+
 Foreign exceptions are translated at the boundary with ``raise ... from exc``.
 """
 
@@ -18,6 +27,31 @@ class LocalProtocolError(MrosError):
 
 class RemoteProtocolError(MrosError):
     """A peer sent bytes that break the protocol; the connection to that peer is closed."""
+
+
+class RequestRefused(RemoteProtocolError):
+    """A peer's request is answered with a refusal (``code``: an XML-RPC status or an HTTP status)."""
+
+    def __init__(self, message: str, code: int = -1) -> None:
+        self.code = code
+        super().__init__(message)
+
+
+class InvalidArgument(RequestRefused):
+    """An argument of a peer's call failed validation; the message goes back to the caller with code -1."""
+
+
+class HttpRefused(RequestRefused):
+    """An HTTP request refused with ``status`` and the short ``text`` body to send before closing."""
+
+    def __init__(self, status: int, text: bytes) -> None:
+        self.status = status
+        self.text = text
+        super().__init__(text.decode("utf-8", "replace").strip() or f"HTTP {status}", status)
+
+
+class Unavailable(MrosError):
+    """Something needed is not there or does not answer in time; nobody misbehaved, a retry may work."""
 
 
 class HandshakeError(RemoteProtocolError):
@@ -55,6 +89,15 @@ class XmlRpcError(MrosError):
     """An XML-RPC call failed: transport error, timeout, fault, or malformed response."""
 
 
+class XmlRpcFault(XmlRpcError):
+    """An XML-RPC fault: raised by a handler to answer with it, or by a client when a server sent one."""
+
+    def __init__(self, code: int, message: str) -> None:
+        self.code = code
+        self.message = message
+        super().__init__(f"XML-RPC fault {code}: {message}")
+
+
 class MasterError(MrosError):
     """The master answered a call with a failure or error code; carries code and status message."""
 
@@ -65,7 +108,7 @@ class MasterError(MrosError):
         super().__init__(f"master {method}: {status} (code {code})")
 
 
-class MasterUnreachableError(MasterError):
+class MasterUnreachableError(MasterError, Unavailable):
     """The ROS master could not be reached at its URI."""
 
     def __init__(self, uri: str, reason: str) -> None:
