@@ -5,7 +5,6 @@ The test plays systemd's part with a real AF_UNIX datagram socket and a real dae
 
 from __future__ import annotations
 
-import os
 import signal
 import socket
 import subprocess
@@ -14,61 +13,30 @@ import time
 import xmlrpc.client
 from pathlib import Path
 
-from tests.rosenv import Processes, free_port
+import pytest
 
-
-def _daemon_env(tmp: Path, notify: str, **extra: str) -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "MROSD_", "NOTIFY_", "WATCHDOG_"))}
-    env.update(
-        NOTIFY_SOCKET=notify,
-        JOURNAL_STREAM="8:12345",
-        MROSD_IXM_SOCKET=str(tmp / "run" / "ixm.sock"),
-        ROS_HOSTNAME="127.0.0.1",
-        PYTHONUNBUFFERED="1",
-    )
-    env.update(extra)
-    return env
-
-
-def _receive_until(sock: socket.socket, wanted: str, timeout: float) -> list[str]:
-    """Datagrams until one contains the line ``wanted``; fails the test after ``timeout`` seconds."""
-    seen: list[str] = []
-    deadline = time.monotonic() + timeout
-    while True:
-        remaining = deadline - time.monotonic()
-        if remaining <= 0:
-            raise TimeoutError(f"no {wanted} within {timeout} s; got {seen}")
-        sock.settimeout(remaining)
-        msg = sock.recv(4096).decode()
-        seen.append(msg)
-        if wanted in msg.split("\n"):
-            return seen
+from tests.integration.daemon.daemonproc import DaemonRun, daemon_env
+from tests.rosenv import Processes
 
 
 def test_the_daemon_notifies_ready_once_the_master_answers_and_exits_cleanly_on_sigterm(
     procs: Processes, tmp_path: Path
 ) -> None:
-    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    notify_path = str(tmp_path / "notify.sock")
-    notify.bind(notify_path)
-    port = free_port()
-    env = _daemon_env(tmp_path, notify_path, WATCHDOG_USEC="400000")
-    proc = procs.our_python(["-m", "mrosd.daemon", "--port", str(port)], env)
+    run = DaemonRun(procs, tmp_path, env=daemon_env(tmp_path, WATCHDOG_USEC="400000"))
     try:
-        _receive_until(notify, "READY=1", timeout=30)
+        run.ready()
         # READY means the master answers now, not eventually.
-        with xmlrpc.client.ServerProxy(f"http://127.0.0.1:{port}/") as proxy:
+        with xmlrpc.client.ServerProxy(run.uri) as proxy:
             assert proxy.getPid("/test")[0] == 1
-        _receive_until(notify, "WATCHDOG=1", timeout=5)
+        run.notify.until("WATCHDOG=1", timeout=5)
         start = time.monotonic()
-        proc.send_signal(signal.SIGTERM)
-        _receive_until(notify, "STOPPING=1", timeout=5)
-        assert proc.wait(timeout=10) == 0
+        run.signal(signal.SIGTERM)
+        run.notify.until("STOPPING=1", timeout=5)
+        assert run.proc.wait(timeout=10) == 0
         assert time.monotonic() - start < 10
     finally:
-        notify.close()
-    assert proc.stderr is not None
-    lines = proc.stderr.read().decode().splitlines()
+        run.close()
+    lines = run.stderr().splitlines()
     assert lines, "the daemon logged nothing"
     assert all(line.startswith("<") and line[2] == ">" for line in lines), lines
     assert any(line.startswith("<6>") and "ready" in line for line in lines)
@@ -79,12 +47,11 @@ def test_a_port_already_in_use_is_a_one_line_error_and_exit_code_1(procs: Proces
     with socket.socket() as busy:
         busy.bind(("0.0.0.0", 0))
         busy.listen()
-        port = busy.getsockname()[1]
-        env = _daemon_env(tmp_path, "", MROSD_ROSOUT="0", MROSD_IXM="0")
-        proc = procs.our_python(["-m", "mrosd.daemon", "--port", str(port)], env)
-        assert proc.wait(timeout=30) == 1
-    assert proc.stderr is not None
-    assert "cannot start" in proc.stderr.read().decode()
+        env = daemon_env(tmp_path, MROSD_ROSOUT="0", MROSD_IXM="0")
+        run = DaemonRun(procs, tmp_path, env=env, port=busy.getsockname()[1])
+        assert run.proc.wait(timeout=30) == 1
+    run.close()
+    assert "cannot start" in run.stderr()
 
 
 def check_config(path: Path) -> subprocess.CompletedProcess[str]:
@@ -124,30 +91,57 @@ def test_check_config_validates_the_ixm_access_rules_naming_the_key(tmp_path: Pa
 
 
 def test_sighup_reloads_the_ixm_rules_and_keeps_running_on_a_broken_file(procs: Processes, tmp_path: Path) -> None:
-    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    notify_path = str(tmp_path / "notify.sock")
-    notify.bind(notify_path)
     config = tmp_path / "mrosd.toml"
     config.write_text('[ixm.rules]\ndefault = "creator"\n[rosout]\nenabled = false\n')
-    port = free_port()
-    env = _daemon_env(tmp_path, notify_path)
-    proc = procs.our_python(["-m", "mrosd.daemon", "--config", str(config), "--port", str(port)], env)
+    run = DaemonRun(procs, tmp_path, "--config", str(config))
     try:
-        _receive_until(notify, "READY=1", timeout=30)
+        run.ready()
         config.write_text('[ixm.rules]\ndefault = "deny"\n[rosout]\nenabled = false\n')
-        proc.send_signal(signal.SIGHUP)
-        _receive_until(notify, "RELOADING=1", timeout=10)
-        _receive_until(notify, "READY=1", timeout=10)
+        run.signal(signal.SIGHUP)
+        run.notify.until("RELOADING=1", timeout=10)
+        run.notify.until("READY=1", timeout=10)
         config.write_text('[ixm.rules]\ndefault = "sometimes"\n')
-        proc.send_signal(signal.SIGHUP)
-        _receive_until(notify, "RELOADING=1", timeout=10)
-        _receive_until(notify, "READY=1", timeout=10)
-        proc.send_signal(signal.SIGTERM)
-        assert proc.wait(timeout=10) == 0
+        run.signal(signal.SIGHUP)
+        run.notify.until("RELOADING=1", timeout=10)
+        run.notify.until("READY=1", timeout=10)
+        assert run.stop()[0] == 0
     finally:
-        notify.close()
-    assert proc.stderr is not None
-    log = proc.stderr.read().decode()
+        run.close()
+    log = run.stderr()
     assert "SIGHUP: IXM access rules reloaded" in log
     assert "reload failed, keeping the running configuration" in log
     assert "ixm.rules.default" in log
+
+
+def test_check_config_refuses_a_toml_nested_5000_deep_in_one_line(tmp_path: Path) -> None:
+    deep = tmp_path / "deep.toml"
+    deep.write_text("a = " + "[" * 5000 + "]" * 5000 + "\n")
+    out = check_config(deep)
+    assert out.returncode == 2, out.stderr
+    assert out.stderr.count("\n") == 1 and "nested" in out.stderr and str(deep) in out.stderr, out.stderr
+
+
+def test_check_config_refuses_a_master_host_that_is_not_an_address(tmp_path: Path) -> None:
+    bad = tmp_path / "host.toml"
+    bad.write_text('[master]\nhost = "999.1.1.1"\n')
+    out = check_config(bad)
+    assert out.returncode == 2, out.stdout
+    assert out.stderr.count("\n") == 1 and "master.host" in out.stderr and "999.1.1.1" in out.stderr
+
+
+def test_check_config_validates_the_ixm_bridges_the_daemon_runs(tmp_path: Path) -> None:
+    bad = tmp_path / "bridge.toml"
+    bad.write_text('[ixm.rules.bridges."/arm"]\ntype = "std_msgs/Float64"\ndirektion = "to_topic"\n')
+    out = check_config(bad)
+    assert out.returncode == 2, out.stdout
+    assert out.stderr.count("\n") == 1 and 'bridges."/arm"' in out.stderr and "direktion" in out.stderr
+
+
+@pytest.mark.parametrize("text", ["[bridges]\n", "[master]\nidle_timeot = 5\n", "[ixm]\nmax_key = 5\n"])
+def test_check_config_refuses_unknown_sections_and_keys_naming_them(tmp_path: Path, text: str) -> None:
+    bad = tmp_path / "unknown.toml"
+    bad.write_text(text)
+    out = check_config(bad)
+    assert out.returncode == 2, out.stdout
+    name = text.strip().split("\n")[-1].split(" ")[0].strip("[]")
+    assert out.stderr.count("\n") == 1 and name in out.stderr, out.stderr
