@@ -6,15 +6,19 @@ when installed), POSIX signals and the systemd protocol. The parts it composes (
 ``start()``/``aclose()`` and know nothing of signals or systemd.
 
 Lifecycle, as systemd sees it (``Type=notify``):
-  1. start the master, then check it answers ``getPid`` over XML-RPC, then start IXM and rosout;
-  2. send ``READY=1`` with a status line; ping ``WATCHDOG=1`` at half ``WATCHDOG_USEC`` while the master
-     still answers its own ``getPid``;
-  3. ``SIGHUP`` re-reads the file and reloads the IXM access rules (other sections need a restart);
-  4. ``SIGTERM``/``SIGINT`` send ``STOPPING=1`` and close every part within ``SHUTDOWN_TIMEOUT`` seconds
-     (sockets closed, shared-memory segments unlinked by the IXM server), then exit 0.
+  1. raise the soft descriptor limit to the hard one; start the master and check it answers ``getPid``
+     over XML-RPC (if not: exit 1); then IXM, its topic bridges and rosout, each of which may fail alone:
+     one error line naming the part and why, and the daemon runs degraded (``--strict``: exit 1);
+  2. send ``READY=1`` with a status line (``running: ...`` or ``degraded: ...``); ping ``WATCHDOG=1`` at
+     half ``WATCHDOG_USEC`` while the master still answers its own ``getPid``;
+  3. ``SIGHUP`` re-reads the file and reloads the IXM access rules (other sections need a restart); any
+     error keeps the running configuration;
+  4. ``SIGTERM``/``SIGINT`` send ``STOPPING=1`` and close the parts in reverse order within
+     ``SHUTDOWN_TIMEOUT`` seconds (the IXM server removes its socket), then exit 0. Signals arrive on a
+     thread of their own, so a blocked event loop cannot hold the process past the deadline.
 
-Exit codes: 0 clean stop, 1 runtime failure (a port in use, a part failed to start), 2 bad configuration
-or usage.
+Exit codes: 0 clean stop, 1 runtime failure (a port in use, a part failed to start under ``--strict``, a part
+that did not close in time), 2 bad configuration or usage.
 """
 
 from __future__ import annotations
@@ -22,25 +26,37 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import importlib
-import inspect
 import logging
 import os
+import resource
 import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from mrosd.config import Config, load_config
+from mrosd.config import Config, load_config, part_options
 from mrosd.errors import ConfigError, MrosError
+from mrosd.loop import event_loop_factory
 from mrosd.sdnotify import Notifier, watchdog_interval
+
+if TYPE_CHECKING:
+    from mrosd.ixm.bridge import Bridge, IxmBridge
+    from mrosd.ixm.rules import AccessRules
+    from mrosd.ixm.server import IxmServer
+    from mrosd.master import Master
+    from mrosd.rosout import RosoutAggregator
+    from mrosd.xmlrpc import XmlRpcClient
 
 log = logging.getLogger("mrosd")
 
 #: Upper bound on a clean shutdown; systemd's TimeoutStopSec in the unit is larger (10 s) so that we, not
 #: SIGKILL, decide what is left behind.
 SHUTDOWN_TIMEOUT = 5.0
+
+#: After SHUTDOWN_TIMEOUT plus this, a shutdown that is still not done (a part blocks the event loop) is
+#: cut short from the signal thread: the IXM socket is unlinked and the process exits 1.
+HARD_STOP_GRACE = 1.0
 
 #: How long the start-up self-check waits for the master to answer its first getPid.
 READY_TIMEOUT = 10.0
@@ -77,6 +93,43 @@ def setup_logging(level: str, environ: dict[str, str] | None = None) -> None:
     root.setLevel(level.upper())
 
 
+def reason(exc: BaseException) -> str:
+    """One line saying why, for a log line or STATUS: our own errors carry it, others get their type named."""
+    if isinstance(exc, MrosError):
+        text = str(exc)
+    elif isinstance(exc, OSError) and exc.strerror:
+        text = f"{exc.strerror}: {exc.filename}" if exc.filename else exc.strerror
+    else:
+        text = f"{type(exc).__name__}: {exc}"
+    return " ".join(text.split()) or type(exc).__name__
+
+
+def raise_nofile_limit() -> int:
+    """Raise the soft RLIMIT_NOFILE to the hard limit (capped at the kernel's ``nr_open``); return the result.
+
+    Every client connection and every IXM key costs the daemon descriptors; distributions still start
+    services with a soft limit of 1024 although the hard limit allows far more.
+    """
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    target = hard
+    if hard == resource.RLIM_INFINITY:
+        try:
+            with open("/proc/sys/fs/nr_open", encoding="ascii") as f:
+                target = int(f.read())
+        except (OSError, ValueError):
+            target = max(soft, 65536) if soft != resource.RLIM_INFINITY else soft
+    if soft == resource.RLIM_INFINITY or soft >= target:
+        log.info("open files: %s", "unlimited" if soft == resource.RLIM_INFINITY else soft)
+        return soft
+    try:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (target, hard))
+    except (OSError, ValueError) as exc:
+        log.warning("open files: %d (could not raise it to %d: %s)", soft, target, reason(exc))
+        return soft
+    log.info("open files: %d (soft limit raised from %d)", target, soft)
+    return target
+
+
 def local_master_uri(cfg: Config, port: int) -> str:
     """The URI this process uses to reach its own master (loopback when it listens on every address)."""
     host = cfg.master.host
@@ -87,66 +140,82 @@ def local_master_uri(cfg: Config, port: int) -> str:
     return f"http://{host}:{port}/"
 
 
-def _import_attr(module: str, name: str) -> Any:
-    """Import a part lazily (so that ``--check-config`` stays fast); ImportError when the part is missing."""
-    try:
-        return getattr(importlib.import_module(module), name)
-    except AttributeError as exc:
-        raise ImportError(f"{module}.{name} is missing") from exc
-
-
-def _load_ixm_rules(raw: dict[str, Any], source: str = "") -> Any:
+def load_ixm_rules(raw: dict[str, Any], source: str = "") -> AccessRules:
     """Parse the opaque ``[ixm.rules]`` table with the IXM part's parser (ConfigError naming the key)."""
-    try:
-        rules_mod = importlib.import_module("mrosd.ixm.rules")
-    except ImportError:
-        return raw
-    where = f"{source}: ixm.rules" if source else "ixm.rules"
-    return rules_mod.parse_rules(raw, where)
+    from mrosd.ixm.rules import parse_rules
+
+    return parse_rules(raw, f"{source}: ixm.rules" if source else "ixm.rules")
+
+
+def load_bridges(raw: dict[str, Any], source: str = "") -> list[Bridge]:
+    """The ``[ixm.rules.bridges]`` table (ConfigError naming the key)."""
+    from mrosd.ixm.bridge import parse_bridges
+
+    return parse_bridges(raw, f"{source}: ixm.rules" if source else "ixm.rules")
 
 
 class Daemon:
-    """The composed parts and their lifecycle; ``main()`` owns the loop and the signals."""
+    """The composed parts and their lifecycle; ``run()`` owns the loop's signals and the systemd protocol.
 
-    def __init__(self, cfg: Config, *, master_only: bool = False, notifier: Notifier | None = None) -> None:
+    The master is the part every node needs, so only the master failing to start is fatal. IXM, its
+    topic bridges and rosout failing to start is logged in one line naming the part and the reason and
+    leaves the daemon running degraded (``STATUS=degraded: ...``), unless ``strict`` makes it fatal.
+    """
+
+    def __init__(
+        self, cfg: Config, *, master_only: bool = False, strict: bool = False, notifier: Notifier | None = None
+    ) -> None:
         self.cfg = cfg
         self.master_only = master_only
+        self.strict = strict
         self.notifier = notifier if notifier is not None else Notifier()
-        self.master: Any = None
-        self.ixm: Any = None
-        self.rosout: Any = None
+        self.master: Master | None = None
+        self.ixm: IxmServer | None = None
+        self.bridge: IxmBridge | None = None
+        self.rosout: RosoutAggregator | None = None
         self.master_uri = ""
+        #: part name -> why it did not start (the daemon runs degraded without it)
+        self.failed: dict[str, str] = {}
         self._parts: list[tuple[str, Any]] = []
-        self._xmlrpc: Any = None
+        self._xmlrpc: XmlRpcClient | None = None
 
     async def start(self) -> None:
-        """Start every configured part; on failure the parts already started are closed again.
+        """Start every configured part; on a fatal failure the parts already started are closed again.
 
         Raises:
-            OSError: a socket could not be bound (port in use, permission).
-            MrosError: a part refused to start.
+            OSError: the master's socket could not be bound (port in use, permission).
+            MrosError: the master does not answer, or (``strict``) another part refused to start.
         """
         try:
             await self._start_master()
             await self._wait_master_answers()
             if not self.master_only and self.cfg.ixm.enabled:
-                await self._start_ixm()
+                await self._optional("ixm", self._start_ixm)
+                if self.ixm is not None:
+                    await self._optional("ixm-bridge", self._start_bridges)
             if not self.master_only and self.cfg.rosout.enabled:
-                await self._start_rosout()
+                await self._optional("rosout", self._start_rosout)
         except BaseException:
             await self.aclose()
             raise
 
-    async def _start_master(self) -> None:
-        Master = _import_attr("mrosd.master", "Master")
+    async def _optional(self, name: str, starter: Callable[[], Any]) -> None:
+        try:
+            await starter()
+        except Exception as exc:
+            why = reason(exc)
+            if self.strict:
+                raise MrosError(f"{name}: {why}") from exc
+            log.error("%s did not start: %s; the master keeps running without it", name, why)
+            if not isinstance(exc, (MrosError, OSError)):
+                log.debug("%s start failure", name, exc_info=exc)
+            self.failed[name] = why
 
-        kwargs: dict[str, Any] = {"host": self.cfg.master.host, "port": self.cfg.master.port}
-        if self.cfg.master.allow:
-            if "allow" in inspect.signature(Master).parameters:
-                kwargs["allow"] = list(self.cfg.master.allow)
-            else:
-                log.warning("master.allow is set but this master does not support network filtering; ignored")
-        master = Master(**kwargs)
+    async def _start_master(self) -> None:
+        from mrosd.master import Master
+
+        allow = list(self.cfg.master.allow) or None
+        master = Master(self.cfg.master.host, self.cfg.master.port, allow=allow, **part_options(self.cfg.master))
         await master.start()
         self.master = master
         self._parts.append(("master", master))
@@ -168,44 +237,48 @@ class Daemon:
                 await asyncio.sleep(0.05)
 
     async def _start_ixm(self) -> None:
-        try:
-            IxmServer = _import_attr("mrosd.ixm.server", "IxmServer")
-        except ImportError as exc:
-            log.warning("IXM registry unavailable in this build (%s); continuing without it", exc)
-            return
-        path = Path(self.cfg.ixm.socket)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        server = IxmServer(str(path), _load_ixm_rules(self.cfg.ixm.rules, self.cfg.source))
-        await server.start()
+        from mrosd.ixm.server import IxmServer
+
+        rules = load_ixm_rules(self.cfg.ixm.rules, self.cfg.source)
+        server = IxmServer(self.cfg.ixm.socket, rules, **part_options(self.cfg.ixm))
+        await server.start()  # creates and checks the socket's directory
         self.ixm = server
         self._parts.append(("ixm", server))
-        log.info("IXM registry listening on %s", path)
+        log.info("IXM registry listening on %s", self.cfg.ixm.socket)
+
+    async def _start_bridges(self) -> None:
+        bridges = load_bridges(self.cfg.ixm.rules, self.cfg.source)
+        if not bridges:
+            return
+        from mrosd.ixm.bridge import IxmBridge
+
+        bridge = IxmBridge(self.cfg.ixm.socket, self.master_uri, bridges)
+        await bridge.start()
+        self.bridge = bridge
+        self._parts.append(("ixm-bridge", bridge))
 
     async def _start_rosout(self) -> None:
-        try:
-            RosoutAggregator = _import_attr("mrosd.rosout", "RosoutAggregator")
-        except ImportError as exc:
-            log.warning("rosout aggregator unavailable in this build (%s); continuing without it", exc)
-            return
+        from mrosd.rosout import RosoutAggregator
+
         agg = RosoutAggregator(self.master_uri)
-        try:
-            await agg.start()
-        except (ImportError, MrosError, OSError) as exc:
-            # The master is what clients need first; a missing /rosout_agg is worth a warning, not an outage.
-            log.warning("rosout aggregator did not start (%s); continuing without it", exc)
-            return
+        await agg.start()
         self.rosout = agg
         self._parts.append(("rosout", agg))
         log.info("rosout aggregator running (/rosout -> /rosout_agg)")
 
     def status_line(self) -> str:
-        """The one-line status for ``systemctl status``."""
+        """The one-line status for ``systemctl status``: ``running: ...`` or ``degraded: ...; ixm failed: why``."""
         parts = [f"master {self.master_uri}"]
         if self.ixm is not None:
             parts.append(f"ixm {self.cfg.ixm.socket}")
+        if self.bridge is not None:
+            parts.append(f"{len(self.bridge.bridges)} ixm bridge(s)")
         if self.rosout is not None:
             parts.append("rosout")
-        return "running: " + ", ".join(parts)
+        line = ", ".join(parts)
+        if not self.failed:
+            return "running: " + line
+        return "degraded: " + line + "; " + "; ".join(f"{name} failed: {why}" for name, why in self.failed.items())
 
     async def master_alive(self, timeout: float) -> bool:
         """True when the master answers ``getPid`` within ``timeout`` seconds (the watchdog's health check)."""
@@ -218,28 +291,146 @@ class Daemon:
         return True
 
     async def reload(self, cfg: Config) -> None:
-        """Apply a re-read configuration: IXM access rules now; other changes are logged as needing a restart."""
-        if (cfg.master, cfg.rosout) != (self.cfg.master, self.cfg.rosout) or cfg.ixm.socket != self.cfg.ixm.socket:
+        """Apply a re-read configuration: IXM access rules now, and the parts that failed to start are tried
+        again; other changes are logged as needing a restart.
+
+        Raises:
+            ConfigError: the new rules do not parse (the running ones stay).
+        """
+        rules = load_ixm_rules(cfg.ixm.rules, cfg.source)
+        old = self.cfg
+        if (cfg.master, cfg.rosout) != (old.master, old.rosout) or cfg.ixm.socket != old.ixm.socket:
             log.warning("SIGHUP: only [ixm.rules] is reloaded; restart mrosd to apply the other changes")
+        if cfg.ixm.rules.get("bridges") != old.ixm.rules.get("bridges"):
+            log.warning("SIGHUP: [ixm.rules.bridges] changed; restart mrosd to apply it")
         if self.ixm is not None:
-            result = self.ixm.reload_rules(_load_ixm_rules(cfg.ixm.rules, cfg.source))
-            if inspect.isawaitable(result):
-                await result
+            self.ixm.reload_rules(rules)
             log.info("SIGHUP: IXM access rules reloaded from %s", cfg.source or "defaults")
         self.cfg.ixm.rules = cfg.ixm.rules
+        if self.failed:
+            await self._retry_failed()
 
-    async def aclose(self) -> None:
-        """Close the parts in reverse start order; each failure is logged, none stops the others."""
+    async def _retry_failed(self) -> None:
+        """Start again the parts that did not start (the operator fixed the cause and sent SIGHUP).
+
+        The master keeps running meanwhile, so its registrations and parameters survive the repair.
+        """
+        retry, self.failed = self.failed, {}
+        log.info("SIGHUP: starting again %s", ", ".join(retry))
+        if "ixm" in retry:
+            await self._optional("ixm", self._start_ixm)
+        if self.ixm is not None and ("ixm" in retry or "ixm-bridge" in retry):
+            await self._optional("ixm-bridge", self._start_bridges)
+        if "rosout" in retry:
+            await self._optional("rosout", self._start_rosout)
+
+    async def aclose(self, timeout: float = SHUTDOWN_TIMEOUT) -> bool:
+        """Close the parts in reverse start order within ``timeout`` seconds in all; True when all closed.
+
+        Each part gets a fair share of the time left, so one part that hangs cannot keep the later ones
+        (the master last) from closing; each failure is logged and none stops the others.
+        """
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        clean = True
         while self._parts:
             name, part = self._parts.pop()
+            budget = max((deadline - loop.time()) / (len(self._parts) + 1), 0.05)
             try:
-                await part.aclose()
-            except Exception:
-                log.exception("closing %s failed", name)
+                async with asyncio.timeout(budget):
+                    await part.aclose()
+            except TimeoutError:
+                log.error("closing %s took longer than %.1f s; left behind", name, budget)
+                clean = False
+            except Exception as exc:
+                log.error("closing %s failed: %s", name, reason(exc))
+                clean = False
         if self._xmlrpc is not None:
             with contextlib.suppress(Exception):
                 await self._xmlrpc.aclose()
             self._xmlrpc = None
+        return clean
+
+    def emergency_cleanup(self) -> None:
+        """Remove what outlives the process (the IXM socket file) without the event loop; thread-safe."""
+        if self.ixm is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(self.cfg.ixm.socket)
+
+
+class SignalThread:
+    """Receives SIGTERM, SIGINT and SIGHUP with ``sigwait`` on a thread of its own.
+
+    asyncio's signal handlers run on the event loop, so a part that blocks the loop would also block the
+    shutdown it asked for. This thread hands each signal to the loop and, from the first stop request on,
+    enforces the hard deadline itself: past it, ``on_deadline`` runs here (and should exit the process).
+    The signals must be blocked on the main thread before any other thread starts (``main()`` does it;
+    ``start()`` blocks them too), so that every thread inherits the mask and only this one receives them.
+    """
+
+    SIGNALS = frozenset({signal.SIGTERM, signal.SIGINT, signal.SIGHUP})
+
+    def __init__(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        on_stop: Callable[[], None],
+        on_reload: Callable[[], None],
+        deadline: float,
+        on_deadline: Callable[[], None],
+    ) -> None:
+        self._loop = loop
+        self._on_stop = on_stop
+        self._on_reload = on_reload
+        self._deadline = deadline
+        self._on_deadline = on_deadline
+        self._done = threading.Event()
+        self._closing = False
+        self._old_mask: set[int | signal.Signals] | None = None
+        self._thread = threading.Thread(target=self._run, name="mrosd-signals", daemon=True)
+
+    def start(self) -> None:
+        self._old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, self.SIGNALS)
+        self._thread.start()
+
+    def _post(self, callback: Callable[[], None]) -> None:
+        with contextlib.suppress(RuntimeError):  # the loop already closed
+            self._loop.call_soon_threadsafe(callback)
+
+    def _run(self) -> None:
+        stopping = False
+        while True:
+            signum = signal.sigwait(self.SIGNALS)
+            if self._closing:
+                return
+            if signum == signal.SIGHUP:
+                self._post(self._on_reload)
+            elif not stopping:
+                stopping = True
+                self._post(self._on_stop)
+                if not self._done.wait(self._deadline) and not self._closing:
+                    self._on_deadline()
+                    return
+
+    def close(self) -> None:
+        """Stop the thread and restore the signal mask (``run()`` has finished its shutdown)."""
+        self._closing = True
+        self._done.set()
+        if self._thread.ident is not None and self._thread.is_alive():
+            with contextlib.suppress(OSError, ProcessLookupError):
+                signal.pthread_kill(self._thread.ident, signal.SIGHUP)
+            self._thread.join(1.0)
+        if self._old_mask is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, self._old_mask)
+            self._old_mask = None
+
+
+def _emergency_log(message: str) -> None:
+    """Write one log line without taking logging's locks (the loop thread may hold them forever)."""
+    record = logging.LogRecord("mrosd", logging.ERROR, __file__, 0, message, None, None)
+    handlers = logging.getLogger().handlers
+    text = handlers[0].format(record) if handlers else message
+    with contextlib.suppress(OSError):
+        os.write(2, (text + "\n").encode(errors="replace"))
 
 
 async def _watchdog(daemon: Daemon, interval: float) -> None:
@@ -251,11 +442,11 @@ async def _watchdog(daemon: Daemon, interval: float) -> None:
             log.warning("watchdog: the master did not answer getPid; not pinging systemd")
 
 
-async def run(cfg: Config, *, config_path: str | None, master_only: bool) -> int:
-    """Run until SIGTERM/SIGINT; returns the process exit code."""
+async def run(cfg: Config, *, config_path: str | None, master_only: bool, strict: bool = False) -> int:
+    """Run until SIGTERM/SIGINT; returns the process exit code. Must run on the main thread."""
     loop = asyncio.get_running_loop()
     notifier = Notifier()
-    daemon = Daemon(cfg, master_only=master_only, notifier=notifier)
+    daemon = Daemon(cfg, master_only=master_only, strict=strict, notifier=notifier)
     stop = asyncio.Event()
     reloads: asyncio.Queue[None] = asyncio.Queue(maxsize=1)  # a burst of SIGHUPs collapses into one reload
 
@@ -263,63 +454,63 @@ async def run(cfg: Config, *, config_path: str | None, master_only: bool) -> int
         with contextlib.suppress(asyncio.QueueFull):
             reloads.put_nowait(None)
 
-    handlers: dict[signal.Signals, Callable[[], None]] = {
-        signal.SIGTERM: stop.set,
-        signal.SIGINT: stop.set,
-        signal.SIGHUP: request_reload,
-    }
-    for signum, handler in handlers.items():
-        loop.add_signal_handler(signum, handler)
+    def hard_stop() -> None:
+        _emergency_log(
+            f"shutdown did not finish within {SHUTDOWN_TIMEOUT:.0f} s (a part blocks the event loop); "
+            "removing the IXM socket and exiting"
+        )
+        daemon.emergency_cleanup()
+        os._exit(EXIT_FAILURE)
+
+    signals = SignalThread(loop, stop.set, request_reload, SHUTDOWN_TIMEOUT + HARD_STOP_GRACE, hard_stop)
+    signals.start()
+    tasks: list[asyncio.Task[None]] = []
+
+    async def reloader() -> None:
+        while True:
+            await reloads.get()
+            notifier.reloading()
+            try:
+                await daemon.reload(load_config(config_path))
+            except Exception as exc:  # whatever the file holds, the running configuration stays
+                log.error("SIGHUP: reload failed, keeping the running configuration: %s", reason(exc))
+                if not isinstance(exc, MrosError):
+                    log.debug("reload failure", exc_info=exc)
+            notifier.ready(daemon.status_line())
+
+    code = EXIT_OK
     try:
         try:
             await daemon.start()
-        except OSError as exc:
-            log.error("cannot start: %s", exc)
-            notifier.status(f"failed: {exc}")
-            return EXIT_FAILURE
-        except MrosError as exc:
-            log.error("cannot start: %s", exc)
-            notifier.status(f"failed: {exc}")
-            return EXIT_FAILURE
-        notifier.ready(daemon.status_line())
-        log.info("ready: %s", daemon.status_line())
-        tasks: list[asyncio.Task[None]] = []
-        interval = watchdog_interval()
-        if interval is not None:
-            tasks.append(asyncio.create_task(_watchdog(daemon, interval), name="mrosd-watchdog"))
-
-        async def reloader() -> None:
-            while True:
-                await reloads.get()
-                notifier.reloading()
-                try:
-                    new_cfg = load_config(config_path)
-                    await daemon.reload(new_cfg)
-                except (MrosError, OSError, ValueError) as exc:
-                    log.error("SIGHUP: reload failed, keeping the running configuration: %s", exc)
-                notifier.ready(daemon.status_line())
-
-        tasks.append(asyncio.create_task(reloader(), name="mrosd-reloader"))
-        await stop.wait()
-        log.info("stopping")
+        except (OSError, MrosError) as exc:
+            log.error("cannot start: %s", reason(exc))
+            notifier.status(f"failed: {reason(exc)}")
+            code = EXIT_FAILURE
+        else:
+            notifier.ready(daemon.status_line())
+            (log.warning if daemon.failed else log.info)("ready: %s", daemon.status_line())
+            interval = watchdog_interval()
+            if interval is not None:
+                tasks.append(asyncio.create_task(_watchdog(daemon, interval), name="mrosd-watchdog"))
+            tasks.append(asyncio.create_task(reloader(), name="mrosd-reloader"))
+            await stop.wait()
+            log.info("stopping")
+    finally:
         notifier.stopping()
         for task in tasks:
             task.cancel()
-        for task in tasks:
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
-        try:
-            async with asyncio.timeout(SHUTDOWN_TIMEOUT):
-                await daemon.aclose()
-        except TimeoutError:
-            log.error("shutdown took longer than %.0f s; exiting anyway", SHUTDOWN_TIMEOUT)
-            return EXIT_FAILURE
-        log.info("stopped")
-        return EXIT_OK
-    finally:
-        for signum in handlers:
-            loop.remove_signal_handler(signum)
+        for result in await asyncio.gather(*tasks, return_exceptions=True):
+            if isinstance(result, Exception):
+                log.error("a daemon task failed: %s", reason(result))
+        clean = await daemon.aclose(SHUTDOWN_TIMEOUT)
+        signals.close()
         notifier.close()
+    if not clean:
+        log.error("stopped, but not every part closed within %.0f s", SHUTDOWN_TIMEOUT)
+        return EXIT_FAILURE
+    if code == EXIT_OK:
+        log.info("stopped")
+    return code
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -330,25 +521,21 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Examples:\n  mrosd\n  mrosd --config /etc/mrosd/mrosd.toml --check-config\n  mrosd --master-only",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--config", "-c", metavar="FILE", help="TOML configuration (default: $MROSD_CONFIG, "
-                        "else /etc/mrosd/mrosd.toml when it exists, else built-in defaults)")
+    parser.add_argument(
+        "--config",
+        "-c",
+        metavar="FILE",
+        help="TOML configuration (default: $MROSD_CONFIG, "
+        "else /etc/mrosd/mrosd.toml when it exists, else built-in defaults)",
+    )
     parser.add_argument("--check-config", action="store_true", help="validate the configuration, print it and exit")
     parser.add_argument("--master-only", action="store_true", help="run only the master and parameter server")
+    parser.add_argument(
+        "--strict", action="store_true", help="exit 1 when IXM, a bridge or rosout cannot start (default: run degraded)"
+    )
     parser.add_argument("--port", "-p", type=int, help="master port (overrides the file and environment)")
     parser.add_argument("--log-level", choices=["debug", "info", "warning", "error"], help="log verbosity")
     return parser
-
-
-def _new_loop_factory() -> Callable[[], asyncio.AbstractEventLoop] | None:
-    # MROSD_LOOP=asyncio selects the standard loop (for debugging, or to rule uvloop out).
-    if os.environ.get("MROSD_LOOP", "uvloop") == "asyncio":
-        return None
-    try:
-        import uvloop
-    except ImportError:
-        return None
-    factory: Callable[[], asyncio.AbstractEventLoop] = uvloop.new_event_loop
-    return factory
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -356,8 +543,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         cfg = load_config(args.config)
-        if cfg.ixm.enabled:
-            _load_ixm_rules(cfg.ixm.rules, cfg.source)  # validate [ixm.rules] now, not at the first client
+        if cfg.ixm.enabled:  # validate [ixm.rules] now, not at the first client
+            load_ixm_rules(cfg.ixm.rules, cfg.source)
+            load_bridges(cfg.ixm.rules, cfg.source)
     except ConfigError as exc:
         print(f"mrosd: configuration error: {exc}", file=sys.stderr)
         return _exit(EXIT_USAGE, argv)
@@ -375,8 +563,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(msgspec.json.format(msgspec.json.encode(cfg), indent=2).decode())
         return _exit(EXIT_OK, argv)
     setup_logging(cfg.log.level)
-    with asyncio.Runner(loop_factory=_new_loop_factory()) as runner:
-        code = runner.run(run(cfg, config_path=args.config, master_only=args.master_only))
+    raise_nofile_limit()  # before any part sizes its caps from it
+    # Blocked before any thread exists, so that every thread inherits the mask and only SignalThread gets them.
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, SignalThread.SIGNALS)
+    try:
+        with asyncio.Runner(loop_factory=event_loop_factory()) as runner:
+            code = runner.run(run(cfg, config_path=args.config, master_only=args.master_only, strict=args.strict))
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
     return _exit(code, argv)
 
 
