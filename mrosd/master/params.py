@@ -101,13 +101,13 @@ class ParamTree:
         del node[parts[-1]]
 
     def names(self) -> list[str]:
-        """Every leaf key (an empty namespace counts as a leaf, as in rosmaster)."""
+        """Every leaf key; an empty namespace (one emptied by deletes, too) is not listed, as in rosmaster."""
         out: list[str] = []
 
         def walk(prefix: str, node: dict[str, Any]) -> None:
             for k, v in node.items():
                 full = prefix + k
-                if isinstance(v, dict) and v:
+                if isinstance(v, dict):
                     walk(full + SEP, v)
                 else:
                     out.append(full)

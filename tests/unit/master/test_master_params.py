@@ -25,6 +25,15 @@ def test_dict_values_replace_a_whole_subtree() -> None:
     assert sorted(t.names()) == ["/a/sub/y", "/a/x"]
 
 
+def test_names_lists_leaves_only_never_an_emptied_or_empty_namespace() -> None:
+    t = ParamTree()
+    t.set("/nsx/leaf", 1)
+    t.set("/keep", {"a": 2, "empty": {}})
+    t.delete("/nsx/leaf")
+    assert t.has("/nsx")
+    assert t.names() == ["/keep/a"]
+
+
 def test_setting_below_a_scalar_turns_it_into_a_namespace() -> None:
     t = ParamTree()
     t.set("/a", 5)
