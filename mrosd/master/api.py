@@ -9,11 +9,13 @@ arity or argument types answer -1 with a message, never a fault and never a cras
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import os
 from collections.abc import Awaitable, Callable
 from typing import Any
 
+from mrosd.master.cleanup import DEFAULT_CLEANUP_INTERVAL, GraphCleaner
 from mrosd.master.notifier import Notifier
 from mrosd.master.params import ParamTree, param_updates, subscription_key
 from mrosd.master.registry import ANYTYPE, Notification, Registry
@@ -181,6 +183,12 @@ def _as_async(handler: Impl) -> Handler:
     return call
 
 
+#: Longest wait of one ``waitSystemStateChange`` call (seconds).
+WATCH_MAX_TIMEOUT = 60.0
+#: Most ``waitSystemStateChange`` calls waiting at once for one caller id, and in total.
+WATCH_MAX_PER_CALLER = 4
+WATCH_MAX_TOTAL = 1024
+
 #: Methods whose reply depends only on their arguments and the registry/parameter state (``state_version``),
 #: so the HTTP layer may cache their replies. Not getUri: ``uri`` is only set once the socket is bound.
 READ_ONLY_METHODS = frozenset(
@@ -205,14 +213,21 @@ class MasterApi:
     Args:
         notifier: where notifications go; may be None for a pure, in-memory master (tests).
         uri: the master's own advertised URI (getUri).
+        cleanup_interval: seconds between sweeps removing nodes whose slave API refuses connections
+            (``cleanup.GraphCleaner``); 0 or None turns it off (strict rosmaster behaviour). The
+            sweeping task starts with the first registration, once a notifier is attached.
     """
 
-    def __init__(self, notifier: Notifier | None, uri: str = "") -> None:
+    def __init__(
+        self, notifier: Notifier | None, uri: str = "", *, cleanup_interval: float | None = DEFAULT_CLEANUP_INTERVAL
+    ) -> None:
         self.registry = Registry()
         self.params = ParamTree()
         self.notifier = notifier
         self.uri = uri
         self.outbox: list[Notification] = []  # only used when there is no notifier
+        self.cleanup_interval = cleanup_interval
+        self.cleaner: GraphCleaner | None = None
         v_key = non_empty_str("key")
         v_api = is_api("caller_api")
         self.sync_methods: dict[str, Impl] = {
@@ -263,10 +278,33 @@ class MasterApi:
         }
         #: The same handlers as coroutines, for ``XmlRpcServer`` (multicall and the in-memory tests).
         self.methods: dict[str, Handler] = {name: _as_async(h) for name, h in self.sync_methods.items()}
+        # The mrosd extension: a long poll for graph changes (async, so served by the fallback dispatch).
+        self.methods["waitSystemStateChange"] = self.wait_system_state_change
+        self._graph_changed: asyncio.Future[None] | None = None
+        self._watchers: dict[str, int] = {}
 
     def state_version(self) -> tuple[int, int]:
         """Changes whenever the registry or the parameter tree may have changed."""
         return self.registry.version, self.params.version
+
+    def _graph_touched(self) -> None:
+        """Wake every ``waitSystemStateChange`` waiter (the registry may have changed)."""
+        changed = self._graph_changed
+        if changed is not None:
+            self._graph_changed = None
+            if not changed.done():
+                changed.set_result(None)
+
+    def _start_background(self) -> None:
+        """Start the graph cleaner on the running loop (once), owned by the notifier for shutdown."""
+        if self.cleaner is not None or self.notifier is None or self.notifier.closed or not self.cleanup_interval:
+            return
+        self.cleaner = GraphCleaner(self.registry, self._cleaned, self.cleanup_interval)
+        self.notifier.adopt(asyncio.get_running_loop().create_task(self.cleaner.run()))
+
+    def _cleaned(self, notes: list[Notification]) -> None:
+        self._send(notes)
+        self._graph_touched()
 
     def _send(self, notes: list[Notification]) -> None:
         if not notes:
@@ -287,11 +325,14 @@ class MasterApi:
     # --- services ----------------------------------------------------------------------------
 
     def register_service(self, caller_id: str, service: str, service_api: str, caller_api: str) -> Reply:
+        self._start_background()
         self._send(self.registry.register_service(caller_id, service, service_api, caller_api))
+        self._graph_touched()
         return 1, f"Registered [{caller_id}] as provider of [{service}]", 1
 
     def unregister_service(self, caller_id: str, service: str, service_api: str) -> Reply:
         n = self.registry.unregister_service(caller_id, service, service_api)
+        self._graph_touched()
         if n:
             return 1, f"Unregistered [{caller_id}] as provider of [{service}]", 1
         return 1, f"[{caller_id}] is not a provider of [{service}]", 0
@@ -305,24 +346,30 @@ class MasterApi:
     # --- topics ------------------------------------------------------------------------------
 
     def register_subscriber(self, caller_id: str, topic: str, topic_type: str, caller_api: str) -> Reply:
+        self._start_background()
         pubs, notes = self.registry.register_subscriber(caller_id, topic, topic_type, caller_api)
         self._send(notes)
+        self._graph_touched()
         return 1, f"Subscribed to [{topic}]", pubs
 
     def unregister_subscriber(self, caller_id: str, topic: str, caller_api: str) -> Reply:
         n = self.registry.unregister_subscriber(caller_id, topic, caller_api)
+        self._graph_touched()
         if n:
             return 1, f"Unregistered [{caller_id}] as provider of [{topic}]", 1
         return 1, f"[{caller_id}] is not a known provider of [{topic}]", 0
 
     def register_publisher(self, caller_id: str, topic: str, topic_type: str, caller_api: str) -> Reply:
+        self._start_background()
         subs, notes = self.registry.register_publisher(caller_id, topic, topic_type, caller_api)
         self._send(notes)
+        self._graph_touched()
         return 1, f"Registered [{caller_id}] as publisher of [{topic}]", subs
 
     def unregister_publisher(self, caller_id: str, topic: str, caller_api: str) -> Reply:
         n, notes = self.registry.unregister_publisher(caller_id, topic, caller_api)
         self._send(notes)
+        self._graph_touched()
         if n:
             return 1, f"Unregistered [{caller_id}] as provider of [{topic}]", 1
         return 1, f"[{caller_id}] is not a known provider of [{topic}]", 0
@@ -343,6 +390,53 @@ class MasterApi:
 
     def get_system_state(self, caller_id: str) -> Reply:
         return 1, "current system state", self.registry.system_state()
+
+    def graph_snapshot(self) -> list[Any]:
+        """``[version, getSystemState value, getTopicTypes value]`` (the version fits an XML-RPC int)."""
+        return [
+            self.registry.version & 0x7FFFFFFF,
+            self.registry.system_state(),
+            [[t, ty] for t, ty in self.registry.topic_types.items()],
+        ]
+
+    async def wait_system_state_change(self, *args: Any) -> Reply:
+        """mrosd extension ``waitSystemStateChange(caller_id, since_version, timeout)``: a long poll.
+
+        Answers ``[version, system state, topic types]`` as soon as the graph's version differs from
+        ``since_version`` (at once if it already does, e.g. after a master restart), or after
+        ``timeout`` seconds (at most ``WATCH_MAX_TIMEOUT``) with the unchanged state. Waiters are
+        bounded per caller id and in total; beyond that the call fails with -1 and the client polls.
+        """
+        if len(args) != 3:
+            return -1, "Error: bad call arity", []
+        caller_id, since, timeout = args
+        if not isinstance(caller_id, str) or not caller_id:
+            return -1, "caller_id must be a non-empty string", []
+        if type(since) is not int:
+            return -1, "ERROR: parameter [since_version] must be an int", []
+        if type(timeout) not in (int, float) or not timeout >= 0:
+            return -1, "ERROR: parameter [timeout] must be a non-negative number", []
+        if self.registry.version & 0x7FFFFFFF == since and timeout > 0:
+            if self._watchers.get(caller_id, 0) >= WATCH_MAX_PER_CALLER or (
+                sum(self._watchers.values()) >= WATCH_MAX_TOTAL
+            ):
+                return -1, "too many waitSystemStateChange calls in progress: poll getSystemState", []
+            self._watchers[caller_id] = self._watchers.get(caller_id, 0) + 1
+            try:
+                async with asyncio.timeout(min(float(timeout), WATCH_MAX_TIMEOUT)):
+                    while self.registry.version & 0x7FFFFFFF == since:
+                        if self._graph_changed is None:
+                            self._graph_changed = asyncio.get_running_loop().create_future()
+                        await asyncio.shield(self._graph_changed)
+            except TimeoutError:
+                pass
+            finally:
+                left = self._watchers[caller_id] - 1
+                if left:
+                    self._watchers[caller_id] = left
+                else:
+                    del self._watchers[caller_id]
+        return 1, "current system state", self.graph_snapshot()
 
     def get_uri(self, caller_id: str) -> Reply:
         return 1, "", self.uri
@@ -398,6 +492,7 @@ class MasterApi:
         return -1, f"Cannot find parameter [{key}] in an upwards search", ""
 
     def subscribe_param(self, caller_id: str, caller_api: str, key: str) -> Reply:
+        self._start_background()
         key = resolve(key, caller_id)
         try:
             value = self.params.get(key)

@@ -8,7 +8,10 @@ Used by ``mrosd.tcpros`` nodes and by the CLI; it works against any ROS master, 
 
 from __future__ import annotations
 
-from typing import Any
+import asyncio
+from collections.abc import AsyncIterator
+from dataclasses import dataclass, field
+from typing import Any, Literal
 
 from mrosd.errors import MasterError, MasterUnreachableError, XmlRpcError
 from mrosd.xmlrpc import Fault, XmlRpcClient
@@ -68,15 +71,18 @@ class MasterClient:
     async def __aexit__(self, *exc_info: object) -> None:
         await self.aclose()
 
-    async def call(self, method: str, *args: Any) -> Any:
+    async def call(self, method: str, *args: Any, timeout: float | None = None) -> Any:
         """Call ``method(caller_id, *args)`` and return the value of a code-1 answer.
+
+        ``timeout`` overrides the client's per-call timeout for this call (long polls).
 
         Raises:
             MasterError: the master answered with code 0 or -1, a fault, or a malformed triple.
             MasterUnreachableError: no answer (refused connection, timeout, HTTP error).
         """
+        limit = self._timeout if timeout is None else timeout
         try:
-            reply = await self._xmlrpc.call(self.master_uri, method, self.caller_id, *args, timeout=self._timeout)
+            reply = await self._xmlrpc.call(self.master_uri, method, self.caller_id, *args, timeout=limit)
         except Fault as exc:
             raise MasterError(method, exc.code, exc.message) from exc
         except XmlRpcError as exc:
@@ -132,6 +138,25 @@ class MasterClient:
 
         return conv(pubs), conv(subs), conv(srvs)
 
+    async def get_graph(self) -> GraphSnapshot:
+        """The graph as ``getSystemState`` and ``getTopicTypes`` report it (two calls, any master)."""
+        state = await self.call("getSystemState")
+        types = await self.call("getTopicTypes")
+        return GraphSnapshot.from_master(state, types)
+
+    async def wait_system_state_change(self, since: int, timeout: float) -> tuple[int, GraphSnapshot]:
+        """mrosd's ``waitSystemStateChange`` long poll: ``(version, graph)`` once the graph's version
+        differs from ``since`` or after ``timeout`` seconds.
+
+        Raises:
+            MasterError: the master does not offer it (rosmaster: a fault) or refused the wait.
+        """
+        limit = timeout + (self._timeout if self._timeout is not None else 5.0)
+        reply = await self.call("waitSystemStateChange", since, timeout, timeout=limit)
+        if not isinstance(reply, list | tuple) or len(reply) != 3 or type(reply[0]) is not int:
+            raise MasterError("waitSystemStateChange", -1, f"malformed value {reply!r:.200}")
+        return reply[0], GraphSnapshot.from_master(reply[1], reply[2])
+
     async def get_uri(self) -> str:
         """The master's own URI."""
         return str(await self.call("getUri"))
@@ -181,3 +206,99 @@ class MasterClient:
     async def get_param_names(self) -> list[str]:
         """Every parameter name (leaves only)."""
         return [str(n) for n in await self.call("getParamNames")]
+
+
+# --- watching the graph -------------------------------------------------------------------------
+
+GraphKind = Literal["node", "topic", "service"]
+
+
+@dataclass(frozen=True, slots=True)
+class GraphChange:
+    """One node, topic or service that appeared or vanished; ``detail`` is a topic's type."""
+
+    appeared: bool
+    kind: GraphKind
+    name: str
+    detail: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class GraphSnapshot:
+    """Nodes, topics (with types) and services (with their provider) of one moment of the graph."""
+
+    nodes: frozenset[str] = frozenset()
+    topics: dict[str, str] = field(default_factory=dict)
+    services: dict[str, str] = field(default_factory=dict)
+
+    @classmethod
+    def from_master(cls, state: Any, topic_types: Any) -> GraphSnapshot:
+        """From getSystemState's ``[pubs, subs, srvs]`` and getTopicTypes' ``[[topic, type], ...]``.
+
+        Raises:
+            MasterError: the values do not have those shapes.
+        """
+        try:
+            pubs, subs, srvs = state
+            types = {str(t): str(ty) for t, ty in topic_types}
+            nodes: set[str] = set()
+            topics: dict[str, str] = {}
+            for name, members in [*pubs, *subs]:
+                topics[str(name)] = types.get(str(name), "*")
+                nodes.update(str(n) for n in members)
+            services: dict[str, str] = {}
+            for name, members in srvs:
+                services[str(name)] = str(members[0]) if members else ""
+                nodes.update(str(n) for n in members)
+        except (TypeError, ValueError) as exc:
+            raise MasterError("getSystemState", -1, f"malformed graph: {exc}") from exc
+        return cls(frozenset(nodes), topics, services)
+
+
+def graph_changes(old: GraphSnapshot, new: GraphSnapshot) -> list[GraphChange]:
+    """What appeared (nodes, then topics, then services) and vanished (the reverse order), sorted by name."""
+    out = [GraphChange(True, "node", n) for n in sorted(new.nodes - old.nodes)]
+    out += [GraphChange(True, "topic", t, ty) for t, ty in sorted(new.topics.items()) if t not in old.topics]
+    out += [GraphChange(True, "service", s, p) for s, p in sorted(new.services.items()) if s not in old.services]
+    out += [GraphChange(False, "service", s, p) for s, p in sorted(old.services.items()) if s not in new.services]
+    out += [GraphChange(False, "topic", t, ty) for t, ty in sorted(old.topics.items()) if t not in new.topics]
+    out += [GraphChange(False, "node", n) for n in sorted(old.nodes - new.nodes)]
+    return out
+
+
+async def watch_graph(
+    client: MasterClient, *, poll_interval: float = 0.5, wait_timeout: float = 30.0
+) -> AsyncIterator[GraphSnapshot]:
+    """Yield the graph now, then every time it changes, for as long as the caller iterates.
+
+    Against mrosd the master pushes changes (``waitSystemStateChange`` long polls, one in flight);
+    against any other master (rosmaster answers the unknown method with a fault) it polls
+    ``getSystemState``/``getTopicTypes`` every ``poll_interval`` seconds. If the master becomes
+    unreachable after the first answer, it retries at the polling pace until it answers again.
+
+    Raises:
+        MasterUnreachableError: the master does not answer the first call.
+    """
+    current = await client.get_graph()
+    yield current
+    push = True
+    version = -1
+    while True:
+        try:
+            if push:
+                try:
+                    version, graph = await client.wait_system_state_change(version, wait_timeout)
+                except MasterError:
+                    push = False  # not an mrosd master (or too many watches): poll instead
+                    continue
+            else:
+                await asyncio.sleep(poll_interval)
+                graph = await client.get_graph()
+        except MasterUnreachableError:
+            await asyncio.sleep(poll_interval)
+            push = True
+            version = -1
+            continue
+        if graph != current:
+            current = graph
+            yield graph

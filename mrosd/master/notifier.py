@@ -73,6 +73,7 @@ class Notifier:
         self._idle = idle
         self._on_result = on_result
         self._targets: dict[str, _Target] = {}
+        self._adopted: set[asyncio.Task[None]] = set()
         self._closed = False
         self._progress = asyncio.Event()
         self.sent = 0
@@ -189,10 +190,23 @@ class Notifier:
                 log.exception("notification result hook failed")
         return reply
 
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def adopt(self, task: asyncio.Task[None]) -> None:
+        """Cancel ``task`` with the workers in ``aclose()`` (the master's other background tasks)."""
+        if self._closed:
+            task.cancel()
+            return
+        self._adopted.add(task)
+        task.add_done_callback(self._adopted.discard)
+
     async def aclose(self) -> None:
-        """Cancel every worker; queued calls are discarded."""
+        """Cancel every worker (and adopted task); queued calls are discarded."""
         self._closed = True
         tasks = [t.task for t in self._targets.values() if t.task is not None]
+        tasks.extend(self._adopted)
         for task in tasks:
             task.cancel()
         for task in tasks:

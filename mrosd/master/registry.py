@@ -8,9 +8,9 @@ Semantics follow rosmaster (ros_comm 1.15): a node is known while it has at leas
 a node name re-registering with a different XML-RPC URI replaces the old node entirely (its
 registrations are dropped and the old URI is told to shut down); the type recorded for a topic is the
 last publisher's (a subscriber only sets it when none is known, and ``*`` never overwrites a type).
-Two deliberate improvements, both from DESIGN.md: the old URI is never told to shut down when another
-node name now owns it (a dead node's port reused by someone else), and subscribers of topics the
-replaced node published get a ``publisherUpdate`` without it.
+One deliberate improvement, from DESIGN.md: the old URI is never told to shut down when another
+node name now owns it (a dead node's port reused by someone else). As in rosmaster, subscribers of
+topics the replaced node published are not sent a ``publisherUpdate`` for the removal.
 """
 
 from __future__ import annotations
@@ -59,6 +59,8 @@ class NodeEntry:
     subscriptions: dict[str, None] = field(default_factory=dict)
     services: dict[str, None] = field(default_factory=dict)
     param_subscriptions: dict[str, None] = field(default_factory=dict)
+    #: Bumped by every registration call of this node (a live node re-registering shows up here).
+    generation: int = 0
 
     def is_empty(self) -> bool:
         return not (self.publications or self.subscriptions or self.services or self.param_subscriptions)
@@ -99,9 +101,10 @@ class Registry:
         """The entry for ``name`` at ``api``, replacing an entry with another URI."""
         node = self.nodes.get(name)
         if node is not None and node.api == api:
+            node.generation += 1
             return node
         if node is not None:
-            self._drop_node(node, out)
+            self._drop_node(node)
             if self._api_users.get(node.api, 0) == 0:
                 out.append(shutdown(node.api, f"[{name}] Reason: new node registered with same name"))
         node = NodeEntry(name, api)
@@ -121,11 +124,14 @@ class Registry:
         else:
             self._api_users.pop(api, None)
 
-    def _drop_node(self, node: NodeEntry, out: list[Notification]) -> None:
-        """Remove every registration of ``node`` (being replaced); subscribers learn of lost publishers."""
+    def _drop_node(self, node: NodeEntry) -> None:
+        """Remove every registration of ``node`` (being replaced).
+
+        Like rosmaster, subscribers of the topics it published are not told: they learn the new
+        publisher list when the replacing node registers each topic again.
+        """
         for topic in node.publications:
             _remove(self.publishers, topic, node.name)
-            out.extend(self._publisher_updates(topic))
         for topic in node.subscriptions:
             _remove(self.subscribers, topic, node.name)
         for key in node.param_subscriptions:
@@ -136,6 +142,29 @@ class Registry:
                 del self.services[service]
         del self.nodes[node.name]
         self._release_api(node.api)
+
+    def remove_node(self, name: str) -> list[Notification]:
+        """Unregister everything node ``name`` registered, as ``rosnode cleanup`` does call by call.
+
+        Returns the publisherUpdates owed to subscribers of the topics it published; no shutdown.
+        """
+        node = self.nodes.get(name)
+        if node is None:
+            return []
+        self.version += 1
+        topics = list(node.publications)
+        self._drop_node(node)
+        out: list[Notification] = []
+        for topic in topics:
+            out.extend(self._publisher_updates(topic))
+        return out
+
+    def apis(self) -> dict[str, list[str]]:
+        """``{XML-RPC URI: [node names]}`` of every registered node."""
+        out: dict[str, list[str]] = {}
+        for node in self.nodes.values():
+            out.setdefault(node.api, []).append(node.name)
+        return out
 
     def lookup_node(self, name: str) -> str | None:
         """XML-RPC URI of node ``name``, or None when unknown."""

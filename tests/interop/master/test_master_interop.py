@@ -142,9 +142,8 @@ def test_rosnode_list_info_ping_and_cleanup(our_master: str, procs: Processes) -
     procs.stop(talker)  # SIGTERM: rospy unregisters
     talker = procs.python(TALKER.replace('"talker"', '"doomed"'), env)
     wait_until(lambda: "/doomed" in graph_nodes(our_master))
-    talker.kill()  # SIGKILL: the registration stays behind
+    talker.kill()  # SIGKILL: the registration stays behind until our cleaner's next sweep or rosnode cleanup
     talker.wait(10)
-    assert "/doomed" in graph_nodes(our_master)
     run(["rosnode", "cleanup"], env, stdin="y\n")
     assert "/doomed" not in graph_nodes(our_master)
 
