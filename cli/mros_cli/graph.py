@@ -1,0 +1,81 @@
+"""``mros graph``: watch nodes, topics and services appear and vanish.
+
+The watching itself is ``mrosd.master.client.watch_graph``: pushed by an mrosd master (its
+``waitSystemStateChange`` extension), polled from any other master (``getSystemState``).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from typing import TYPE_CHECKING
+
+import click
+
+from mros_cli.main import master_client, run
+
+if TYPE_CHECKING:
+    from mrosd.master.client import GraphChange
+
+
+def format_change(change: GraphChange, *, as_json: bool) -> str:
+    """One output line: ``+ topic /chatter [std_msgs/String]`` or a JSON object."""
+    if as_json:
+        record: dict[str, object] = {
+            "time": round(time.time(), 6),
+            "event": "appeared" if change.appeared else "vanished",
+            "kind": change.kind,
+            "name": change.name,
+        }
+        if change.kind == "topic":
+            record["type"] = change.detail
+        elif change.kind == "service":
+            record["node"] = change.detail
+        return json.dumps(record)
+    sign = "+" if change.appeared else "-"
+    if change.kind == "topic":
+        return f"{sign} topic {change.name} [{change.detail}]"
+    return f"{sign} {change.kind} {change.name}"
+
+
+@click.group(name="graph")
+def group() -> None:
+    """Watch the ROS graph (nodes, topics, services) change.
+
+    \b
+    Examples:
+      mros graph watch
+      mros graph watch --json | jq .
+    """
+
+
+@group.command(name="watch")
+@click.option("--json", "as_json", is_flag=True, help="One JSON object per line (time, event, kind, name, ...).")
+@click.option(
+    "--poll",
+    "poll",
+    type=click.FloatRange(min=0.05),
+    default=0.5,
+    show_default=True,
+    metavar="SECONDS",
+    help="Polling period against masters that do not push changes (rosmaster).",
+)
+def watch(as_json: bool, poll: float) -> None:
+    """Print nodes, topics and services as they appear (+) and vanish (-), starting with the current graph.
+
+    Against an mrosd master changes are pushed as they happen; against rosmaster the graph is polled.
+    Runs until interrupted (Ctrl-C).
+    """
+    run(_watch(as_json, poll))
+
+
+async def _watch(as_json: bool, poll: float) -> None:
+    from mrosd.master.client import GraphSnapshot, graph_changes, watch_graph
+
+    async with master_client() as client:
+        previous = GraphSnapshot()
+        async for graph in watch_graph(client, poll_interval=poll):
+            for change in graph_changes(previous, graph):
+                click.echo(format_change(change, as_json=as_json))
+            previous = graph
+            click.get_text_stream("stdout").flush()
