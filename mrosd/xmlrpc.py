@@ -1,13 +1,29 @@
-"""XML-RPC over aiohttp: the one server and the one client shared by the master and slave APIs.
+"""XML-RPC for every part of mrosd: the one codec (fast path included), the aiohttp server, the client.
 
-The stdlib ``xmlrpc.client.loads``/``dumps`` are the pure codec; this module wraps them with size
-limits and fault mapping, and adds the aiohttp transport. It knows nothing of ROS semantics.
+Who uses what:
+
+* The codec (``decode_call``/``decode_call_async``/``encode_response``/``encode_fault``/
+  ``decode_response``/``encode_call``) is used by everything that speaks XML-RPC.
+* ``XmlRpcServer`` (aiohttp) serves the nodes' slave APIs; the master uses only its ``call`` (dispatch,
+  multicall, fault mapping) and is served by its own HTTP layer, ``mrosd.master.httpserver``.
+* ``XmlRpcClient`` (aiohttp) makes every outgoing call: nodes to the master and to each other, the
+  master's callbacks to nodes, the ``mros`` CLI.
+
+The full decoder is the stdlib's ``xmlrpc.client.Unmarshaller`` fed by an expat parser that refuses
+any DTD (``<!DOCTYPE``, hence every entity declaration) before it is read, as rosmaster (defusedxml)
+does; references to undeclared entities are expat errors. ``fast_decode_call`` answers the Master
+API's usual shape (ASCII strings, ints, booleans) with one regex and accepts nothing the full decoder
+would refuse or decode differently (property-tested). Bodies larger than ``INCREMENTAL_DECODE_SIZE``
+are decoded in slices with the event loop running in between (``decode_call_async``), so a big request
+neither stalls the loop nor delays a shutdown. This module knows nothing of ROS semantics.
 """
 
 from __future__ import annotations
 
 import asyncio
+import io
 import logging
+import re
 import xml.parsers.expat
 import xmlrpc.client
 from collections.abc import Awaitable, Callable, Mapping
@@ -27,10 +43,11 @@ MAX_BODY_SIZE = 64 * 1024 * 1024
 #: Default timeout for one outgoing call, connect included.
 DEFAULT_TIMEOUT = 10.0
 
-# Fault codes, after the xmlrpc-epi "specification for fault code interoperability".
+# Fault codes, after the xmlrpc-epi "specification for fault code interoperability", except for an unknown
+# method: rosmaster and rospy's slave API (SimpleXMLRPCServer under rosgraph) answer that with code 1.
 FAULT_PARSE_ERROR = -32700
 FAULT_INVALID_REQUEST = -32600
-FAULT_METHOD_NOT_FOUND = -32601
+FAULT_METHOD_NOT_FOUND = 1
 FAULT_INVALID_PARAMS = -32602
 FAULT_INTERNAL_ERROR = -32603
 
@@ -48,37 +65,113 @@ class Fault(XmlRpcError):
 
 # --- pure codec -------------------------------------------------------------------------------
 
-#: Everything the stdlib parser raises on hostile input: expat errors, bad values (ValueError, OverflowError),
-#: unknown encodings (LookupError), structural surprises (TypeError/KeyError/IndexError/AttributeError),
-#: and xmlrpc.client.Error for responses/faults where a call was expected.
-_DECODE_ERRORS = (
-    xml.parsers.expat.ExpatError,
-    ValueError,
-    OverflowError,
-    LookupError,
-    TypeError,
-    AttributeError,
-    xmlrpc.client.Error,
-)
+#: Bodies larger than this are decoded by ``decode_call_async`` in slices of this size, yielding to the
+#: event loop between slices (each slice costs expat and the unmarshaller a few milliseconds at most).
+INCREMENTAL_DECODE_SIZE = 64 * 1024
 
 
+class _DtdRefused(Exception):
+    """Raised from inside expat's doctype callback: a DTD is never read, so no entity is ever declared."""
 
-def decode_call(body: bytes) -> tuple[str, tuple[Any, ...]]:
-    """Parse a methodCall body.
 
-    Raises:
-        RemoteProtocolError: the body is not a well-formed methodCall.
-    """
-    if len(body) > MAX_BODY_SIZE:
-        raise RemoteProtocolError(f"XML-RPC request of {len(body)} bytes exceeds {MAX_BODY_SIZE}")
-    try:
-        params, method = xmlrpc.client.loads(body, use_builtin_types=True)
-    except _DECODE_ERRORS as exc:
-        # A fault or response sent as a request lands here too (xmlrpc.client.Error).
-        raise RemoteProtocolError(f"malformed XML-RPC request: {exc!r}") from exc
+def _refuse_dtd(*_args: object) -> None:
+    raise _DtdRefused("DTDs and entity declarations are not accepted")
+
+
+class _Decoder:
+    """An expat parser wired to the stdlib's XML-RPC unmarshaller, refusing DTDs; fed in one or more slices."""
+
+    __slots__ = ("_parser", "_target")
+
+    def __init__(self) -> None:
+        target = xmlrpc.client.Unmarshaller(use_builtin_types=True)
+        parser = xml.parsers.expat.ParserCreate()
+        parser.SetParamEntityParsing(xml.parsers.expat.XML_PARAM_ENTITY_PARSING_NEVER)
+        parser.StartDoctypeDeclHandler = _refuse_dtd
+        parser.EntityDeclHandler = _refuse_dtd
+        parser.UnparsedEntityDeclHandler = _refuse_dtd
+        parser.ExternalEntityRefHandler = _refuse_dtd  # type: ignore[assignment]
+        parser.StartElementHandler = target.start
+        parser.EndElementHandler = target.end
+        parser.CharacterDataHandler = target.data
+        parser.buffer_text = True
+        target.xml(None, None)  # type: ignore[arg-type]  # str data: no decoding (as ExpatParser does)
+        self._parser = parser
+        self._target = target
+
+    def feed(self, data: bytes | memoryview) -> None:
+        self._parser.Parse(data, False)
+
+    def close(self) -> tuple[tuple[Any, ...], str | None]:
+        """Finish; ``(params, method name)``; raises ``xmlrpc.client.Fault`` for a fault response."""
+        self._parser.Parse(b"", True)
+        params = self._target.close()
+        return params, self._target.getmethodname()
+
+
+def _describe(exc: BaseException) -> str:
+    """A one-line description of why untrusted XML was refused."""
+    if isinstance(exc, _DtdRefused):
+        return str(exc)
+    text = str(exc).splitlines()[0] if str(exc) else ""
+    return f"{type(exc).__name__}: {text}"[:300]
+
+
+def _loads(body: bytes) -> tuple[tuple[Any, ...], str | None]:
+    decoder = _Decoder()
+    decoder.feed(body)
+    return decoder.close()
+
+
+def _checked_call(result: tuple[tuple[Any, ...], str | None]) -> tuple[str, tuple[Any, ...]]:
+    params, method = result
     if not method:
         raise RemoteProtocolError("XML-RPC request has no methodName")
     return method, params
+
+
+def _check_size(body: bytes, what: str) -> None:
+    if len(body) > MAX_BODY_SIZE:
+        raise RemoteProtocolError(f"XML-RPC {what} of {len(body)} bytes exceeds {MAX_BODY_SIZE}")
+
+
+def decode_call(body: bytes) -> tuple[str, tuple[Any, ...]]:
+    """Parse a methodCall body (fast path first).
+
+    Raises:
+        RemoteProtocolError: the body is not a well-formed methodCall, or it carries a DTD.
+    """
+    fast = fast_decode_call(body)
+    if fast is not None:
+        return fast
+    _check_size(body, "request")
+    try:
+        result = _loads(body)
+    except Exception as exc:  # anything hostile XML makes expat or the unmarshaller raise
+        # A fault or response sent as a request lands here too (xmlrpc.client.Fault, no method name).
+        raise RemoteProtocolError(f"malformed XML-RPC request: {_describe(exc)}") from exc
+    return _checked_call(result)
+
+
+async def decode_call_async(body: bytes) -> tuple[str, tuple[Any, ...]]:
+    """``decode_call`` that lets the event loop run (and a cancellation land) between slices of a big body.
+
+    Raises:
+        RemoteProtocolError: as ``decode_call``.
+    """
+    if len(body) <= INCREMENTAL_DECODE_SIZE:
+        return decode_call(body)
+    _check_size(body, "request")
+    view = memoryview(body)
+    try:
+        decoder = _Decoder()
+        for start in range(0, len(body), INCREMENTAL_DECODE_SIZE):
+            decoder.feed(view[start : start + INCREMENTAL_DECODE_SIZE])
+            await asyncio.sleep(0)
+        result = decoder.close()
+    except Exception as exc:
+        raise RemoteProtocolError(f"malformed XML-RPC request: {_describe(exc)}") from exc
+    return _checked_call(result)
 
 
 def encode_call(method: str, params: tuple[Any, ...]) -> bytes:
@@ -94,14 +187,17 @@ def encode_call(method: str, params: tuple[Any, ...]) -> bytes:
 
 
 def encode_response(value: Any) -> bytes:
-    """Serialize a successful methodResponse.
+    """Serialize a successful methodResponse (fast path first; same bytes as the stdlib's).
 
     Raises:
         LocalProtocolError: the value cannot be represented in XML-RPC.
     """
+    fast = fast_encode_response(value)
+    if fast is not None:
+        return fast
     try:
         return xmlrpc.client.dumps((value,), methodresponse=True, allow_none=True).encode()
-    except (OverflowError, TypeError) as exc:
+    except (OverflowError, TypeError, RecursionError) as exc:
         raise LocalProtocolError(f"cannot encode XML-RPC response: {exc}") from exc
 
 
@@ -115,21 +211,135 @@ def decode_response(body: bytes) -> Any:
 
     Raises:
         Fault: the peer answered with a fault.
-        RemoteProtocolError: the body is not a well-formed methodResponse.
+        RemoteProtocolError: the body is not a well-formed methodResponse, or it carries a DTD.
     """
-    if len(body) > MAX_BODY_SIZE:
-        raise RemoteProtocolError(f"XML-RPC response of {len(body)} bytes exceeds {MAX_BODY_SIZE}")
+    _check_size(body, "response")
     try:
-        params, _ = xmlrpc.client.loads(body, use_builtin_types=True)
+        params, _ = _loads(body)
     except xmlrpc.client.Fault as exc:
         if not isinstance(exc.faultCode, int):
             raise RemoteProtocolError(f"malformed XML-RPC fault: code {exc.faultCode!r}") from exc
         raise Fault(exc.faultCode, str(exc.faultString)) from exc
-    except _DECODE_ERRORS as exc:
-        raise RemoteProtocolError(f"malformed XML-RPC response: {exc!r}") from exc
+    except Exception as exc:
+        raise RemoteProtocolError(f"malformed XML-RPC response: {_describe(exc)}") from exc
     if len(params) != 1:
         raise RemoteProtocolError(f"XML-RPC response carries {len(params)} values, expected 1")
     return params[0]
+
+
+# --- fast path for the Master API's typical calls and replies ---------------------------------
+# Profiling showed expat parser construction dominating the master's CPU per call. Nearly every Master
+# API call carries only short ASCII strings, so those exact shapes are matched here; anything else
+# (other types, entities, CDATA, comments, DTDs, non-ASCII, CR, odd whitespace) returns None and goes
+# through the full decoder. Property tests check the fast path never accepts what the full decoder
+# refuses and never decodes differently.
+
+_WS = rb"[ \t\n\r]*"
+# Printable ASCII and tab/LF, without < & ] (markup) and CR (expat turns CR and CRLF into LF).
+_TEXT = rb"[\t\n\x20-\x25\x27-\x3b\x3d-\x5c\x5e-\x7e]*"
+# Every run of whitespace is followed by a literal ``<`` (which it cannot contain), so a failing match
+# backtracks linearly, never exponentially.
+
+
+def _one_param(group: bytes) -> bytes:
+    """One parameter and the whitespace after it; ``group`` opens the value groups (capturing or not)."""
+    return (
+        rb"<param>" + _WS + rb"<value>(?:<string>" + group + _TEXT + rb")</string>"
+        rb"|<i4>" + group + rb"[-+]?[0-9]{1,9})</i4>"
+        rb"|<int>" + group + rb"[-+]?[0-9]{1,9})</int>"
+        rb"|<boolean>" + group + rb"[01])</boolean>|" + group + _TEXT + rb"))</value>" + _WS + rb"</param>" + _WS
+    )
+
+
+_CALL = re.compile(
+    rb"(?:<\?xml version=(?:'1\.0'|\"1\.0\")(?: encoding=(?:'(?i:utf-8)'|\"(?i:utf-8)\"))?\?>)?"
+    + _WS
+    + rb"<methodCall>"
+    + _WS
+    + rb"<methodName>([A-Za-z0-9_.]{1,200})</methodName>"
+    + _WS
+    + rb"(?:<params>"
+    + _WS
+    + rb"((?:"
+    + _one_param(b"(?:")
+    + rb")*)</params>"
+    + _WS
+    + rb"|<params/>"
+    + _WS
+    + rb")?</methodCall>"
+    + _WS,
+    re.S,
+)
+_PARAM = re.compile(_one_param(b"("))
+
+
+def fast_decode_call(body: bytes) -> tuple[str, tuple[Any, ...]] | None:
+    """Decode a methodCall made only of ASCII strings, ints and booleans; None for anything else.
+
+    One regex validates the whole call; ``findall`` then walks the (already validated) parameters.
+    """
+    call = _CALL.fullmatch(body)
+    if call is None:
+        return None
+    text = call.group(2)
+    if not text:
+        return call.group(1).decode(), ()
+    params: list[Any] = []
+    for s, i4, i, b, untyped in _PARAM.findall(text):
+        if i4 or i:
+            params.append(int(i4 or i))
+        elif b:
+            params.append(b == b"1")
+        else:  # <string> or untyped text (an empty string leaves both groups empty)
+            params.append((s or untyped).decode())
+    return call.group(1).decode(), tuple(params)
+
+
+_RESPONSE_HEAD = "<?xml version='1.0'?>\n<methodResponse>\n<params>\n<param>\n"
+_RESPONSE_TAIL = "</param>\n</params>\n</methodResponse>\n"
+_INT_MIN, _INT_MAX = -(2**31), 2**31 - 1
+
+
+def _escape(text: str) -> str:
+    if "&" in text:
+        text = text.replace("&", "&amp;")
+    if "<" in text:
+        text = text.replace("<", "&lt;")
+    if ">" in text:
+        text = text.replace(">", "&gt;")
+    return text
+
+
+def _dump(value: Any, out: list[str]) -> bool:
+    if isinstance(value, str):
+        out.append(f"<value><string>{_escape(value)}</string></value>\n")
+    elif value is True or value is False:
+        out.append(f"<value><boolean>{int(value)}</boolean></value>\n")
+    elif type(value) is int:
+        if not _INT_MIN <= value <= _INT_MAX:
+            return False
+        out.append(f"<value><int>{value}</int></value>\n")
+    elif type(value) is list or type(value) is tuple:
+        out.append("<value><array><data>\n")
+        for item in value:
+            if not _dump(item, out):
+                return False
+        out.append("</data></array></value>\n")
+    else:
+        return False
+    return True
+
+
+def fast_encode_response(value: Any) -> bytes | None:
+    """The stdlib's exact response bytes for strings, ints, booleans and (nested) lists; None otherwise."""
+    out = [_RESPONSE_HEAD]
+    try:
+        if not _dump(value, out):
+            return None
+    except RecursionError:
+        return None
+    out.append(_RESPONSE_TAIL)
+    return "".join(out).encode()
 
 
 # --- server -----------------------------------------------------------------------------------
@@ -204,7 +414,7 @@ class XmlRpcServer:
     async def dispatch_body(self, body: bytes) -> bytes:
         """Answer one request body with a response body; never raises."""
         try:
-            method, params = decode_call(body)
+            method, params = await decode_call_async(body)
         except RemoteProtocolError as exc:
             log.warning("%s: %s", self._name, exc)
             return encode_fault(FAULT_PARSE_ERROR, str(exc))
@@ -229,7 +439,7 @@ class XmlRpcServer:
             return sorted([*self._methods, "system.multicall", "system.listMethods"])
         handler = self._methods.get(method)
         if handler is None:
-            raise Fault(FAULT_METHOD_NOT_FOUND, f"method {method!r} is not supported")
+            raise Fault(FAULT_METHOD_NOT_FOUND, f'method "{method}" is not supported')
         try:
             return await handler(*params)
         except Fault:
@@ -271,6 +481,24 @@ def _xml_response(body: bytes) -> web.Response:
 # --- client -----------------------------------------------------------------------------------
 
 
+#: Request bodies from this size on are handed to aiohttp as a stream (written in chunks).
+_LARGE_REQUEST = 1024 * 1024
+
+
+async def _read_body(content: aiohttp.StreamReader) -> bytes | None:
+    """The whole response body (every read until EOF, not just the first chunk); None beyond MAX_BODY_SIZE."""
+    chunks: list[bytes] = []
+    size = 0
+    while True:
+        chunk = await content.read(MAX_BODY_SIZE + 1 - size)
+        if not chunk:
+            return b"".join(chunks)
+        chunks.append(chunk)
+        size += len(chunk)
+        if size > MAX_BODY_SIZE:
+            return None
+
+
 class XmlRpcClient:
     """One aiohttp session for all outgoing XML-RPC calls of a process part.
 
@@ -301,14 +529,18 @@ class XmlRpcClient:
         body = encode_call(method, params)
         session = self._get_session()
         limit = self._timeout if timeout is None else timeout
+        # aiohttp warns that big bytes bodies block the loop; a BytesIO is written in chunks instead.
+        data_out: bytes | io.BytesIO = body if len(body) < _LARGE_REQUEST else io.BytesIO(body)
         try:
             async with asyncio.timeout(limit):
-                async with session.post(uri, data=body) as resp:
+                async with session.post(uri, data=data_out) as resp:
                     if resp.status != 200:
                         raise XmlRpcError(f"{method} at {uri}: HTTP status {resp.status}")
                     if resp.content_length is not None and resp.content_length > MAX_BODY_SIZE:
                         raise XmlRpcError(f"{method} at {uri}: response of {resp.content_length} bytes is too big")
-                    data = await resp.content.read(MAX_BODY_SIZE + 1)
+                    data = await _read_body(resp.content)
+                    if data is None:
+                        raise XmlRpcError(f"{method} at {uri}: response exceeds {MAX_BODY_SIZE} bytes")
         except TimeoutError as exc:
             raise XmlRpcError(f"{method} at {uri}: no answer within {limit:g} s") from exc
         except (aiohttp.ClientError, OSError, ValueError) as exc:

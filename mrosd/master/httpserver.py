@@ -1,41 +1,55 @@
-"""A lean HTTP/1.1 transport for the master's XML-RPC: an ``asyncio.Protocol``, no web framework.
+"""A lean HTTP/1.1 transport for the master's XML-RPC: an accept loop and an ``asyncio.Protocol``, no framework.
 
-Why: the master answers thousands of tiny calls per second and aiohttp's request machinery cost more
-than the XML-RPC work itself (profiled). This module only frames HTTP; the XML-RPC codec and
-dispatch stay in ``mrosd.xmlrpc`` (``decode_call``/``encode_response``/``encode_fault`` and
-``XmlRpcServer.call`` for everything that is not a plain synchronous master method).
+Why hand-written: the master answers thousands of tiny calls per second and a generic server's per-request
+machinery costs more than the XML-RPC work itself; ``python -m bench master`` runs this server against the same
+master behind aiohttp's low-level server (llhttp) in one run (A/B). The XML-RPC codec, fast path included,
+is ``mrosd.xmlrpc``; this module only frames HTTP and guards resources.
 
-Supported: POST with Content-Length, keep-alive (HTTP/1.1 default, HTTP/1.0 with the header),
-pipelined requests answered in order, ``Expect: 100-continue``. Backpressure: a client that does
-not read its responses (transport write buffer full) is not read from until it does. Refused with a status and a closed
-connection: other methods (405), chunked bodies (411), bodies over ``MAX_BODY_SIZE`` (413), header
-blocks over ``MAX_HEADER_SIZE`` (431), garbage (400), and peers outside the allow-list (403).
+Supported: POST with one Content-Length, keep-alive (HTTP/1.1 default, HTTP/1.0 with the header),
+pipelined requests answered in order, ``Expect: 100-continue``. Backpressure: a client that does not read
+its responses (transport write buffer full) is not read from until it does. Refused with a status and a
+closed connection: other methods (405), chunked bodies (411), a repeated Content-Length or Content-Length
+with Transfer-Encoding (400, request smuggling), bodies over ``MAX_BODY_SIZE`` (413), header blocks over
+``MAX_HEADER_SIZE`` (431), garbage (400), peers outside the allow-list (403), and connections beyond the
+global or per-address cap (503).
+
+Resources: idle keep-alive connections are closed after ``idle_timeout`` (to 1.5x that); a started request
+must complete within ``REQUEST_TIMEOUT``; the accept loop backs off (50 ms doubling to 2 s) when the process
+is out of file descriptors instead of retrying at once, and repeated errors are logged at a bounded rate.
+Bodies over ``INCREMENTAL_DECODE_SIZE`` are decoded in slices with the loop running in between; closing the
+server cancels such work at once.
 """
 
 from __future__ import annotations
 
 import asyncio
+import errno
 import functools
 import ipaddress
 import logging
 import re
+import resource
 import socket
 from collections.abc import Callable, Coroutine
 from typing import Any, cast
 
 from mrosd.errors import LocalProtocolError, RemoteProtocolError
+from mrosd.lograte import RateLimitedLog
 from mrosd.xmlrpc import (
     FAULT_INTERNAL_ERROR,
     FAULT_PARSE_ERROR,
+    INCREMENTAL_DECODE_SIZE,
     MAX_BODY_SIZE,
     Fault,
     XmlRpcServer,
     decode_call,
+    decode_call_async,
     encode_fault,
     encode_response,
 )
 
 log = logging.getLogger(__name__)
+_ratelog = RateLimitedLog(log)
 
 #: Largest request line + headers accepted.
 MAX_HEADER_SIZE = 64 * 1024
@@ -43,12 +57,26 @@ MAX_HEADER_SIZE = 64 * 1024
 #: Largest body a client outside the allow-list may send before its 403 (it is read, never handled).
 MAX_REFUSED_BYTES = 64 * 1024
 
-#: Time a client has to complete a request once its first byte arrived (slowloris defence). Idle keep-alive
-#: connections with nothing pending are not timed out: rospy and roscpp keep theirs open between calls.
+#: Time a client has to complete a request once its first byte arrived (slowloris defence).
 REQUEST_TIMEOUT = 30.0
+
+#: Defaults of ``HttpServer``/``Master``: open connections in all, from one peer address, and the idle time
+#: after which a kept-alive connection with nothing pending is closed (rospy and roscpp reconnect).
+MAX_CONNECTIONS = 4096
+MAX_CONNECTIONS_PER_HOST = 2048
+IDLE_TIMEOUT = 60.0
+
+#: File descriptors left to the rest of the process when the connection cap is clamped to RLIMIT_NOFILE.
+FD_RESERVE = 64
+
+#: Accept back-off while the process is out of file descriptors: first delay, ceiling.
+ACCEPT_BACKOFF = (0.05, 2.0)
+_ACCEPT_BATCH = 64
+_OUT_OF_RESOURCES = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM})
 
 # Header fields, matched on the lower-cased header block (which starts with the line break).
 _CONTENT_LENGTH = re.compile(rb"\r\ncontent-length:[ \t]*(?:([0-9]{1,12})[ \t]*(?=\r\n|$)|.*)")
+_BAD_FIELD_NAME = re.compile(rb"\r\n[^:\r\n]*[ \t]:")  # whitespace in a name or before its colon, obs-fold
 _CONNECTION = re.compile(rb"\r\nconnection:[ \t]*(close|keep-alive)[ \t]*(?=\r\n|$)")
 
 Network = ipaddress.IPv4Network | ipaddress.IPv6Network
@@ -62,7 +90,18 @@ _REASONS = {
     411: b"Length Required",
     413: b"Payload Too Large",
     431: b"Request Header Fields Too Large",
+    503: b"Service Unavailable",
 }
+
+
+def status_response(status: int, text: bytes) -> bytes:
+    """A complete ``Connection: close`` response carrying a short plain-text reason."""
+    return b"HTTP/1.1 %d %s\r\nContent-Type: text/plain\r\nContent-Length: %d\r\nConnection: close\r\n\r\n%s" % (
+        status,
+        _REASONS.get(status, b"Error"),
+        len(text),
+        text,
+    )
 
 
 def allowed(networks: list[Network] | None, host: str | None) -> bool:
@@ -78,115 +117,6 @@ def allowed(networks: list[Network] | None, host: str | None) -> bool:
     if isinstance(addr, ipaddress.IPv6Address) and addr.ipv4_mapped is not None:
         addr = addr.ipv4_mapped
     return any(addr in net for net in networks)
-
-
-# --- fast path for the master's typical calls -------------------------------------------------
-# Profiling showed expat parser construction in xmlrpc.client.loads dominating the master's CPU per
-# call. Nearly every Master API call carries only short ASCII strings, so those exact shapes are
-# matched here; anything else (other types, entities, CDATA, comments, non-ASCII, odd whitespace)
-# returns None and goes through mrosd.xmlrpc.decode_call. Tests check both give identical results.
-
-_WS = rb"[ \t\n\r]*"
-_TEXT = rb"[\t\n\x20-\x25\x27-\x3b\x3d-\x5c\x5e-\x7e]*"  # printable ASCII without < & ]
-# One parameter and the whitespace after it. Every run of whitespace is followed by a literal ``<``
-# (which it cannot contain), so a failing match backtracks linearly, never exponentially.
-
-
-def _one_param(group: bytes) -> bytes:
-    """One parameter and the whitespace after it; ``group`` opens the value groups (capturing or not)."""
-    return (
-        rb"<param>" + _WS + rb"<value>(?:<string>" + group + _TEXT + rb")</string>"
-        rb"|<(?:i4|int)>" + group + rb"[-+]?[0-9]{1,9})</(?:i4|int)>"
-        rb"|<boolean>" + group + rb"[01])</boolean>|" + group + _TEXT + rb"))</value>" + _WS + rb"</param>" + _WS
-    )
-
-
-_CALL = re.compile(
-    rb"(?:<\?xml version=(?:'1\.0'|\"1\.0\")(?: encoding=(?:'(?i:utf-8)'|\"(?i:utf-8)\"))?\?>)?"
-    + _WS
-    + rb"<methodCall>"
-    + _WS
-    + rb"<methodName>([A-Za-z0-9_.]{1,200})</methodName>"
-    + _WS
-    + rb"(?:<params>"
-    + _WS
-    + rb"((?:"
-    + _one_param(b"(?:")
-    + rb")*)</params>"
-    + _WS
-    + rb"|<params/>"
-    + _WS
-    + rb")?</methodCall>"
-    + _WS,
-    re.S,
-)
-_PARAM = re.compile(_one_param(b"("))
-
-
-def fast_decode_call(body: bytes) -> tuple[str, tuple[Any, ...]] | None:
-    """Decode a methodCall made only of ASCII strings, ints and booleans; None for anything else.
-
-    One regex validates the whole call; ``findall`` then walks the (already validated) parameters.
-    """
-    call = _CALL.fullmatch(body)
-    if call is None:
-        return None
-    text = call.group(2)
-    if not text:
-        return call.group(1).decode(), ()
-    params: list[Any] = []
-    for s, i, b, untyped in _PARAM.findall(text):
-        if i:
-            params.append(int(i))
-        elif b:
-            params.append(b == b"1")
-        else:  # <string> or untyped text (an empty string leaves both groups empty)
-            params.append((s or untyped).decode())
-    return call.group(1).decode(), tuple(params)
-
-
-_RESPONSE_HEAD = "<?xml version='1.0'?>\n<methodResponse>\n<params>\n<param>\n"
-_RESPONSE_TAIL = "</param>\n</params>\n</methodResponse>\n"
-_INT_MIN, _INT_MAX = -(2**31), 2**31 - 1
-
-
-def _escape(text: str) -> str:
-    if "&" in text:
-        text = text.replace("&", "&amp;")
-    if "<" in text:
-        text = text.replace("<", "&lt;")
-    if ">" in text:
-        text = text.replace(">", "&gt;")
-    return text
-
-
-def _dump(value: Any, out: list[str]) -> bool:
-    if isinstance(value, str):
-        out.append(f"<value><string>{_escape(value)}</string></value>\n")
-    elif value is True or value is False:
-        out.append(f"<value><boolean>{int(value)}</boolean></value>\n")
-    elif type(value) is int:
-        if not _INT_MIN <= value <= _INT_MAX:
-            return False
-        out.append(f"<value><int>{value}</int></value>\n")
-    elif type(value) is list or type(value) is tuple:
-        out.append("<value><array><data>\n")
-        for item in value:
-            if not _dump(item, out):
-                return False
-        out.append("</data></array></value>\n")
-    else:
-        return False
-    return True
-
-
-def fast_encode_response(value: Any) -> bytes | None:
-    """The stdlib's exact response bytes for strings, ints, booleans and (nested) lists; None otherwise."""
-    out = [_RESPONSE_HEAD]
-    if not _dump(value, out):
-        return None
-    out.append(_RESPONSE_TAIL)
-    return "".join(out).encode()
 
 
 #: Bounds of ``XmlRpcHttpHandler``'s reply cache: entries, total reply bytes, largest request body kept.
@@ -232,18 +162,22 @@ class XmlRpcHttpHandler:
                 hit = self._cache.get(body)
                 if hit is not None:
                     return hit
-        fast = fast_decode_call(body)
+        if len(body) > INCREMENTAL_DECODE_SIZE:
+            return self._large(body)
         try:
-            method, params = fast if fast is not None else decode_call(body)
+            method, params = decode_call(body)
         except RemoteProtocolError as exc:
-            log.info("master: %s", exc)
+            _ratelog.log(logging.INFO, "parse", "master: %s", exc)
             return encode_fault(FAULT_PARSE_ERROR, str(exc))
+        return self._run(body, method, params)
+
+    def _run(self, body: bytes, method: str, params: tuple[Any, ...]) -> bytes | Coroutine[Any, Any, bytes]:
         handler = self.sync_methods.get(method)
         if handler is None:
             return self._slow(method, params)
         try:
             reply = handler(*params)
-            out = fast_encode_response(reply) or encode_response(reply)
+            out = encode_response(reply)
         except LocalProtocolError as exc:
             return encode_fault(FAULT_INTERNAL_ERROR, str(exc))
         except Exception as exc:  # the handlers catch their own errors; this is the last guard
@@ -258,6 +192,16 @@ class XmlRpcHttpHandler:
             self._cache[body] = out
             self._cache_bytes += len(out)
         return out
+
+    async def _large(self, body: bytes) -> bytes:
+        """A big body: decoded in slices (the loop keeps running, a close cancels it), then run as usual."""
+        try:
+            method, params = await decode_call_async(body)
+        except RemoteProtocolError as exc:
+            _ratelog.log(logging.INFO, "parse", "master: %s", exc)
+            return encode_fault(FAULT_PARSE_ERROR, str(exc))
+        out = self._run(body, method, params)
+        return out if type(out) is bytes else await cast(Coroutine[Any, Any, bytes], out)
 
     async def _slow(self, method: str, params: tuple[Any, ...]) -> bytes:
         try:
@@ -306,13 +250,19 @@ def parse_head(head: bytes) -> tuple[int, bool, bool]:
     expect_continue = False
     fields = head[line_end:].lower() if line_end >= 0 else b""
     if fields:
+        if _BAD_FIELD_NAME.search(fields):
+            raise _Refused(400, b"malformed header field\n")
+        lengths = _CONTENT_LENGTH.findall(fields)
         if b"\r\ntransfer-encoding" in fields:
+            if lengths:  # which one frames the body is what request smuggling plays on
+                raise _Refused(400, b"Content-Length with Transfer-Encoding\n")
             raise _Refused(411, b"chunked bodies are not supported; send Content-Length\n")
-        m = _CONTENT_LENGTH.search(fields)
-        if m is not None:
-            if m.group(1) is None:
+        if len(lengths) > 1:
+            raise _Refused(400, b"more than one Content-Length\n")
+        if lengths:
+            if not lengths[0]:
                 raise _Refused(400, b"bad Content-Length\n")
-            length = int(m.group(1))
+            length = int(lengths[0])
         m = _CONNECTION.search(fields)
         if m is not None:
             keep_alive = m.group(1) == b"keep-alive"
@@ -332,12 +282,11 @@ _parse_short_head = functools.lru_cache(maxsize=256)(parse_head)
 class HttpProtocol(asyncio.Protocol):
     """One client connection: parse requests, answer them in order."""
 
-    def __init__(
-        self, handler: XmlRpcHttpHandler, networks: list[Network] | None, live: set[asyncio.Transport]
-    ) -> None:
+    def __init__(self, handler: XmlRpcHttpHandler, server: HttpServer, host: str, refused: bool) -> None:
         self._handler = handler
-        self._live = live
-        self._networks = networks
+        self._server = server
+        self.host = host
+        self._refused = refused
         self._buf = bytearray()
         self._transport: asyncio.Transport | None = None
         self._request: _Request | None = None
@@ -345,18 +294,18 @@ class HttpProtocol(asyncio.Protocol):
         self._closed = False
         self._reading_paused = False
         self._timer: asyncio.TimerHandle | None = None
-        self._refused = False
+        self._task: asyncio.Task[bytes] | None = None
+        #: Bumped on every read; the server's idle sweep compares it between sweeps.
+        self.activity = 0
+        self.idle_sweeps = 0
+        self.seen_activity = -1
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self._transport = cast(asyncio.Transport, transport)  # uvloop's transports are not subclasses
-        self._live.add(self._transport)
-        peer = transport.get_extra_info("peername")
-        host = peer[0] if isinstance(peer, tuple) and peer else None
-        if not allowed(self._networks, host):
+        if self._refused:
             # Answered once its request is in (closing at once races the client's send into a broken pipe
             # instead of a readable 403); MAX_REFUSED_BYTES bounds what such a client may send first.
-            log.warning("master: refusing connection from %s (not in the allow-list)", host)
-            self._refused = True
+            _ratelog.warning("allow", "master: refusing connection from %s (not in the allow-list)", self.host)
             return
         sock = transport.get_extra_info("socket")
         if sock is not None:
@@ -366,15 +315,35 @@ class HttpProtocol(asyncio.Protocol):
                 pass
 
     def connection_lost(self, exc: Exception | None) -> None:
-        if self._transport is not None:
-            self._live.discard(self._transport)
         self._closed = True
         self._buf.clear()
         self._disarm()
+        if self._task is not None:
+            self._task.cancel()
+        self._server.forget(self)
+
+    @property
+    def idle(self) -> bool:
+        """Nothing pending: no partial request, no call running."""
+        return not self._buf and not self._busy and self._request is None
+
+    def close(self) -> None:
+        """Close quietly (an idle connection: any response now would be mistaken for the next call's)."""
+        if self._transport is not None and not self._closed:
+            self._transport.close()
+            self._closed = True
+
+    def abort(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+        if self._transport is not None:
+            self._transport.abort()
+        self._closed = True
 
     def data_received(self, data: bytes) -> None:
         if self._closed:
             return
+        self.activity += 1
         if self._buf or self._busy:
             self._buf += data
             self._process()
@@ -401,8 +370,9 @@ class HttpProtocol(asyncio.Protocol):
         if self._busy:  # the pending bytes wait on our own slow call, not on the client
             self._timer = asyncio.get_running_loop().call_later(REQUEST_TIMEOUT, self._timed_out)
             return
-        peer = self._transport.get_extra_info("peername") if self._transport is not None else None
-        log.info("master: closing %s: request incomplete after %g s", peer, REQUEST_TIMEOUT)
+        _ratelog.log(
+            logging.INFO, "timeout", "master: closing %s: request incomplete after %g s", self.host, REQUEST_TIMEOUT
+        )
         self._fail(408, b"request not completed in time\n")
 
     def pause_writing(self) -> None:
@@ -417,12 +387,7 @@ class HttpProtocol(asyncio.Protocol):
     def _fail(self, status: int, text: bytes) -> None:
         if self._transport is None or self._closed:
             return
-        head = b"HTTP/1.1 %d %s\r\nContent-Type: text/plain\r\nContent-Length: %d\r\nConnection: close\r\n\r\n" % (
-            status,
-            _REASONS.get(status, b"Error"),
-            len(text),
-        )
-        self._transport.write(head + text)
+        self._transport.write(status_response(status, text))
         self._transport.close()
         self._closed = True
         self._buf.clear()
@@ -439,6 +404,9 @@ class HttpProtocol(asyncio.Protocol):
             parse = _parse_short_head if len(head) <= _CACHED_HEAD_SIZE else parse_head
             length, keep_alive, expect_continue = parse(head)
         except _Refused as exc:
+            _ratelog.log(
+                logging.INFO, "refused", "master: HTTP %d to %s: %s", exc.status, self.host, exc.text.strip().decode()
+            )
             self._fail(exc.status, exc.text)
             return None
         if expect_continue and self._transport is not None:
@@ -476,7 +444,11 @@ class HttpProtocol(asyncio.Protocol):
                 return pos
             if size < stop:
                 return pos
-            body = bytes(buf[start:stop])
+            if type(buf) is bytes:
+                body = buf[start:stop]
+            else:
+                with memoryview(buf) as view:  # one copy of a big body, not two
+                    body = bytes(view[start:stop])
             pos = stop
             self._request = None
             if self._timer is not None:
@@ -488,9 +460,11 @@ class HttpProtocol(asyncio.Protocol):
                 self._busy = True
                 task = asyncio.get_running_loop().create_task(cast(Coroutine[Any, Any, bytes], result))
                 task.add_done_callback(functools.partial(self._finished, keep_alive=req.keep_alive))
+                self._task = task
         return pos
 
     def _finished(self, task: asyncio.Task[bytes], *, keep_alive: bool) -> None:
+        self._task = None
         self._busy = False
         if self._reading_paused and self._transport is not None and not self._closed:
             self._reading_paused = False
@@ -515,34 +489,214 @@ class HttpProtocol(asyncio.Protocol):
             self._closed = True
 
 
-class HttpServer:
-    """The listening socket plus every open connection (so closing really closes them all)."""
+def _nofile_limit() -> int:
+    soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
+    return soft if soft != resource.RLIM_INFINITY else 1 << 20
 
-    def __init__(self, handler: XmlRpcHttpHandler, networks: list[Network] | None) -> None:
+
+class HttpServer:
+    """The listening socket, its accept loop, and every open connection (so closing really closes them all).
+
+    Args:
+        handler: turns request bodies into response bodies.
+        networks: allowed client networks (None: everyone).
+        max_connections: open connections in all; clamped to RLIMIT_NOFILE minus ``FD_RESERVE`` at start.
+        max_connections_per_host: open connections from one peer address.
+        idle_timeout: seconds a kept-alive connection may stay idle (closed after 1x to 1.5x that).
+    """
+
+    def __init__(
+        self,
+        handler: XmlRpcHttpHandler,
+        networks: list[Network] | None,
+        *,
+        max_connections: int = MAX_CONNECTIONS,
+        max_connections_per_host: int = MAX_CONNECTIONS_PER_HOST,
+        idle_timeout: float = IDLE_TIMEOUT,
+    ) -> None:
+        if max_connections < 1 or max_connections_per_host < 1 or idle_timeout <= 0:
+            raise ValueError("connection caps must be at least 1 and the idle timeout positive")
         self._handler = handler
         self._networks = networks
-        self._live: set[asyncio.Transport] = set()
-        self._server: asyncio.Server | None = None
+        self.max_connections = max_connections
+        self.max_connections_per_host = max_connections_per_host
+        self.idle_timeout = idle_timeout
+        self._live: set[HttpProtocol] = set()
+        self._per_host: dict[str, int] = {}
+        self._pending: set[asyncio.Task[Any]] = set()
+        self._socks: list[socket.socket] = []
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._backoff = 0.0
+        self._resume: asyncio.TimerHandle | None = None
+        self._sweeper: asyncio.TimerHandle | None = None
+        self._cap = max_connections
+        #: Connections refused for a cap, and accept back-offs for lack of file descriptors (for tests and stats).
+        self.refused_connections = 0
+        self.accept_backoffs = 0
         self.port = 0
 
+    @property
+    def connections(self) -> int:
+        return len(self._live)
+
     async def start(self, host: str, port: int, backlog: int = 1024) -> None:
-        """Bind and listen; ``.port`` is the bound port afterwards."""
+        """Bind every address ``host`` resolves to (one port for all) and listen; ``.port`` is that port."""
         loop = asyncio.get_running_loop()
-        self._server = await loop.create_server(
-            lambda: HttpProtocol(self._handler, self._networks, self._live),
-            host,
-            port,
-            backlog=backlog,
-            reuse_address=True,
+        infos = await loop.getaddrinfo(host or None, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+        socks: list[socket.socket] = []
+        try:
+            for family, kind, proto, _, resolved in dict.fromkeys(infos):
+                sock = socket.socket(family, kind, proto)
+                socks.append(sock)
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                if family == socket.AF_INET6:
+                    sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+                addr = resolved
+                if socks[1:]:  # the port picked for the first address (port 0) serves the others too
+                    addr = (resolved[0], socks[0].getsockname()[1], *resolved[2:])
+                sock.bind(addr)
+                sock.listen(backlog)
+                sock.setblocking(False)
+        except BaseException:
+            for sock in socks:
+                sock.close()
+            raise
+        self._socks = socks
+        self._loop = loop
+        self._cap = max(1, min(self.max_connections, _nofile_limit() - FD_RESERVE))
+        if self._cap < self.max_connections:
+            log.warning(
+                "master: at most %d connections (RLIMIT_NOFILE %d); raise the limit for %d",
+                self._cap,
+                _nofile_limit(),
+                self.max_connections,
+            )
+        self.port = int(socks[0].getsockname()[1])
+        self._listen(True)
+        self._sweeper = loop.call_later(self.idle_timeout / 2, self._sweep)
+
+    def _listen(self, on: bool) -> None:
+        assert self._loop is not None
+        for sock in self._socks:
+            if on:
+                self._loop.add_reader(sock.fileno(), self._accept, sock)
+            else:
+                self._loop.remove_reader(sock.fileno())
+
+    def _accept(self, sock: socket.socket) -> None:
+        if self._loop is None:
+            return
+        for _ in range(_ACCEPT_BATCH):
+            try:
+                conn, addr = sock.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except ConnectionAbortedError:
+                continue
+            except OSError as exc:
+                if exc.errno in _OUT_OF_RESOURCES:
+                    self._pause_accepting(exc)
+                else:
+                    _ratelog.error("accept", "master: accept failed: %s", exc)
+                return
+            self._backoff = 0.0
+            self._adopt(conn, addr)
+
+    def _pause_accepting(self, exc: OSError) -> None:
+        """Out of file descriptors (or memory): stop accepting for a while instead of spinning on the error."""
+        assert self._loop is not None
+        low, high = ACCEPT_BACKOFF
+        self._backoff = min(high, self._backoff * 2) if self._backoff else low
+        self.accept_backoffs += 1
+        _ratelog.error(
+            "emfile",
+            "master: cannot accept (%s) with %d connections open; pausing accepts for %g s",
+            exc.strerror or exc,
+            len(self._live),
+            self._backoff,
         )
-        self.port = int(self._server.sockets[0].getsockname()[1])
+        self._listen(False)
+        self._resume = self._loop.call_later(self._backoff, self._resume_accepting)
+
+    def _resume_accepting(self) -> None:
+        self._resume = None
+        if self._loop is not None:
+            self._listen(True)
+            for sock in self._socks:
+                self._accept(sock)
+
+    def _adopt(self, conn: socket.socket, addr: Any) -> None:
+        host = str(addr[0]) if isinstance(addr, tuple) and addr else ""
+        count = self._per_host.get(host, 0)
+        if len(self._live) >= self._cap or count >= self.max_connections_per_host:
+            self.refused_connections += 1
+            which = "all clients" if len(self._live) >= self._cap else host
+            _ratelog.warning("cap", "master: refusing a connection from %s: connection cap reached for %s", host, which)
+            try:
+                conn.setblocking(False)
+                conn.send(status_response(503, b"too many connections\n"))
+            except OSError:
+                pass
+            conn.close()
+            return
+        conn.setblocking(False)
+        refused = not allowed(self._networks, host)
+        proto = HttpProtocol(self._handler, self, host, refused)
+        self._live.add(proto)
+        self._per_host[host] = count + 1
+        assert self._loop is not None
+        task = self._loop.create_task(self._connect(conn, proto))
+        self._pending.add(task)
+        task.add_done_callback(self._pending.discard)
+
+    async def _connect(self, conn: socket.socket, proto: HttpProtocol) -> None:
+        assert self._loop is not None
+        try:
+            await self._loop.connect_accepted_socket(lambda: proto, conn)
+        except Exception as exc:
+            _ratelog.warning("connect", "master: dropping a new connection from %s: %s", proto.host, exc)
+            conn.close()
+            self.forget(proto)
+
+    def forget(self, proto: HttpProtocol) -> None:
+        """Called once a connection is gone: its slot is free again."""
+        if proto in self._live:
+            self._live.discard(proto)
+            left = self._per_host.get(proto.host, 1) - 1
+            if left > 0:
+                self._per_host[proto.host] = left
+            else:
+                self._per_host.pop(proto.host, None)
+
+    def _sweep(self) -> None:
+        """Close connections idle since the sweep before last (sweeps run every ``idle_timeout / 2``)."""
+        if self._loop is None:
+            return
+        for proto in list(self._live):
+            if proto.activity != proto.seen_activity or not proto.idle:
+                proto.seen_activity = proto.activity
+                proto.idle_sweeps = 0
+                continue
+            proto.idle_sweeps += 1
+            if proto.idle_sweeps >= 2:
+                proto.close()
+        self._sweeper = self._loop.call_later(self.idle_timeout / 2, self._sweep)
 
     async def aclose(self) -> None:
-        """Stop listening and abort every open connection."""
-        if self._server is not None:
-            self._server.close()
-            for transport in list(self._live):
-                transport.abort()
-            self._live.clear()
-            await self._server.wait_closed()
-            self._server = None
+        """Stop listening, abort every open connection and cancel the work of its pending calls."""
+        for handle in (self._resume, self._sweeper):
+            if handle is not None:
+                handle.cancel()
+        if self._loop is not None:
+            if self._resume is None:
+                self._listen(False)
+            for sock in self._socks:
+                sock.close()
+        self._loop, self._socks, self._resume, self._sweeper = None, [], None, None
+        for task in list(self._pending):
+            task.cancel()
+        for proto in list(self._live):
+            proto.abort()
+        self._live.clear()
+        self._per_host.clear()
+        await asyncio.sleep(0)  # let the aborted transports report connection_lost

@@ -2,7 +2,8 @@
 
 Owns the listening socket, the outgoing XML-RPC client used for callbacks, and the optional
 allow-list of client networks (connections from other addresses get HTTP 403 before any parsing).
-HTTP framing is ``httpserver`` (lean asyncio protocol); XML-RPC codec and dispatch are ``mrosd.xmlrpc``.
+HTTP framing and connection limits are ``httpserver`` (lean asyncio protocol); the XML-RPC codec and dispatch
+are ``mrosd.xmlrpc``.
 """
 
 from __future__ import annotations
@@ -15,7 +16,13 @@ from collections.abc import Iterable
 from urllib.parse import urlsplit
 
 from mrosd.master.api import READ_ONLY_METHODS, MasterApi
-from mrosd.master.httpserver import HttpServer, XmlRpcHttpHandler
+from mrosd.master.httpserver import (
+    IDLE_TIMEOUT,
+    MAX_CONNECTIONS,
+    MAX_CONNECTIONS_PER_HOST,
+    HttpServer,
+    XmlRpcHttpHandler,
+)
 from mrosd.master.notifier import Notifier
 from mrosd.xmlrpc import XmlRpcClient, XmlRpcServer
 
@@ -67,6 +74,10 @@ class Master:
         advertise: host name for ``.uri``; default from ROS_HOSTNAME/ROS_IP/bind address.
         notify_timeout: seconds allowed for one callback to a node.
         notify_queue: most callbacks queued per node (oldest dropped beyond).
+        max_connections: open client connections in all (beyond: HTTP 503 and close); clamped at start to
+            RLIMIT_NOFILE minus a reserve.
+        max_connections_per_host: open client connections from one peer address.
+        idle_timeout: seconds after which an idle kept-alive client connection is closed (1x to 1.5x).
     """
 
     def __init__(
@@ -78,6 +89,9 @@ class Master:
         advertise: str | None = None,
         notify_timeout: float = 5.0,
         notify_queue: int = 10_000,
+        max_connections: int = MAX_CONNECTIONS,
+        max_connections_per_host: int = MAX_CONNECTIONS_PER_HOST,
+        idle_timeout: float = IDLE_TIMEOUT,
     ) -> None:
         self.host = host
         self._requested_port = port
@@ -96,7 +110,13 @@ class Master:
         self._handler = XmlRpcHttpHandler(
             self.api.sync_methods, self._dispatch, cacheable=READ_ONLY_METHODS, state_version=self.api.state_version
         )
-        self._server = HttpServer(self._handler, self._allow)
+        self._server = HttpServer(
+            self._handler,
+            self._allow,
+            max_connections=max_connections,
+            max_connections_per_host=max_connections_per_host,
+            idle_timeout=idle_timeout,
+        )
         self.port = 0
         self.uri = ""
 

@@ -70,3 +70,20 @@ def test_the_reply_cache_keeps_no_more_than_its_byte_budget(monkeypatch: pytest.
     other = encode_call("getThing", ("/d",))
     assert handler.handle(get) is handler.handle(get)  # first reply fits and is kept
     assert handler.handle(other) is not handler.handle(other)  # a second one would exceed the budget
+
+
+@pytest.mark.parametrize(
+    "fields",
+    [
+        b"Content-Length: 5\r\nContent-Length: 6",
+        b"Content-Length: 5\r\ncontent-length: 5",
+        b"Content-Length: 5\r\nContent-Length : 60",
+        b"Content-Length: 5\r\nTransfer-Encoding: chunked",
+        b"Transfer-Encoding: chunked\r\nContent-Length: 5",
+        b"Content-Length: 5, 6",
+    ],
+)
+def test_ambiguous_body_framing_is_refused_with_400(fields: bytes) -> None:
+    with pytest.raises(httpserver._Refused) as info:
+        parse_head(b"POST / HTTP/1.1\r\nHost: x\r\n" + fields)
+    assert info.value.status == 400

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import xmlrpc.client
+from collections.abc import AsyncIterator
 
 import aiohttp
 import pytest
@@ -30,7 +31,7 @@ async def _boom() -> None:
 
 
 @pytest.fixture
-async def server():
+async def server() -> AsyncIterator[XmlRpcServer]:
     async with XmlRpcServer({"add": _add, "boom": _boom}, "127.0.0.1", 0) as srv:
         yield srv
 
