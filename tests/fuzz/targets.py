@@ -414,6 +414,157 @@ def check_pub_args(case: tuple[str, list[str]]) -> None:
     assert cls.deserialize(body) is not None
 
 
+# --- XML-RPC fast path vs full decoder, and the master's HTTP layer -------------------------------------------
+
+_fast_shaped = st.builds(
+    lambda m, p: encode_call(m, tuple(p)),
+    st.sampled_from(["getPid", "lookupNode", "a.b"]),
+    st.lists(st.one_of(st.integers(-(2**31), 2**31 - 1), st.booleans(), st.text("ab/_ ", max_size=6)), max_size=4),
+)
+fast_path_bodies = st.one_of(xmlrpc_bodies, mutated(_fast_shaped, (*XML_TOKENS, b"</i4>", b"</int>", b"\r")))
+
+
+def check_xmlrpc_fast_path(body: bytes) -> None:
+    """The fast path defers or returns exactly what the full decoder returns; decode_call refuses as it does."""
+    from mrosd.xmlrpc import _checked_call, _loads, fast_decode_call
+
+    try:
+        full: tuple[str, tuple[Any, ...]] | None = _checked_call(_loads(body))
+    except Exception:
+        full = None
+    fast = fast_decode_call(body)
+    assert fast is None or fast == full, (fast, full)
+    try:
+        combined: tuple[str, tuple[Any, ...]] | None = decode_call(body)
+    except RemoteProtocolError:
+        combined = None
+    assert combined == full
+
+
+HTTP_TOKENS = tuple(
+    t.encode()
+    for t in (
+        "\r\n", "\r\n\r\n", "Content-Length: 0\r\n", "Content-Length: 7\r\n", "Content-Length: 99999999999\r\n",
+        "Transfer-Encoding: chunked\r\n", "Expect: 100-continue\r\n", "Connection: close\r\n", "HTTP/1.0",
+        "GET", " ", ":", "\x00", "Content-Length : 3\r\n", "\r\n x: folded\r\n",
+    )
+)  # fmt: skip
+
+
+def _http_request(body: bytes) -> bytes:
+    return b"POST / HTTP/1.1\r\nHost: m\r\nContent-Type: text/xml\r\nContent-Length: %d\r\n\r\n%s" % (len(body), body)
+
+
+_master_calls = st.builds(
+    lambda m, p: encode_call(m, tuple(p)),
+    st.sampled_from(["getPid", "getParam", "setParam", "hasParam", "lookupNode", "getSystemState", "nope"]),
+    st.lists(st.one_of(st.just("/fuzz"), st.text("ab/", max_size=4), st.integers(0, 9)), max_size=3),
+)
+
+
+@dataclass(frozen=True)
+class HttpCase:
+    stream: bytes
+    cuts: list[int]  # where the stream is split into reads
+
+
+http_cases = st.builds(
+    HttpCase,
+    st.lists(mutated(_master_calls.map(_http_request), HTTP_TOKENS), min_size=1, max_size=4).map(b"".join),
+    st.lists(st.integers(0, 4096), max_size=6),
+)
+
+_STATUSES = {100, 200, 400, 403, 405, 408, 411, 413, 431, 503}
+
+
+class _RecordingTransport:
+    """What HttpProtocol needs of a transport, recording writes (the fuzz harness; real sockets are in tests)."""
+
+    def __init__(self) -> None:
+        self.out = bytearray()
+        self.closed = False
+        self.writes_after_close = 0
+
+    def write(self, data: bytes) -> None:
+        if self.closed:
+            self.writes_after_close += 1
+        self.out += data
+
+    def close(self) -> None:
+        self.closed = True
+
+    abort = close
+
+    def is_closing(self) -> bool:
+        return self.closed
+
+    def pause_reading(self) -> None:
+        pass
+
+    def resume_reading(self) -> None:
+        pass
+
+    def get_extra_info(self, name: str, default: Any = None) -> Any:
+        return ("127.0.0.1", 5) if name == "peername" else default
+
+
+def _responses(out: bytes) -> list[tuple[int, bytes]]:
+    """Split what the server wrote into (status, body); asserts it is well-formed HTTP."""
+    found = []
+    pos = 0
+    while pos < len(out):
+        end = out.index(b"\r\n\r\n", pos)
+        head = out[pos:end].split(b"\r\n")
+        version, status = head[0].split(b" ")[:2]
+        assert version == b"HTTP/1.1" and int(status) in _STATUSES, head[0]
+        lengths = [int(h.split(b":", 1)[1]) for h in head[1:] if h.lower().startswith(b"content-length:")]
+        length = lengths[0] if lengths else 0
+        found.append((int(status), out[end + 4 : end + 4 + length]))
+        pos = end + 4 + length
+    return found
+
+
+def check_master_http(case: HttpCase) -> None:
+    """Any byte stream, split anywhere: well-formed responses only, nothing after a refusal, bounded buffering."""
+    import asyncio
+
+    from mrosd.master import Master
+    from mrosd.master.httpserver import MAX_HEADER_SIZE, HttpProtocol, HttpServer
+
+    async def run() -> tuple[_RecordingTransport, HttpProtocol]:
+        master = Master("127.0.0.1", 0)
+        handler = master._handler
+        proto = HttpProtocol(handler, HttpServer(handler, None), "127.0.0.1", refused=False)
+        transport = _RecordingTransport()
+        proto.connection_made(transport)  # type: ignore[arg-type]
+        cuts = sorted({c % (len(case.stream) + 1) for c in case.cuts} | {0, len(case.stream)})
+        for a, b in itertools.pairwise(cuts):
+            if b > a:
+                proto.data_received(case.stream[a:b])
+                assert len(proto._buf) <= len(case.stream)
+            for _ in range(3):
+                await asyncio.sleep(0)  # let a slow call finish before the next read
+        while proto._task is not None:
+            await proto._task
+            await asyncio.sleep(0)
+        assert len(proto._buf) <= MAX_HEADER_SIZE + len(case.stream)
+        proto.connection_lost(None)
+        await master.aclose()
+        return transport, proto
+
+    transport, _ = asyncio.run(run())
+    assert transport.writes_after_close == 0
+    responses = _responses(bytes(transport.out))
+    for i, (status, body) in enumerate(responses):
+        if status == 200:
+            try:
+                decode_response(body)
+            except MrosError:  # a fault
+                pass
+        elif status != 100:
+            assert i == len(responses) - 1, "a refusal must be the last thing written"
+
+
 # --- the table ---------------------------------------------------------------------------------------------
 
 
@@ -434,4 +585,8 @@ TARGETS: dict[str, Target] = {
     "ixm-request": Target(ixm_bodies, check_ixm_request, "mrosd.ixm.protocol.decode_request + FrameDecoder"),
     "ixm-reply": Target(ixm_bodies, check_ixm_reply, "mrosd.ixm.protocol.decode_reply"),
     "pub-yaml": Target(pub_args, check_pub_args, "mros topic pub YAML args -> message"),
+    "xmlrpc-fast-path": Target(
+        fast_path_bodies, check_xmlrpc_fast_path, "mrosd.xmlrpc fast path decodes as the full decoder or defers"
+    ),
+    "master-http": Target(http_cases, check_master_http, "mrosd.master.httpserver.HttpProtocol on split streams"),
 }
