@@ -314,7 +314,9 @@ def start_ours(procs: Processes) -> str:
     port = free_port()
     uri = f"http://127.0.0.1:{port}/"
     procs.start(
-        [sys.executable, "-m", "mrosd.master", "--port", str(port)],
+        # --cleanup-interval 0: rosmaster keeps dead nodes, so the sweep (which would probe and remove the dead
+        # subscriber URIs registered below) is off for a like-for-like comparison.
+        [sys.executable, "-m", "mrosd.master", "--port", str(port), "--cleanup-interval", "0"],
         ros_env(uri, procs.tmp),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,

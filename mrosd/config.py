@@ -47,6 +47,8 @@ MAX_DEPTH = 32
 LogLevel = Literal["debug", "info", "warning", "error"]
 Count = Annotated[int, msgspec.Meta(ge=1)]
 Seconds = Annotated[float, msgspec.Meta(gt=0)]
+#: seconds, where 0 switches the feature off.
+SecondsOrOff = Annotated[float, msgspec.Meta(ge=0)]
 
 
 class MasterConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -67,6 +69,8 @@ class MasterConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     idle_timeout: Seconds | None = None
     notify_timeout: Seconds | None = None
     notify_queue: Count | None = None
+    #: seconds between sweeps that remove nodes whose slave API refuses connections; 0 = never (as rosmaster).
+    cleanup_interval: SecondsOrOff | None = None
 
 
 class IxmConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

@@ -14,6 +14,7 @@ import signal
 import sys
 
 from mrosd.loop import run
+from mrosd.master.cleanup import DEFAULT_CLEANUP_INTERVAL
 from mrosd.master.server import Master, parse_networks, port_from_master_uri
 
 
@@ -30,6 +31,14 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         metavar="NET",
         help="client network allowed to call, e.g. 127.0.0.0/8 (repeatable; default: everyone)",
     )
+    parser.add_argument(
+        "--cleanup-interval",
+        type=float,
+        default=DEFAULT_CLEANUP_INTERVAL,
+        metavar="SECONDS",
+        help=f"remove nodes whose slave API refuses connections this often (default {DEFAULT_CLEANUP_INTERVAL:g}; "
+        "0 = never, as rosmaster)",
+    )
     parser.add_argument("--no-uvloop", action="store_true", help="use the stock asyncio loop (as MROSD_LOOP=asyncio)")
     parser.add_argument("-v", "--verbose", action="store_true", help="log every notification failure")
     return parser.parse_args(argv)
@@ -42,7 +51,7 @@ async def serve(args: argparse.Namespace) -> None:
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
-    async with Master(args.host, port, allow=args.allow) as master:
+    async with Master(args.host, port, allow=args.allow, cleanup_interval=args.cleanup_interval) as master:
         print(f"mrosd master ready at {master.uri}", flush=True)
         await stop.wait()
 
@@ -55,6 +64,9 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as exc:
             print(f"mrosd master: bad --allow network: {exc}", file=sys.stderr)
             return 2
+    if args.cleanup_interval < 0:
+        print("mrosd master: --cleanup-interval must be >= 0 (0 turns the sweep off)", file=sys.stderr)
+        return 2
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING, format="%(asctime)s %(name)s: %(message)s"
     )

@@ -16,6 +16,7 @@ from collections.abc import Iterable
 from urllib.parse import urlsplit
 
 from mrosd.master.api import READ_ONLY_METHODS, MasterApi
+from mrosd.master.cleanup import DEFAULT_CLEANUP_INTERVAL
 from mrosd.master.httpserver import (
     IDLE_TIMEOUT,
     MAX_CONNECTIONS,
@@ -78,6 +79,8 @@ class Master:
             RLIMIT_NOFILE minus a reserve.
         max_connections_per_host: open client connections from one peer address.
         idle_timeout: seconds after which an idle kept-alive client connection is closed (1x to 1.5x).
+        cleanup_interval: seconds between sweeps removing nodes whose slave API refuses connections
+            (confirmed by getPid); 0 turns the sweep off, as rosmaster keeps dead nodes.
     """
 
     def __init__(
@@ -92,13 +95,14 @@ class Master:
         max_connections: int = MAX_CONNECTIONS,
         max_connections_per_host: int = MAX_CONNECTIONS_PER_HOST,
         idle_timeout: float = IDLE_TIMEOUT,
+        cleanup_interval: float = DEFAULT_CLEANUP_INTERVAL,
     ) -> None:
         self.host = host
         self._requested_port = port
         self._advertise = advertise
         self._allow = parse_networks(allow) if allow is not None else None
         self._client = XmlRpcClient(timeout=notify_timeout)
-        self.api = MasterApi(None)
+        self.api = MasterApi(None, cleanup_interval=cleanup_interval)
         self.notifier = Notifier(
             self._client,
             timeout=notify_timeout,
