@@ -32,7 +32,7 @@ from typing import Any
 import aiohttp
 from aiohttp import web
 
-from mrosd.errors import LocalProtocolError, RemoteProtocolError, XmlRpcError
+from mrosd.errors import LocalProtocolError, RemoteProtocolError, XmlRpcError, XmlRpcFault
 
 log = logging.getLogger(__name__)
 
@@ -54,13 +54,8 @@ FAULT_INTERNAL_ERROR = -32603
 Handler = Callable[..., Awaitable[Any]]
 
 
-class Fault(XmlRpcError):
-    """An XML-RPC fault: raised by a handler to answer with it, or by the client when a server sent one."""
-
-    def __init__(self, code: int, message: str) -> None:
-        self.code = code
-        self.message = message
-        super().__init__(f"XML-RPC fault {code}: {message}")
+#: The name this module's users know; the class lives in mrosd.errors with the rest of the tree.
+Fault = XmlRpcFault
 
 
 # --- pure codec -------------------------------------------------------------------------------

@@ -15,6 +15,7 @@ import os
 from collections.abc import Awaitable, Callable
 from typing import Any
 
+from mrosd.errors import InvalidArgument
 from mrosd.master.cleanup import DEFAULT_CLEANUP_INTERVAL, GraphCleaner
 from mrosd.master.notifier import Notifier
 from mrosd.master.params import ParamTree, param_updates, subscription_key
@@ -27,8 +28,8 @@ Reply = tuple[int, str, Any]
 Validator = Callable[[Any, str], Any]
 
 
-class Invalid(Exception):
-    """An argument failed validation; the message is returned to the caller with code -1."""
+#: An argument failed validation; the message is returned to the caller with code -1.
+Invalid = InvalidArgument
 
 
 # --- names (rosgraph's lenient resolution, as rosmaster applies it to callers' names) ---------

@@ -33,7 +33,7 @@ import socket
 from collections.abc import Callable, Coroutine
 from typing import Any, cast
 
-from mrosd.errors import LocalProtocolError, RemoteProtocolError
+from mrosd.errors import HttpRefused, LocalProtocolError, RemoteProtocolError
 from mrosd.lograte import RateLimitedLog
 from mrosd.xmlrpc import (
     FAULT_INTERNAL_ERROR,
@@ -223,13 +223,6 @@ class _Request:
         self.keep_alive = keep_alive
 
 
-class _Refused(Exception):
-    def __init__(self, status: int, text: bytes) -> None:
-        super().__init__(status)
-        self.status = status
-        self.text = text
-
-
 def parse_head(head: bytes) -> tuple[int, bool, bool]:
     """``(content_length, keep_alive, expect_continue)`` of a header block (without the blank line).
 
@@ -237,40 +230,40 @@ def parse_head(head: bytes) -> tuple[int, bool, bool]:
     clients repeat the same headers call after call.
 
     Raises:
-        _Refused: the status and text to answer with before closing.
+        HttpRefused: the status and text to answer with before closing.
     """
     line_end = head.find(b"\r\n")
     parts = (head if line_end < 0 else head[:line_end]).split()
     if len(parts) != 3 or not parts[2].startswith(b"HTTP/1."):
-        raise _Refused(400, b"malformed request line\n")
+        raise HttpRefused(400, b"malformed request line\n")
     if parts[0] != b"POST":
-        raise _Refused(405, b"only POST is supported\n")
+        raise HttpRefused(405, b"only POST is supported\n")
     keep_alive = parts[2] != b"HTTP/1.0"
     length: int | None = None
     expect_continue = False
     fields = head[line_end:].lower() if line_end >= 0 else b""
     if fields:
         if _BAD_FIELD_NAME.search(fields):
-            raise _Refused(400, b"malformed header field\n")
+            raise HttpRefused(400, b"malformed header field\n")
         lengths = _CONTENT_LENGTH.findall(fields)
         if b"\r\ntransfer-encoding" in fields:
             if lengths:  # which one frames the body is what request smuggling plays on
-                raise _Refused(400, b"Content-Length with Transfer-Encoding\n")
-            raise _Refused(411, b"chunked bodies are not supported; send Content-Length\n")
+                raise HttpRefused(400, b"Content-Length with Transfer-Encoding\n")
+            raise HttpRefused(411, b"chunked bodies are not supported; send Content-Length\n")
         if len(lengths) > 1:
-            raise _Refused(400, b"more than one Content-Length\n")
+            raise HttpRefused(400, b"more than one Content-Length\n")
         if lengths:
             if not lengths[0]:
-                raise _Refused(400, b"bad Content-Length\n")
+                raise HttpRefused(400, b"bad Content-Length\n")
             length = int(lengths[0])
         m = _CONNECTION.search(fields)
         if m is not None:
             keep_alive = m.group(1) == b"keep-alive"
         expect_continue = b"\r\nexpect:" in fields and b"100-continue" in fields
     if length is None:
-        raise _Refused(411, b"Content-Length required\n")
+        raise HttpRefused(411, b"Content-Length required\n")
     if length > MAX_BODY_SIZE:
-        raise _Refused(413, b"request body too large\n")
+        raise HttpRefused(413, b"request body too large\n")
     return length, keep_alive, expect_continue
 
 
@@ -403,7 +396,7 @@ class HttpProtocol(asyncio.Protocol):
             head = bytes(buf[pos:end])
             parse = _parse_short_head if len(head) <= _CACHED_HEAD_SIZE else parse_head
             length, keep_alive, expect_continue = parse(head)
-        except _Refused as exc:
+        except HttpRefused as exc:
             _ratelog.log(
                 logging.INFO, "refused", "master: HTTP %d to %s: %s", exc.status, self.host, exc.text.strip().decode()
             )

@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from mrosd.errors import HttpRefused
 from mrosd.master import httpserver
 from mrosd.master.httpserver import XmlRpcHttpHandler, parse_head
 from mrosd.xmlrpc import MAX_BODY_SIZE, XmlRpcServer, decode_response, encode_call
@@ -28,7 +29,7 @@ def test_any_header_block_is_either_parsed_within_limits_or_refused_with_a_statu
     head = b"\r\n".join([line, *fields])
     try:
         length, keep_alive, expect = parse_head(head)
-    except httpserver._Refused as exc:
+    except HttpRefused as exc:
         assert exc.status in (400, 405, 411, 413)
         return
     assert 0 <= length <= MAX_BODY_SIZE
@@ -39,7 +40,7 @@ def test_a_typical_header_block_gives_length_keep_alive_and_expect() -> None:
     assert parse_head(b"POST /RPC2 HTTP/1.1\r\nHost: x\r\nContent-Length: 42") == (42, True, False)
     assert parse_head(b"POST / HTTP/1.0\r\nContent-Length: 1\r\nConnection: keep-alive") == (1, True, False)
     assert parse_head(b"POST / HTTP/1.1\r\nContent-length: 1\r\nExpect: 100-continue") == (1, True, True)
-    with pytest.raises(httpserver._Refused):
+    with pytest.raises(HttpRefused):
         parse_head(b"POST / HTTP/1.1\r\nContent-Length: %d" % (MAX_BODY_SIZE + 1))
 
 
@@ -84,6 +85,6 @@ def test_the_reply_cache_keeps_no_more_than_its_byte_budget(monkeypatch: pytest.
     ],
 )
 def test_ambiguous_body_framing_is_refused_with_400(fields: bytes) -> None:
-    with pytest.raises(httpserver._Refused) as info:
+    with pytest.raises(HttpRefused) as info:
         parse_head(b"POST / HTTP/1.1\r\nHost: x\r\n" + fields)
     assert info.value.status == 400
