@@ -8,11 +8,20 @@ rosgraph_msgs/Log is cheap and keeps the publisher typed).
 Drop policy: the aggregator never blocks a logger. The publisher's per-subscriber queues are bounded
 (``QUEUE_SIZE``, drop-oldest, as documented for ``mrosd.Publisher``); a slow console loses old lines, not
 the daemon its memory. The node name is ``/rosout``, as in roscore, so ``rosnode list`` looks familiar.
+
+Like roscore's rosout (a roscpp node started with NoRosout) it publishes only /rosout_agg, offers
+``/rosout/get_loggers`` and ``/rosout/set_logger_level``, and on start sets the parameters roscore's launch
+sets: ``/run_id`` (a fresh uuid1), ``/rosdistro`` (``$ROS_DISTRO``, else ``noetic``) and ``/rosversion``
+(the ros_comm release mrosd matches), the last two with the trailing newline of the commands roslaunch runs
+for them (``rosversion -d``, ``rosversion roslaunch``).
 """
 
 from __future__ import annotations
 
 import logging
+import os
+import uuid
+from collections.abc import Mapping
 from typing import Any
 
 from mrosd.msg import get_message_class
@@ -26,6 +35,19 @@ QUEUE_SIZE = 1000
 NODE_NAME = "rosout"
 IN_TOPIC = "/rosout"
 OUT_TOPIC = "/rosout_agg"
+#: The ros_comm release whose behaviour mrosd matches (roscore's /rosversion).
+ROSVERSION = "1.15.15"
+DEFAULT_ROSDISTRO = "noetic"
+
+
+def core_parameters(environ: Mapping[str, str] | None = None) -> dict[str, str]:
+    """The parameters roscore's launch sets: /run_id, /rosdistro, /rosversion (values as roslaunch writes them)."""
+    env = os.environ if environ is None else environ
+    return {
+        "/run_id": str(uuid.uuid1()),
+        "/rosdistro": (env.get("ROS_DISTRO") or DEFAULT_ROSDISTRO) + "\n",
+        "/rosversion": ROSVERSION + "\n",
+    }
 
 
 class RosoutAggregator:
@@ -48,10 +70,12 @@ class RosoutAggregator:
             MrosError: the master refused a registration.
         """
         log_cls = get_message_class("rosgraph_msgs/Log")
-        node = Node(NODE_NAME, master_uri=self.master_uri, argv=[])
+        node = Node(NODE_NAME, master_uri=self.master_uri, argv=[], rosout=False)
         await node.__aenter__()
         self._node = node
         try:
+            for key, value in core_parameters().items():
+                await node.set_param(key, value)
             self._pub = await node.advertise(OUT_TOPIC, log_cls, queue_size=QUEUE_SIZE)
             await node.subscribe(IN_TOPIC, log_cls, callback=self._forward)
         except BaseException:

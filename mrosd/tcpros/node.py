@@ -19,18 +19,23 @@ from typing import Any
 
 from mrosd.errors import LocalProtocolError, MasterError, MasterUnreachableError, MrosError
 from mrosd.master.client import MasterClient
+from mrosd.msg import get_message_class
 from mrosd.names import NodeNames, parse_argv
 from mrosd.tcpros.handshake import error_header
 from mrosd.tcpros.header import ConnectionHeader, encode_header
 from mrosd.tcpros.publisher import DEFAULT_QUEUE_SIZE, Publisher, PublisherProtocol
+from mrosd.tcpros.rosout import QUEUE_SIZE as ROSOUT_QUEUE_SIZE
+from mrosd.tcpros.rosout import ROSOUT_LOGGER, RosoutHandler, logger_service_handlers, node_logger
 from mrosd.tcpros.service import Service, ServiceProtocol, ServiceProxy
 from mrosd.tcpros.slave import SlaveApi
+from mrosd.tcpros.sockopts import enable_keepalive
 from mrosd.tcpros.subscriber import Subscriber
 from mrosd.xmlrpc import XmlRpcClient, XmlRpcServer
 
 log = logging.getLogger(__name__)
 
 DEFAULT_MASTER_URI = "http://localhost:11311/"
+ROSOUT_TOPIC = "/rosout"
 #: How often the watchdog asks the master whether it still knows us (lookupNode, one cheap call).
 WATCHDOG_INTERVAL = 1.0
 #: Upper bound of the watchdog's backoff while the master is unreachable.
@@ -62,6 +67,15 @@ class InboundProtocol(ServiceProtocol, PublisherProtocol):
     def __init__(self, node: Node) -> None:
         super().__init__()
         self.node = node
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        super().connection_made(transport)
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            try:
+                enable_keepalive(sock)
+            except OSError as exc:
+                log.debug("%s: no TCP keepalive on %s: %s", self.node.name, self.peer, exc)
 
     def _refuse(self, reason: str) -> None:
         log.warning("%s: refusing TCPROS connection from %s: %s", self.node.name, self.peer, reason)
@@ -100,6 +114,8 @@ class Node:
             then this machine's hostname. It is advertised exactly as given (IPv6 literals too).
         environ: the environment to read instead of ``os.environ``.
         watchdog_interval: seconds between the checks that the master still knows this node (0 disables).
+        rosout: publish the ``rosout`` logger's records (``node.log`` included) on /rosout, as rospy does.
+        logger_services: offer ``~get_loggers`` and ``~set_logger_level``, as rospy and roscpp nodes do.
     """
 
     def __init__(
@@ -111,6 +127,8 @@ class Node:
         host: str | None = None,
         environ: Mapping[str, str] | None = None,
         watchdog_interval: float = WATCHDOG_INTERVAL,
+        rosout: bool = True,
+        logger_services: bool = True,
     ) -> None:
         env = os.environ if environ is None else environ
         args = list(sys.argv[1:] if argv is None else argv)
@@ -130,7 +148,15 @@ class Node:
         self.publishers: dict[str, Publisher] = {}
         self.subscribers: dict[str, Subscriber] = {}
         self.services: dict[str, Service] = {}
+        #: Called as ``cb(key, value)`` for every update of a parameter this node subscribes to.
         self.param_callbacks: list[Callable[[str, Any], None]] = []
+        self._param_subscriptions: dict[str, list[Callable[[str, Any], None]]] = {}
+        #: This node's logger: its records (and those of its children) are published on /rosout.
+        self.log = node_logger(self.name)
+        self.rosout = rosout
+        self.logger_services = logger_services
+        self.shutdown_reason = ""
+        self._rosout_handler: RosoutHandler | None = None
         self.shutdown_event = asyncio.Event()
         self.xmlrpc = XmlRpcClient(timeout=MASTER_TIMEOUT)
         #: The one client of the master (shares ``xmlrpc``); registration calls use its MASTER_TIMEOUT.
@@ -171,12 +197,42 @@ class Node:
             await self._close_servers()
             raise
         self._started = True
+        try:
+            await self._start_rosout()
+        except MrosError as exc:
+            # As rospy: a node whose /rosout or logger services cannot be registered still runs.
+            log.warning("%s: /rosout logging and logger services unavailable: %s", self.name, exc)
+        except BaseException:
+            await self.aclose()
+            raise
         if self.watchdog_interval > 0:
             self._watchdog = loop.create_task(self._watch(), name=f"watchdog {self.name}")
         log.debug("node %s up: %s (TCPROS port %d)", self.name, self.uri, self.tcpros_port)
 
+    async def _start_rosout(self) -> None:
+        if self.rosout:
+            pub = await self.advertise(
+                ROSOUT_TOPIC, get_message_class("rosgraph_msgs/Log"), latch=True, queue_size=ROSOUT_QUEUE_SIZE
+            )
+            handler = RosoutHandler(self.name, pub, self._topic_names, asyncio.get_running_loop())
+            rosout_logger = logging.getLogger(ROSOUT_LOGGER)
+            if rosout_logger.level == logging.NOTSET:
+                rosout_logger.setLevel(logging.INFO)  # rospy's default: loginfo reaches /rosout
+            rosout_logger.addHandler(handler)
+            self._rosout_handler = handler
+        if self.logger_services:
+            get_srv, on_get, set_srv, on_set = logger_service_handlers()
+            await self.advertise_service("~get_loggers", get_srv, on_get)
+            await self.advertise_service("~set_logger_level", set_srv, on_set)
+
+    def _topic_names(self) -> list[str]:
+        return sorted({*self.publishers, *self.subscribers})
+
     async def aclose(self) -> None:
         """Unregister every topic and service (best effort, bounded) and close every connection."""
+        if self._rosout_handler is not None:
+            logging.getLogger(ROSOUT_LOGGER).removeHandler(self._rosout_handler)
+            self._rosout_handler = None
         if self._watchdog is not None:
             self._watchdog.cancel()
             self._watchdog = None
@@ -293,7 +349,8 @@ class Node:
             except MrosError as exc:
                 log.warning("%s: re-registering service %s failed: %s", self.name, srv.name, exc)
 
-    def _shutdown_requested(self, reason: str) -> None:
+    def shutdown_requested(self, reason: str) -> None:
+        """The master or a tool called our slave API's ``shutdown``: set ``shutdown_event``."""
         # The master gave our name to another node: stop the watchdog so we never fight over it.
         if self._watchdog is not None:
             self._watchdog.cancel()
@@ -301,12 +358,50 @@ class Node:
         self.shutdown_reason = reason
         self.shutdown_event.set()
 
-    def _param_update(self, key: str, value: Any) -> None:
-        for cb in list(self.param_callbacks):
+    def param_update(self, key: str, value: Any) -> bool:
+        """A paramUpdate from the master: run the callbacks of the subscribed key it falls under.
+
+        Returns False when this node does not subscribe to ``key`` (the slave API then answers -1).
+        """
+        callbacks = [
+            cb
+            for sub_key, cbs in self._param_subscriptions.items()
+            if key == sub_key or key.startswith(sub_key.rstrip("/") + "/") or sub_key.startswith(key.rstrip("/") + "/")
+            for cb in cbs
+        ]
+        if not callbacks:
+            return False
+        for cb in [*callbacks, *self.param_callbacks]:
             try:
                 cb(key, value)
             except Exception:
                 log.exception("%s: paramUpdate callback failed", self.name)
+        return True
+
+    async def subscribe_param(self, key: str, callback: Callable[[str, Any], None]) -> Any:
+        """Subscribe to a parameter: ``callback(key, value)`` runs on every change; returns the current value.
+
+        The value is ``{}`` when the parameter is not set (the master's answer).
+
+        Raises:
+            MasterError: the master refused the subscription.
+        """
+        self._check_started()
+        name = self.resolve_name(key)
+        first = name not in self._param_subscriptions
+        self._param_subscriptions.setdefault(name, []).append(callback)
+        try:
+            return await self.master.subscribe_param(self.uri, name)
+        except BaseException:
+            if first:
+                self._param_subscriptions.pop(name, None)
+            raise
+
+    async def unsubscribe_param(self, key: str) -> None:
+        """Drop every callback of a parameter subscription and tell the master."""
+        name = self.resolve_name(key)
+        if self._param_subscriptions.pop(name, None) is not None:
+            await self._unregister("unsubscribeParam", self.uri, name)
 
     @property
     def service_uri(self) -> str:
@@ -398,17 +493,16 @@ class Node:
         """A client for ``service``; close it with ``aclose()`` when persistent."""
         return ServiceProxy(self, self.resolve_name(service), srv_class, persistent=persistent)
 
-    async def _remove_publisher(self, pub: Publisher) -> None:
-        if self.publishers.get(pub.topic) is pub:
-            del self.publishers[pub.topic]
-            await self._unregister("unregisterPublisher", pub.topic, self.uri)
-
-    async def _remove_subscriber(self, sub: Subscriber) -> None:
-        if self.subscribers.get(sub.topic) is sub:
-            del self.subscribers[sub.topic]
-            await self._unregister("unregisterSubscriber", sub.topic, self.uri)
-
-    async def _remove_service(self, srv: Service) -> None:
-        if self.services.get(srv.name) is srv:
-            del self.services[srv.name]
-            await self._unregister("unregisterService", srv.name, self.service_uri)
+    async def endpoint_closed(self, endpoint: object) -> None:
+        """A publisher, subscriber or service of ours closed: forget it and unregister it (bounded)."""
+        if isinstance(endpoint, Publisher):
+            if self.publishers.get(endpoint.topic) is endpoint:
+                del self.publishers[endpoint.topic]
+                await self._unregister("unregisterPublisher", endpoint.topic, self.uri)
+        elif isinstance(endpoint, Subscriber):
+            if self.subscribers.get(endpoint.topic) is endpoint:
+                del self.subscribers[endpoint.topic]
+                await self._unregister("unregisterSubscriber", endpoint.topic, self.uri)
+        elif isinstance(endpoint, Service) and self.services.get(endpoint.name) is endpoint:
+            del self.services[endpoint.name]
+            await self._unregister("unregisterService", endpoint.name, self.service_uri)

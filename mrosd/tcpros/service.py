@@ -28,11 +28,12 @@ from mrosd.tcpros.framing import MAX_FRAME_SIZE
 from mrosd.tcpros.handshake import check_service_reply, error_header, service_reply
 from mrosd.tcpros.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header, encode_header
 from mrosd.tcpros.protocol import TcprosProtocol
+from mrosd.tcpros.sockopts import enable_keepalive
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from mrosd.tcpros.node import Node
+    from mrosd.tcpros.owner import EndpointOwner
 
 log = logging.getLogger(__name__)
 _U32 = struct.Struct("<I")
@@ -101,7 +102,7 @@ class ServiceProtocol(TcprosProtocol):
 class Service:
     """A service we provide. Create it with ``await node.advertise_service(name, SrvType, handler)``."""
 
-    def __init__(self, node: Node, name: str, srv_class: Any, handler: Callable[[Any], Any]) -> None:
+    def __init__(self, node: EndpointOwner, name: str, srv_class: Any, handler: Callable[[Any], Any]) -> None:
         self.type, self.md5sum, self.request_class, self.response_class = _srv_attrs(srv_class)
         self.node = node
         self.name = name
@@ -167,7 +168,7 @@ class Service:
         self.closed = True
         for proto in list(self.connections):
             proto.close()
-        await self.node._remove_service(self)
+        await self.node.endpoint_closed(self)
 
     async def __aenter__(self) -> Service:
         return self
@@ -179,7 +180,7 @@ class Service:
 class ServiceProxy:
     """Calls a service: ``resp = await proxy.call(req)`` or ``await proxy(req)``; persistent keeps one connection."""
 
-    def __init__(self, node: Node, name: str, srv_class: Any, *, persistent: bool = False) -> None:
+    def __init__(self, node: EndpointOwner, name: str, srv_class: Any, *, persistent: bool = False) -> None:
         self.type, self.md5sum, self.request_class, self.response_class = _srv_attrs(srv_class)
         self.node = node
         self.name = name
@@ -199,6 +200,9 @@ class ServiceProxy:
         host, port = await self._lookup()
         reader, writer = await asyncio.open_connection(host, port, limit=2**20)
         try:
+            sock = writer.get_extra_info("socket")
+            if sock is not None:
+                enable_keepalive(sock)
             header = ConnectionHeader(
                 callerid=self.node.name,
                 service=self.name,

@@ -2,10 +2,15 @@
 
 Each publisher URI gets one ``PublisherLink`` task that asks the publisher's slave API for a TCPROS
 endpoint (requestTopic), connects, handshakes and then receives frames through ``SubscriberProtocol``.
-A lost connection is retried with capped exponential backoff (0.1 s doubling to 10 s); each distinct
-failure is logged once. A publisher that refuses us (md5/type mismatch) is reported with its own error
-text in the log and in ``Subscriber.errors``. Messages go to a callback, or into a bounded drop-oldest
-queue read with ``async for``. With ``AnyMsg`` the subscriber yields ``RawMessage(data, header)``.
+A lost connection is retried with capped exponential backoff (0.1 s doubling to 10 s). The backoff starts
+over only after a healthy connection (one that lasted ``HEALTHY_AFTER`` seconds, or delivered a frame and
+ended without a protocol error), so a publisher that handshakes and then sends garbage is re-dialled at
+the growing interval, not every 0.1 s; failures are logged rate-limited per publisher. A publisher that
+refuses us (md5/type mismatch) is reported with its own error text in the log and in ``Subscriber.errors``.
+A publisher missing from the master's list (``publisherUpdate``, or the reply to registering again after a
+master restart) is dropped only if we are not connected to it: a live connection is kept until it ends, as
+rospy keeps it, so a restarted master never cuts data that is flowing. Messages go to a callback, or into
+a bounded drop-oldest queue read with ``async for``. With ``AnyMsg`` the subscriber yields ``RawMessage(data, header)``.
 """
 
 from __future__ import annotations
@@ -20,16 +25,20 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import msgspec
 
 from mrosd.errors import HandshakeError, LocalProtocolError, MrosError, XmlRpcError
+from mrosd.lograte import RateLimitedLog
 from mrosd.tcpros.handshake import check_publisher_reply
 from mrosd.tcpros.header import ConnectionHeader, encode_header
 from mrosd.tcpros.protocol import TcprosProtocol
+from mrosd.tcpros.sockopts import enable_keepalive
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from mrosd.tcpros.node import Node
+    from mrosd.tcpros.owner import EndpointOwner
 
 log = logging.getLogger(__name__)
+#: Failures a publisher can cause at will (garbage after the handshake, refused dials) are logged rate-limited.
+_ratelog = RateLimitedLog(log, period=60.0, burst=3)
 _connection_ids = itertools.count(1)
 
 #: Reconnection backoff bounds (seconds), as DESIGN.md fixes them.
@@ -37,6 +46,8 @@ BACKOFF_MIN = 0.1
 BACKOFF_MAX = 10.0
 #: Time allowed for requestTopic, TCP connect and the publisher's header.
 CONNECT_TIMEOUT = 10.0
+#: A connection that stayed up this long (seconds) counts as healthy and starts the backoff over.
+HEALTHY_AFTER = 5.0
 DEFAULT_QUEUE_SIZE = 100
 
 
@@ -65,6 +76,21 @@ class SubscriberProtocol(TcprosProtocol):
         super().__init__()
         self.link = link
         self.handshake: asyncio.Future[ConnectionHeader] = asyncio.get_running_loop().create_future()
+        #: Why we closed the connection on a protocol error ('' when the peer closed it or all was well).
+        self.error = ""
+
+    def abort(self, reason: str) -> None:
+        # A publisher controls how often this happens: rate-limited, and remembered for the backoff.
+        self.error = reason
+        _ratelog.warning(
+            f"abort {self.link.uri}",
+            "%s: closing the connection to publisher %s: %s",
+            self.link.subscriber.topic,
+            self.link.uri,
+            reason,
+        )
+        if self.transport is not None:
+            self.transport.abort()
 
     def header_received(self, header: ConnectionHeader) -> None:
         # Checked here, synchronously: a latched frame may follow in the same read.
@@ -97,6 +123,10 @@ class PublisherLink:
     def __init__(self, subscriber: Subscriber, uri: str) -> None:
         self.subscriber = subscriber
         self.uri = uri
+        #: False once the master's list no longer has this publisher: the link ends with its connection.
+        self.listed = True
+        #: TCP dials made (tests and getBusStats-style introspection).
+        self.dials = 0
         self.id = next(_connection_ids)
         self.header: ConnectionHeader | None = None
         self.proto: SubscriberProtocol | None = None
@@ -110,16 +140,23 @@ class PublisherLink:
 
     async def _run(self) -> None:
         sub = self.subscriber
+        loop = asyncio.get_running_loop()
         delay = BACKOFF_MIN
         last_reason = ""
-        while not sub.closed:
+        while not sub.closed and self.listed:
             try:
                 await self._connect_once()
-                delay = BACKOFF_MIN
                 last_reason = ""
-                assert self.proto is not None
-                await self.proto.closed
-                log.info("%s: publisher %s closed the connection", sub.topic, self.uri)
+                proto = self.proto
+                assert proto is not None
+                since, received = loop.time(), self.messages_received
+                await proto.closed
+                healthy = loop.time() - since >= HEALTHY_AFTER or (
+                    not proto.error and self.messages_received > received
+                )
+                if healthy:
+                    delay = BACKOFF_MIN
+                    log.info("%s: publisher %s closed the connection", sub.topic, self.uri)
             except HandshakeError as exc:
                 sub.errors.append(str(exc))
                 if str(exc) != last_reason:
@@ -129,8 +166,12 @@ class PublisherLink:
             except (OSError, TimeoutError, XmlRpcError, MrosError) as exc:
                 reason = f"{type(exc).__name__}: {exc}"
                 if reason != last_reason:
-                    log.warning(
-                        "%s: cannot connect to publisher %s (%s); retrying with backoff", sub.topic, self.uri, reason
+                    _ratelog.warning(
+                        f"connect {self.uri}",
+                        "%s: cannot connect to publisher %s (%s); retrying with backoff",
+                        sub.topic,
+                        self.uri,
+                        reason,
                     )
                 else:
                     log.debug("%s: retry to %s failed again: %s", sub.topic, self.uri, reason)
@@ -141,10 +182,15 @@ class PublisherLink:
                 self.proto = None
                 self.header = None
                 sub._changed.set()
-            if sub.closed:
-                return
+            if sub.closed or not self.listed:
+                break
             await asyncio.sleep(delay)
             delay = min(delay * 2, BACKOFF_MAX)
+        if not self.listed and sub.links.get(self.uri) is self:
+            # The master stopped listing this publisher while we were connected: now that the connection
+            # has ended, forget it (a later publisherUpdate that lists it again starts a new link).
+            del sub.links[self.uri]
+            sub._changed.set()
 
     async def _connect_once(self) -> None:
         sub = self.subscriber
@@ -158,8 +204,12 @@ class PublisherLink:
                 raise MrosError(f"{self.uri} offers no TCPROS endpoint: {params!r}")
             host, port = str(params[1]), int(params[2])
             loop = asyncio.get_running_loop()
-            _, proto = await loop.create_connection(lambda: SubscriberProtocol(self), host, port)
+            self.dials += 1
+            transport, proto = await loop.create_connection(lambda: SubscriberProtocol(self), host, port)
             self.proto = proto
+            sock = transport.get_extra_info("socket")
+            if sock is not None:
+                enable_keepalive(sock)
             proto.set_nodelay(True)
             proto.write(
                 encode_header(
@@ -191,7 +241,7 @@ class Subscriber:
 
     def __init__(
         self,
-        node: Node,
+        node: EndpointOwner,
         topic: str,
         msg_class: Any,
         *,
@@ -227,13 +277,22 @@ class Subscriber:
     # --- publishers ------------------------------------------------------------------------------
 
     def update_publishers(self, uris: list[str]) -> None:
-        """Follow the master's current publisher list (registerSubscriber reply or publisherUpdate)."""
+        """Follow the master's current publisher list (registerSubscriber reply or publisherUpdate).
+
+        A publisher that is not listed any more is dropped at once unless we are connected to it; a live
+        connection is kept until it ends (rospy keeps it too: a restarted master, which knows none of the
+        rospy publishers, must not cut data that is flowing).
+        """
         if self.closed:
             return
         wanted = {u for u in uris if isinstance(u, str) and u}
-        for uri in list(self.links):
-            if uri not in wanted:
-                link = self.links.pop(uri)
+        for uri, link in list(self.links.items()):
+            if uri in wanted:
+                link.listed = True
+            elif link.connected:
+                link.listed = False
+            else:
+                del self.links[uri]
                 asyncio.get_running_loop().create_task(link.aclose())
         for uri in wanted:
             if uri not in self.links:
@@ -263,9 +322,9 @@ class Subscriber:
             msg: Any = RawMessage(body, link.header)
         else:
             try:
-                # A large frame arrives as its own bytearray: decode through a view so uint8[] fields are
-                # views into it, not copies.
-                msg = self.msg_class.deserialize(memoryview(body) if type(body) is bytearray else body)
+                # A large frame arrives as its own FrameBuffer, which the message then owns: its large uint8[]
+                # fields are read-only views into it, not copies (mrosd.msg.runtime.FrameBuffer).
+                msg = self.msg_class.deserialize(body)
             except MrosError as exc:
                 log.warning("%s: dropping a message from %s that does not decode: %s", self.topic, link.uri, exc)
                 return
@@ -355,7 +414,7 @@ class Subscriber:
         await self._close_links()
         if self._consumer is not None:
             self._consumer.cancel()
-        await self.node._remove_subscriber(self)
+        await self.node.endpoint_closed(self)
 
     async def __aenter__(self) -> Subscriber:
         return self

@@ -214,7 +214,10 @@ async def test_the_slave_api_describes_the_node(rosmaster: str) -> None:
         try:
             assert (await c.call(a.uri, "getPid", "/t"))[2] == os.getpid()
             assert (await c.call(a.uri, "getMasterUri", "/t"))[2] == rosmaster
-            assert (await c.call(a.uri, "getPublications", "/t"))[2] == [["/chatter", "std_msgs/String"]]
+            assert sorted((await c.call(a.uri, "getPublications", "/t"))[2]) == [
+                ["/chatter", "std_msgs/String"],
+                ["/rosout", "rosgraph_msgs/Log"],
+            ]
             assert (await c.call(a.uri, "getSubscriptions", "/t"))[2] == [["/other", "std_msgs/Int32"]]
             code, _, proto = await c.call(a.uri, "requestTopic", "/t", "/chatter", [["TCPROS"]])
             assert (code, proto) == (1, ["TCPROS", "127.0.0.1", a.tcpros_port])
@@ -333,3 +336,18 @@ def test_large_messages_queued_behind_a_full_socket_arrive_whole_and_in_order_un
 
     with asyncio.Runner(loop_factory=uvloop.new_event_loop) as runner:
         runner.run(main())
+
+
+async def test_a_subscribed_parameter_reports_changes_and_other_keys_are_refused(rosmaster: str) -> None:
+    changes: asyncio.Queue[tuple[str, object]] = asyncio.Queue()
+    async with node("tuner", rosmaster) as a:
+        assert await a.subscribe_param("gain", lambda k, v: changes.put_nowait((k, v))) == {}
+        c = XmlRpcClient()
+        try:
+            await c.call(rosmaster, "setParam", "/someone_else", "/gain", 2.5)  # the master skips the setter
+            assert await asyncio.wait_for(changes.get(), 10) == ("/gain", 2.5)
+            assert (await c.call(a.uri, "paramUpdate", "/t", "/other", 1))[0] == -1
+            await a.unsubscribe_param("gain")
+            assert (await c.call(a.uri, "paramUpdate", "/t", "/gain", 1))[0] == -1
+        finally:
+            await c.aclose()
