@@ -35,13 +35,6 @@ def test_bridges_are_parsed_from_the_rules_table_with_clear_errors() -> None:
         parse_bridges({"bridges": {"/v": {"type": "float64"}}})
 
 
-def _node_or_skip() -> None:
-    try:
-        from mrosd import Node  # noqa: F401
-    except ImportError:
-        pytest.skip("mrosd.Node is not available in this build")
-
-
 class Lines:
     """Lines of a child's stdout read on the event loop (no thread that could outlive the test)."""
 
@@ -76,7 +69,6 @@ class Lines:
 async def test_rospy_sees_each_write_and_rostopic_pub_feeds_a_key(
     shm_guard: ShmGuard, rosmaster: str, procs: Processes, tmp_path: Path
 ) -> None:
-    _node_or_skip()
     sock = str(tmp_path / "ixm.sock")
     env = ros_env(rosmaster, tmp_path)
     bridges = [

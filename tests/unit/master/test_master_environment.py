@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import socket
+
 import pytest
 
 from mrosd.master.__main__ import parse_args
@@ -19,7 +21,9 @@ def test_the_advertised_host_prefers_ros_hostname_then_ros_ip_then_the_bind_addr
     assert advertised_host("0.0.0.0", {"ROS_HOSTNAME": "robot.local", "ROS_IP": "10.0.0.2"}) == "robot.local"
     assert advertised_host("0.0.0.0", {"ROS_IP": "10.0.0.2"}) == "10.0.0.2"
     assert advertised_host("127.0.0.1", {}) == "127.0.0.1"
-    assert advertised_host("0.0.0.0", {})
+    # a wildcard bind address is never advertised: other hosts could not dial it
+    assert advertised_host("0.0.0.0", {}) == (socket.gethostname() or "localhost")
+    assert advertised_host("::", {}) == (socket.gethostname() or "localhost")
 
 
 def test_allow_lists_accept_networks_and_single_addresses_and_reject_garbage() -> None:
