@@ -20,6 +20,7 @@ __all__ = [
     "ZERO_COPY_MIN",
     "DeserializationError",
     "Duration",
+    "FrameBuffer",
     "SerializationError",
     "Time",
     "array_decoder",
@@ -27,6 +28,7 @@ __all__ = [
     "as_bytes",
     "bad_length",
     "blob",
+    "is_immutable",
     "serialize_failed",
     "struct_error",
     "to_bytes",
@@ -44,19 +46,51 @@ UINT32 = struct.Struct("<I")
 #: (immutable) bytes instead of a copy: a 1 MB image costs no memcpy to decode. Smaller ones are bytes.
 ZERO_COPY_MIN = 64 * 1024
 
+
+class FrameBuffer(bytearray):
+    """A received frame's storage, owned by whoever it is delivered to; nobody writes to it afterwards.
+
+    The TCPROS decoder receives a large frame straight into one of these and never touches it again. A
+    message decoded from it keeps its large ``uint8[]`` fields as read-only views into it (no copy), and
+    publishing such a message again sends those views as they are (no copy either). The rule that makes
+    this safe: once handed to ``deserialize``, a FrameBuffer is never modified (it stays alive as long as
+    any view of it does).
+    """
+
+    __slots__ = ()
+
+
 #: Array typecodes whose item size matches the wire size of each ROS numeric type on every CPython.
 _TYPECODES = {"b": "b", "B": "B", "h": "h", "H": "H", "i": "i", "I": "I", "q": "q", "Q": "Q", "f": "f", "d": "d"}
 _SWAP = sys.byteorder != "little"
 
 
 def blob(b: Any, start: int, end: int) -> bytes | memoryview:
-    """A uint8[] payload: zero-copy view when large and the input cannot change under us, else bytes."""
+    """A uint8[] payload: a read-only zero-copy view when large and the input cannot change under us
+    (bytes, a FrameBuffer, or a read-only view of either), else bytes."""
+    cls = b.__class__
     if end - start >= ZERO_COPY_MIN:
-        if b.__class__ is bytes:
+        if cls is bytes:
             return memoryview(b)[start:end]
-        if b.__class__ is memoryview and b.readonly and b.obj.__class__ is bytes:
+        if cls is FrameBuffer:
+            return memoryview(b)[start:end].toreadonly()
+        if cls is memoryview and b.readonly and b.obj.__class__ in _IMMUTABLE:
             return b[start:end]  # type: ignore[no-any-return]
-    return bytes(b[start:end])
+    if cls is bytes:
+        return b[start:end]  # type: ignore[no-any-return]
+    return bytes(memoryview(b)[start:end])
+
+
+_IMMUTABLE = (bytes, FrameBuffer)
+
+
+def is_immutable(part: Any) -> bool:
+    """Whether ``part`` (a serialized piece) can never change: bytes, a FrameBuffer, or a read-only view
+    of either. Only such pieces may be handed to a transport without a copy."""
+    cls = part.__class__
+    if cls is memoryview:
+        return part.readonly and part.obj.__class__ in _IMMUTABLE  # type: ignore[no-any-return]
+    return cls is bytes or cls is FrameBuffer
 
 
 def as_bytes(data: Any) -> bytes:

@@ -4,16 +4,22 @@ Bytes go in with ``feed()``; ``maybe_next_frame()`` returns one complete frame b
 incomplete. ``feed_frames()`` is the batch form (one call per socket read). For
 ``asyncio.BufferedProtocol`` the decoder also lends the buffer to receive into: ``get_buffer()`` /
 ``buffer_updated()``. Once a large frame's length is known, ``get_buffer()`` is a view into that frame's
-own exact-size buffer, so the kernel writes the body straight where it is delivered from (no copies).
-The length prefix is checked against the decoder's limit before any byte of the body is buffered, so a
-4 GB claim is refused at once instead of allocating. No sockets, no asyncio.
+own ``FrameBuffer``, so the kernel writes the body straight where it is delivered from, and the buffer
+becomes the decoded message's storage (see ``mrosd.msg.runtime.FrameBuffer`` for the ownership rule).
+That buffer grows with the bytes that actually arrive, never with the announced length, and the length is
+checked against the decoder's limit before anything is buffered: a 4 GB claim is refused at once, and a
+1 GiB claim followed by 5 bytes costs kilobytes. No sockets, no asyncio.
 """
 
 from __future__ import annotations
 
 import struct
+import sys
 
 from mrosd.errors import RemoteProtocolError
+from mrosd.msg.runtime import FrameBuffer
+
+__all__ = ["GROWTH", "LARGE_FRAME", "MAX_FRAME_SIZE", "FrameBuffer", "FrameDecoder", "encode_frame"]
 
 #: Largest message frame accepted. roscpp refuses messages over 1 GB as well ("a message of over a
 #: gigabyte was predicted"); an 8 MB image or a large point cloud is far below it.
@@ -24,6 +30,11 @@ _U32 = struct.Struct("<I")
 #: Frames above this size that span socket reads get a buffer of their own size (one copy, no regrowth);
 #: below it, joining a straddling tail costs less than a separate allocation.
 LARGE_FRAME = 64 * 1024
+
+#: A pending large frame's buffer is at most this many times the bytes of it received so far (and at least
+#: LARGE_FRAME); once a 1/GROWTH share of it has arrived it gets its full size. Memory follows data, not the
+#: length a peer announces, and an honest frame is moved at most a few times while small.
+GROWTH = 16
 
 #: Size of the receive buffer lent by ``get_buffer()`` while no large frame is pending (allocated on
 #: first use, per connection). Large bodies bypass it, so it only bounds how many small frames one read takes.
@@ -38,18 +49,47 @@ def encode_frame(body: bytes | bytearray | memoryview) -> bytes:
     return _U32.pack(len(body)) + bytes(body)
 
 
+def _grown(buf: FrameBuffer, filled: int, size: int) -> FrameBuffer:
+    """``buf`` with capacity ``size``, its first ``filled`` bytes kept (resized in place when possible)."""
+    try:
+        buf.extend(_zeros(size - len(buf)))
+        return buf
+    except BufferError:  # a view of it is still alive (the caller's read buffer): move once
+        new = FrameBuffer(size)
+        new[:filled] = memoryview(buf)[:filled]
+        return new
+
+
+def _zeros(count: int) -> bytes:
+    return bytes(count)  # calloc'd: large zero runs cost no memset of their own
+
+
 class FrameDecoder:
-    """Incremental decoder of ``<uint32 length><body>`` frames with a size limit."""
+    """Incremental decoder of ``<uint32 length><body>`` frames with a size limit.
 
-    __slots__ = ("_buf", "_large", "_large_filled", "_pos", "_recv", "max_size")
+    A large frame that spans reads is received into a ``FrameBuffer`` whose capacity follows the bytes that
+    actually arrived (at most ``GROWTH`` times them, and ``LARGE_FRAME`` to start), never the length the
+    peer announced: a peer that claims 1 GiB and sends 5 bytes costs about LARGE_FRAME.
+    """
 
-    def __init__(self, max_size: int = MAX_FRAME_SIZE) -> None:
+    __slots__ = ("_buf", "_large", "_large_filled", "_large_size", "_pos", "_recv", "_spare", "_then_max", "max_size")
+
+    def __init__(self, max_size: int = MAX_FRAME_SIZE, *, header_max_size: int | None = None) -> None:
         self._buf = bytearray()
         self._pos = 0
-        self._large: bytearray | None = None
+        self._large: FrameBuffer | None = None
         self._large_filled = 0
+        self._large_size = 0
         self._recv: bytearray | None = None
-        self.max_size = max_size
+        #: The last large frame delivered. Once nothing refers to it any more (the message built on it is
+        #: gone, no transport still writes a view of it), the next large frame is received into it again:
+        #: steady streams of images cost no allocation and no zero-filling per frame.
+        self._spare: FrameBuffer | None = None
+        #: The limit of the frame being decoded. With ``header_max_size`` the first frame (a connection
+        #: header) is judged by that limit and every later one by ``max_size``: the switch happens inside
+        #: the decoder, between two frames of the same read (as h11 switches from headers to body).
+        self.max_size = max_size if header_max_size is None else header_max_size
+        self._then_max: int | None = None if header_max_size is None else max_size
 
     @property
     def buffered(self) -> int:
@@ -60,13 +100,46 @@ class FrameDecoder:
         """Append received bytes."""
         self._buf += data
 
+    def _capacity_for(self, filled: int) -> int:
+        """The pending large frame's buffer size once ``filled`` bytes of it arrived: the whole frame once
+        a sixteenth of it is here, else GROWTH times what arrived (LARGE_FRAME at least)."""
+        size = self._large_size
+        if filled * GROWTH >= size:
+            return size
+        return min(size, max(LARGE_FRAME, filled * GROWTH))
+
+    def _start_large(self, length: int, first: memoryview) -> None:
+        self._large_size = length
+        avail = len(first)
+        capacity = self._capacity_for(max(avail, 1))
+        # Only this decoder refers to the spare (getrefcount counts its own argument): nobody can see it.
+        if self._spare is not None and sys.getrefcount(self._spare) == 2 and len(self._spare) >= capacity:
+            large = self._spare
+            if len(large) > length:
+                del large[length:]
+        else:
+            large = FrameBuffer(capacity)
+        self._spare = None
+        large[:avail] = first
+        self._large = large
+        self._large_filled = avail
+
+    def _finish_large(self) -> FrameBuffer:
+        large = self._large
+        assert large is not None
+        self._large = None
+        self._large_filled = 0
+        self._large_size = 0
+        self._spare = large
+        return large
+
     def feed_frames(self, data: bytes | bytearray | memoryview) -> list[bytes | bytearray]:
         """``feed(data)`` and return every frame now complete (the hot path: one call per socket read).
 
         Frames are sliced straight out of ``data``; only an incomplete tail is kept. A large frame
-        (over LARGE_FRAME) that spans reads gets its own buffer of exactly its size, allocated once when its
-        length is known and returned as is (a bytearray): large bodies are copied once, never regrown or
-        re-sliced. Do not mix with ``maybe_next_frame`` while a large frame is pending.
+        (over LARGE_FRAME) that spans reads is collected in a FrameBuffer that grows with the bytes received
+        and is returned as is: large bodies are copied once. Do not mix with ``maybe_next_frame`` while a
+        large frame is pending.
 
         Raises:
             RemoteProtocolError: a length prefix exceeds ``max_size``; the connection must be closed.
@@ -75,14 +148,16 @@ class FrameDecoder:
         view = memoryview(data)
         large = self._large
         if large is not None:
-            take = min(len(large) - self._large_filled, len(view))
-            large[self._large_filled : self._large_filled + take] = view[:take]
-            self._large_filled += take
-            if self._large_filled < len(large):
+            filled = self._large_filled
+            take = min(self._large_size - filled, len(view))
+            if filled + take > len(large):
+                large = self._large = _grown(large, filled, max(filled + take, self._capacity_for(filled + take)))
+            large[filled : filled + take] = view[:take]
+            self._large_filled = filled = filled + take
+            if filled < self._large_size:
                 return frames
-            frames.append(large)
-            self._large = None
-            self._large_filled = 0
+            frames.append(self._finish_large())
+            self._first_out()
             view = view[take:]
         if len(self._buf) != self._pos:
             # A short tail (a length prefix or a small frame) straddled the previous read: join it.
@@ -91,24 +166,21 @@ class FrameDecoder:
             self._pos = 0
         size = len(view)
         pos = 0
-        limit = self.max_size
         unpack = _U32.unpack_from
         while size - pos >= 4:
             (length,) = unpack(view, pos)
-            if length > limit:
-                raise RemoteProtocolError(f"frame of {length} bytes announced, the limit is {limit}")
+            if length > self.max_size:
+                raise RemoteProtocolError(f"frame of {length} bytes announced, the limit is {self.max_size}")
             end = pos + 4 + length
             if end > size:
                 if length > LARGE_FRAME:
-                    large = bytearray(length)
-                    avail = size - pos - 4
-                    large[:avail] = view[pos + 4 : size]
-                    self._large = large
-                    self._large_filled = avail
+                    self._start_large(length, view[pos + 4 : size])
                     return frames
                 break
             frames.append(bytes(view[pos + 4 : end]))
             pos = end
+            if self._then_max is not None:
+                self._first_out()
         if pos < size:
             self._buf += view[pos:]
         return frames
@@ -118,12 +190,16 @@ class FrameDecoder:
     def get_buffer(self) -> memoryview:
         """Where the next received bytes go: the rest of a pending large frame, else the receive buffer.
 
-        A pending large frame's view ends exactly at the frame's end, so a read never spills the next
-        frame into it. Follow every call with ``buffer_updated(n)`` (or ``received(n)``).
+        A pending large frame's view ends at most at the frame's end, so a read never spills the next
+        frame into it; its buffer grows here, between reads, as its bytes arrive. Follow every call with
+        ``buffer_updated(n)`` (or ``received(n)``).
         """
         large = self._large
         if large is not None:
-            return memoryview(large)[self._large_filled :]
+            filled = self._large_filled
+            if filled == len(large):
+                large = self._large = _grown(large, filled, self._capacity_for(filled))
+            return memoryview(large)[filled:]
         if self._recv is None:
             self._recv = bytearray(RECV_BUFFER_SIZE)
         return memoryview(self._recv)
@@ -140,19 +216,18 @@ class FrameDecoder:
         """``nbytes`` were written into the last ``get_buffer()`` view: return every frame now complete.
 
         Same results, limits and errors as ``feed_frames`` on those bytes; a completed large frame is the
-        very bytearray the kernel wrote into.
+        very FrameBuffer the kernel wrote into.
 
         Raises:
             RemoteProtocolError: a length prefix exceeds ``max_size``; the connection must be closed.
         """
-        large = self._large
-        if large is not None:
+        if self._large is not None:
             self._large_filled += nbytes
-            if self._large_filled < len(large):
+            if self._large_filled < self._large_size:
                 return []
-            self._large = None
-            self._large_filled = 0
-            return [large]
+            frame = self._finish_large()
+            self._first_out()
+            return [frame]
         if self._recv is None:
             raise RuntimeError("buffer_updated() without get_buffer()")
         return self.feed_frames(memoryview(self._recv)[:nbytes])
@@ -185,7 +260,14 @@ class FrameDecoder:
         with memoryview(buf) as view:  # one copy of the body, not slice-then-copy
             body = bytes(view[start : start + length])
         self._advance(4 + length)
+        self._first_out()
         return body
+
+    def _first_out(self) -> None:
+        """A frame was returned: from now on ``max_size`` is the message limit (the header is done)."""
+        if self._then_max is not None:
+            self.max_size = self._then_max
+            self._then_max = None
 
     def _advance(self, count: int) -> None:
         self._pos += count

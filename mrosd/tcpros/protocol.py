@@ -4,15 +4,19 @@
 buffer, or, once a large frame's length is known, that frame's own exact-size buffer, so a big message is
 received by the kernel straight into the bytes that are delivered. The first frame is the peer's
 connection header, every later one goes to ``frame_received``. Malformed or oversized input closes this connection
-with a logged reason and touches nothing else. Writes are plain ``transport.write`` calls; flow control
-(pause/resume_writing) is exposed as ``paused`` and ``drain()`` so the publisher can queue and coalesce.
+with a logged reason and touches nothing else. Small writes are plain ``transport.write`` calls; a large
+frame's pieces go to the socket in one ``writev`` while the transport buffers nothing (``write_parts``).
+Flow control (pause/resume_writing) is exposed as ``paused`` and ``drain()`` so the publisher can queue
+and coalesce.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import os
 import socket
+from collections.abc import Sequence
 from typing import Any, cast
 
 from mrosd.errors import RemoteProtocolError
@@ -27,16 +31,20 @@ log = logging.getLogger(__name__)
 #: a stalled peer costs at most this plus its bounded message queue.
 WRITE_HIGH_WATER = 1024 * 1024
 
+#: Most pieces handed to one ``writev`` (IOV_MAX is 1024 on Linux); longer lists go to the transport.
+_MAX_IOV = 64
+
 
 class TcprosProtocol(asyncio.BufferedProtocol):
     """A TCPROS connection: header first, then length-prefixed frames."""
 
     def __init__(self) -> None:
         self.transport: asyncio.Transport | None = None
-        self.decoder = FrameDecoder(MAX_HEADER_SIZE)
+        self.decoder = FrameDecoder(MAX_FRAME_SIZE, header_max_size=MAX_HEADER_SIZE)
         self.header: ConnectionHeader | None = None
         self.peer = "?"
         self.paused = False
+        self._fd = -1  #: the socket's fd, for vectored writes that bypass the transport while it is idle
         self._drain: asyncio.Future[None] | None = None
         loop = asyncio.get_running_loop()
         self.closed: asyncio.Future[BaseException | None] = loop.create_future()
@@ -61,6 +69,9 @@ class TcprosProtocol(asyncio.BufferedProtocol):
         transport = cast(asyncio.Transport, transport)
         self.transport = transport
         transport.set_write_buffer_limits(high=WRITE_HIGH_WATER)
+        sock: Any = transport.get_extra_info("socket")
+        if sock is not None:
+            self._fd = sock.fileno()
         peer = transport.get_extra_info("peername")
         if peer:
             self.peer = f"{peer[0]}:{peer[1]}"
@@ -70,19 +81,15 @@ class TcprosProtocol(asyncio.BufferedProtocol):
 
     def buffer_updated(self, nbytes: int) -> None:
         self._poke()
-        decoder = self.decoder
         try:
+            frames = self.decoder.buffer_updated(nbytes)
             if self.header is None:
-                decoder.feed(decoder.received(nbytes))
-                body = decoder.maybe_next_frame()
-                if body is None:
+                # The decoder judged the first frame by MAX_HEADER_SIZE and the rest by MAX_FRAME_SIZE.
+                if not frames:
                     return
-                self.header = decode_connection_header(body)
-                decoder.max_size = MAX_FRAME_SIZE
+                self.header = decode_connection_header(frames[0])
                 self.header_received(self.header)
-                frames = decoder.feed_frames(decoder.take(decoder.buffered) or b"")
-            else:
-                frames = decoder.buffer_updated(nbytes)
+                del frames[0]
             frame_received = self.frame_received
             for frame in frames:
                 transport = self.transport
@@ -106,6 +113,7 @@ class TcprosProtocol(asyncio.BufferedProtocol):
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.transport = None
+        self._fd = -1
         if self._drain is not None and not self._drain.done():
             self._drain.set_exception(ConnectionResetError("connection lost"))
             self._drain.exception()  # mark retrieved
@@ -132,6 +140,37 @@ class TcprosProtocol(asyncio.BufferedProtocol):
     def write(self, data: bytes) -> None:
         if self.transport is not None:
             self.transport.write(data)
+
+    def write_parts(self, parts: Sequence[bytes | bytearray | memoryview]) -> None:
+        """Write the concatenation of ``parts`` without building it.
+
+        While the transport holds nothing back, the pieces go to the socket in one ``writev`` (the kernel's
+        copy is the only one); only what the socket cannot take now is handed to the transport, whose
+        ``writelines`` keeps the pieces (uvloop) rather than joining them.
+        """
+        transport = self.transport
+        if transport is None:
+            return
+        fd = self._fd
+        if fd < 0 or len(parts) > _MAX_IOV or transport.get_write_buffer_size() or transport.is_closing():
+            transport.writelines(parts)
+            return
+        try:
+            sent = os.writev(fd, parts)
+        except (BlockingIOError, InterruptedError):
+            sent = 0
+        except OSError:
+            transport.writelines(parts)  # the transport meets the same error and closes as usual
+            return
+        rest: list[bytes | bytearray | memoryview] = []
+        for part in parts:
+            if sent >= len(part):
+                sent -= len(part)
+                continue
+            rest.append(memoryview(part)[sent:] if sent else part)
+            sent = 0
+        if rest:
+            transport.writelines(rest)
 
     def set_nodelay(self, enabled: bool) -> None:
         """Set TCP_NODELAY on the socket as the peer asked (tcp_nodelay header)."""

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import itertools
+import struct
+import tracemalloc
 from collections.abc import Iterator
 
 import pytest
@@ -10,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mrosd.errors import RemoteProtocolError
-from mrosd.tcpros.framing import MAX_FRAME_SIZE, FrameDecoder, encode_frame
+from mrosd.tcpros.framing import GROWTH, LARGE_FRAME, MAX_FRAME_SIZE, FrameBuffer, FrameDecoder, encode_frame
 
 
 def pieces(stream: bytes, cuts: list[int]) -> Iterator[bytes]:
@@ -180,13 +182,75 @@ def test_a_large_frame_is_received_into_its_own_buffer_which_ends_at_the_frame()
     first[:1000] = stream[:1000]
     del first
     assert dec.buffer_updated(1000) == []
-    rest = dec.get_buffer()
-    assert len(rest) == len(body) - 996  # exactly the rest of the body: the next frame never lands in it
-    rest[:] = stream[1000 : 4 + len(body)]
-    del rest
-    (frame,) = dec.buffer_updated(len(body) - 996)
-    assert isinstance(frame, bytearray) and frame == body
+    pos = 1000
+    frames: list[bytes | bytearray] = []
+    while not frames:
+        rest = dec.get_buffer()
+        assert 0 < len(rest) <= 4 + len(body) - pos  # never past the frame: the next frame never lands in it
+        n = len(rest)
+        rest[:] = stream[pos : pos + n]
+        del rest
+        frames = dec.buffer_updated(n)
+        pos += n
+    assert pos == 4 + len(body)
+    (frame,) = frames
+    assert isinstance(frame, FrameBuffer) and frame == body
     assert _receive_in_place(dec, stream[4 + len(body) :], [100]) == [b"next"]
+
+
+@pytest.mark.parametrize("path", ["lent", "fed"])
+def test_a_claimed_gigabyte_costs_what_arrived_not_what_was_claimed(path: str) -> None:
+    dec = FrameDecoder()
+    claim = struct.pack("<I", MAX_FRAME_SIZE) + b"12345"
+    chunk = b"x" * (1024 * 1024)
+    tracemalloc.start()
+    try:
+        if path == "lent":
+            for data in (claim, chunk):
+                got = 0
+                while got < len(data):
+                    buf = dec.get_buffer()
+                    n = min(len(buf), len(data) - got)
+                    buf[:n] = data[got : got + n]
+                    del buf
+                    assert dec.buffer_updated(n) == []
+                    got += n
+                if data is claim:
+                    assert tracemalloc.get_traced_memory()[1] < 4 * LARGE_FRAME
+            dec.get_buffer()
+        else:
+            assert dec.feed_frames(claim) == []
+            assert tracemalloc.get_traced_memory()[1] < 4 * LARGE_FRAME
+            assert dec.feed_frames(chunk) == []
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert dec.buffered == 5 + len(chunk)
+    assert peak < 2 * GROWTH * len(chunk)  # follows the megabyte that arrived, not the gigabyte announced
+
+
+@settings(deadline=None, max_examples=30)
+@given(
+    st.integers(LARGE_FRAME + 1, 2 * 1024 * 1024),
+    st.lists(st.integers(1, 8) | st.integers(4096, 300_000), min_size=1, max_size=8).filter(lambda c: max(c) > 8),
+)
+def test_lent_buffers_grow_with_the_data_and_stay_bounded_by_it(size: int, cuts: list[int]) -> None:
+    body = bytes([size % 251]) * size
+    stream = encode_frame(body)
+    dec = FrameDecoder()
+    pos = 0
+    i = 0
+    out: list[bytes | bytearray] = []
+    while pos < len(stream):
+        buf = dec.get_buffer()
+        assert len(buf) + dec.buffered <= max(LARGE_FRAME + 4, GROWTH * dec.buffered)
+        n = min(cuts[i % len(cuts)], len(buf), len(stream) - pos)
+        buf[:n] = stream[pos : pos + n]
+        del buf
+        out.extend(dec.buffer_updated(n))
+        pos += n
+        i += 1
+    assert out == [body]
 
 
 def test_the_lent_buffer_path_refuses_an_oversized_length_before_allocating() -> None:
@@ -204,3 +268,37 @@ def test_received_hands_back_the_bytes_written_into_the_lent_buffer() -> None:
     buf[:3] = b"abc"
     del buf
     assert bytes(dec.received(3)) == b"abc"
+
+
+def test_a_delivered_large_frame_never_changes_and_is_reused_only_once_released() -> None:
+    first, second, third = (bytes([i]) * (3 * LARGE_FRAME) for i in (1, 2, 3))
+    dec = FrameDecoder()
+    (held,) = _receive_in_place(dec, encode_frame(first), [LARGE_FRAME])
+    view = memoryview(held)[10:20]  # as a decoded message's payload view would
+    del held
+    (other,) = _receive_in_place(dec, encode_frame(second), [LARGE_FRAME])
+    assert view.obj is not other and bytes(view) == first[10:20]  # still referenced: never overwritten
+    other_id = id(other)
+    del view, other
+    (again,) = _receive_in_place(dec, encode_frame(third), [LARGE_FRAME])
+    assert id(again) == other_id and again == third  # nobody held it: received into it again, no allocation
+
+
+@settings(deadline=None, max_examples=50)
+@given(st.lists(st.integers(1, 200), min_size=1, max_size=6), st.booleans())
+def test_the_first_frame_has_the_header_limit_and_later_ones_the_message_limit(cuts: list[int], lent: bool) -> None:
+    header, small, big = b"h" * 300, b"m" * 5, b"x" * 50
+    stream = encode_frame(header) + encode_frame(small) + encode_frame(big)
+    out: list[bytes | bytearray] = []
+    dec = FrameDecoder(max_size=10, header_max_size=1000)
+    # the 300-byte header passes its limit and the 5-byte message its own: only the 50-byte one is refused
+    with pytest.raises(RemoteProtocolError, match="50 bytes announced, the limit is 10"):
+        if lent:
+            _receive_in_place(dec, stream, cuts)
+        else:
+            for piece in pieces(stream, cuts):
+                out.extend(dec.feed_frames(piece))
+    assert out == [header, small][: len(out)]
+    strict = FrameDecoder(max_size=1000, header_max_size=10)
+    with pytest.raises(RemoteProtocolError, match="300 bytes announced, the limit is 10"):
+        strict.feed_frames(stream)
