@@ -1,0 +1,58 @@
+"""The emitter state shared by the encoder and decoder: lines, temporaries, precompiled structs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from mrosd.msg.codegen.sizes import Lookup
+
+
+@dataclass
+class Writer:
+    """Accumulates indented lines, temporaries and precompiled struct formats for one generated class."""
+
+    type_name: str
+    lookup: Lookup
+    lines: list[str] = field(default_factory=list)
+    structs: dict[str, int] = field(default_factory=dict)
+    helpers: dict[str, str] = field(default_factory=dict)
+    counter: int = 0
+    tag: str = ""  #: distinguishes the structs of several classes generated into one module
+
+    def emit(self, indent: int, text: str) -> None:
+        self.lines.append("    " * indent + text)
+
+    def tmp(self, prefix: str = "v") -> str:
+        self.counter += 1
+        return f"_{prefix}{self.counter}"
+
+    def _index(self, fmt: str) -> int:
+        index = self.structs.get(fmt)
+        if index is None:
+            index = self.structs[fmt] = len(self.structs)
+        return index
+
+    def struct(self, fmt: str) -> str:
+        """The module-level ``struct.Struct`` for ``fmt`` (little-endian)."""
+        return f"_S{self.tag}{self._index(fmt)}"
+
+    def pack(self, fmt: str) -> str:
+        """The prebound ``pack`` of that struct (saves an attribute lookup per call)."""
+        return f"_P{self.tag}{self._index(fmt)}"
+
+    def unpack(self, fmt: str) -> str:
+        """The prebound ``unpack_from`` of that struct."""
+        return f"_U{self.tag}{self._index(fmt)}"
+
+    def helper(self, name: str, expr: str) -> str:
+        self.helpers[name] = expr
+        return name
+
+    def prelude(self) -> list[str]:
+        out = []
+        for fmt in self.structs:
+            out.append(f"{self.struct(fmt)} = _struct.Struct({'<' + fmt!r})")
+            out.append(f"{self.pack(fmt)} = {self.struct(fmt)}.pack")
+            out.append(f"{self.unpack(fmt)} = {self.struct(fmt)}.unpack_from")
+        out += [f"{name} = {expr}" for name, expr in sorted(self.helpers.items())]
+        return out
