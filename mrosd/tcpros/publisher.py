@@ -3,10 +3,12 @@
 Each subscriber connection is a ``SubscriberLink``. While its socket keeps up, a frame is written at once
 (one ``transport.write``). When the transport pushes back (pause_writing), frames wait in that link's
 queue of at most ``queue_size`` frames, dropping the OLDEST when full and counting the drop (reported in
-getBusStats); once the socket drains, everything waiting goes out as ONE coalesced write. A large body is
-never copied to prepend its length: it travels as ``(prefix, body)`` to ``transport.writelines``. A slow
-subscriber therefore never delays the others and costs at most WRITE_HIGH_WATER plus its queue.
-Latching keeps the serialized bytes, never the live message object.
+getBusStats); once the socket drains, everything waiting goes out as ONE coalesced write. A large message
+is never joined: its length prefix and its pieces (``serialize_parts``: the payload is the very object the
+message holds, e.g. a view into the frame it was received in) go to the socket in one ``writev``
+(``TcprosProtocol.write_parts``). A slow subscriber therefore never delays the others and costs at most
+WRITE_HIGH_WATER plus its queue. Latching keeps the serialized bytes, never the live message object.
+Messages with ``Header header`` get the publisher's sequence number in ``header.seq``, as rospy and roscpp do.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import struct
 from typing import TYPE_CHECKING, Any
 
 from mrosd.errors import HandshakeError, LocalProtocolError
+from mrosd.msg.runtime import is_immutable
 from mrosd.spin import loop_spinner
 from mrosd.tcpros.framing import LARGE_FRAME
 from mrosd.tcpros.handshake import error_header, publisher_reply
@@ -31,8 +34,9 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 _U32 = struct.Struct("<I")
-#: A queued frame: the whole frame, or (length prefix, body) for a large body that is never concatenated.
-Frame = bytes | tuple[bytes, bytes | bytearray | memoryview]
+#: A queued frame: the whole frame, or its pieces (length prefix, then the body's) for a large body that is
+#: never concatenated.
+Frame = bytes | tuple[bytes | bytearray | memoryview, ...]
 _connection_ids = itertools.count(1)
 
 #: Default per-subscriber queue length (frames), as rospy's and roscpp's usual queue_size choices.
@@ -86,17 +90,17 @@ class SubscriberLink:
         if self._flusher is None:
             self._flusher = asyncio.get_running_loop().create_task(self._flush())
 
-    def send_parts(self, prefix: bytes, body: bytes | bytearray | memoryview) -> None:
-        """``send(prefix + body)`` without building the concatenation when the socket keeps up."""
+    def send_parts(self, parts: tuple[bytes | bytearray | memoryview, ...], size: int) -> None:
+        """``send(b"".join(parts))`` (``size`` bytes in all) without building the concatenation."""
         proto = self.proto
         if proto.transport is None:
             return
         if not self.queue and not proto.paused:
-            proto.transport.writelines((prefix, body))
-            self.bytes_sent += len(prefix) + len(body)
+            proto.write_parts(parts)
+            self.bytes_sent += size
             self.messages_sent += 1
             return
-        self._enqueue((prefix, body))
+        self._enqueue(parts)
 
     async def _flush(self) -> None:
         try:
@@ -166,6 +170,9 @@ class Publisher:
         self.links: list[SubscriberLink] = []
         self.latched: bytes | None = None
         self.messages_published = 0
+        #: header.seq of the next message (roscpp's rule: 0 first, one per publish call, subscribers or not).
+        self.seq = 0
+        self._has_header: bool = bool(getattr(msg_class, "_has_header", False))
         self.closed = False
         self._subscriber_change = asyncio.Event()
         self._poke = loop_spinner().poke
@@ -184,13 +191,39 @@ class Publisher:
     def publish_nowait(self, msg: Any) -> None:
         """``publish`` for synchronous code on the loop's thread (e.g. a subscriber callback).
 
+        A message whose first field is ``Header header`` gets this publisher's counter in ``header.seq``
+        (the object is updated, as rospy does): 0 for the first publish call, then one more per call.
+
         Raises:
             LocalProtocolError: the publisher was closed, or ``msg`` is not of the advertised type.
             SerializationError: a field value cannot be serialized.
         """
         if type(msg) is not self.msg_class and getattr(msg, "_md5sum", None) != self.md5sum:
             raise LocalProtocolError(f"{self.topic} publishes {self.type}, got {type(msg).__name__}")
-        self.publish_serialized(msg.serialize())
+        if self._has_header:
+            # As rospy and roscpp do for a message whose first field is ``Header header``.
+            msg.header.seq = self.seq
+            self.seq = (self.seq + 1) & 0xFFFFFFFF
+        serialize_parts = getattr(msg, "serialize_parts", None)
+        if serialize_parts is None:
+            self.publish_serialized(msg.serialize())
+            return
+        # A type that may carry a large uint8[]: its pieces go to the socket as they are (a payload received
+        # into a FrameBuffer, or given as bytes, is never copied), the rest is packed as usual.
+        parts = serialize_parts()
+        size = sum(map(len, parts))
+        if size <= LARGE_FRAME or self.latch:
+            self.publish_serialized(b"".join(parts))
+            return
+        if self.closed:
+            raise LocalProtocolError(f"publisher of {self.topic} is closed")
+        self.messages_published += 1
+        self._poke()
+        # A piece the caller could still change (a bytearray, a writable view) is copied once, as the join
+        # in serialize() would: the transport may hold the pieces after this call returns.
+        frame = (_U32.pack(size), *(p if is_immutable(p) else bytes(p) for p in parts))
+        for link in self.links:
+            link.send_parts(frame, size + 4)
 
     def publish_serialized(self, body: bytes | bytearray | memoryview) -> None:
         """Send an already serialized message body (no length prefix), e.g. from a bridge.
@@ -204,9 +237,9 @@ class Publisher:
         self._poke()
         prefix = _U32.pack(len(body))
         if len(body) > LARGE_FRAME and not self.latch:
-            # Large bodies are not concatenated with their prefix: writelines hands both to the transport.
+            # Large bodies are not concatenated with their prefix: both go to the socket in one vectored write.
             for link in self.links:
-                link.send_parts(prefix, body)
+                link.send_parts((prefix, body), len(body) + 4)
             return
         frame = prefix + body
         if self.latch:
@@ -283,7 +316,7 @@ class Publisher:
         for link in list(self.links):
             link.close()
         self.links.clear()
-        await self.node._remove_publisher(self)
+        await self.node.endpoint_closed(self)
 
     async def __aenter__(self) -> Publisher:
         return self
