@@ -21,10 +21,13 @@ finds the event loop idle calls ``sched_yield``, so a peer waiting for this CPU 
 busy steps too was measured and cost a third of the small-message throughput).
 
 Spinning pays only when CPUs would otherwise sit idle: beside a CPU-bound process a TCPROS ping/pong measured
-70-124 us medians spinning against 42-75 us with ``MROSD_SPIN_US=0``. A detector that stopped spinning when
-a spin step was preempted was tried and dropped: on an idle 2-core machine the two spinning peers are
-preempted by incidental tasks often enough that it undid most of the gain. Set ``MROSD_SPIN_US=0`` on a
-saturated host.
+70-124 us medians spinning against 42-75 us with ``MROSD_SPIN_US=0``, and on a host whose CPUs were
+contended (PSI ``some avg10`` above 90 %) 300 us against 40 us. So no spin starts while the kernel's CPU
+pressure (``/proc/pressure/cpu``, ``some avg10``: the share of time runnable tasks waited for a CPU) is above
+``PRESSURE_LIMIT`` percent; it is read at most once a second. A detector that stopped spinning when a spin
+step was preempted was tried and dropped: on an idle 2-core machine the two spinning peers are preempted by
+incidental tasks often enough that it undid most of the gain (PSI, averaged over 10 s, does not flicker so).
+``MROSD_SPIN_US=0`` turns spinning off for good.
 
 ``MROSD_SPIN_US`` sets ``max`` in microseconds (default 200, as the kernel's ``guest_halt_poll_ns``); 0 turns
 spinning off. ``AdaptiveSpin`` is the pure policy; ``LoopSpinner`` keeps an asyncio event loop polling
@@ -38,8 +41,17 @@ import asyncio
 import os
 import time
 import weakref
+from collections.abc import Callable
 
-__all__ = ["DEFAULT_SPIN_US", "AdaptiveSpin", "LoopSpinner", "default_max_ns", "loop_spinner"]
+__all__ = [
+    "DEFAULT_SPIN_US",
+    "PRESSURE_LIMIT",
+    "AdaptiveSpin",
+    "LoopSpinner",
+    "cpu_pressure",
+    "default_max_ns",
+    "loop_spinner",
+]
 
 #: Default upper bound of the spin window, in microseconds.
 DEFAULT_SPIN_US = 200
@@ -48,6 +60,28 @@ _now = time.monotonic_ns
 
 #: A spin step that took less than this found the event loop idle (an empty poll and our own task step).
 _IDLE_STEP_NS = 20_000
+
+#: No spin starts while the CPU pressure (PSI ``some avg10``, percent) is above this.
+PRESSURE_LIMIT = 20.0
+#: How often the pressure is read again.
+_PRESSURE_EVERY_NS = 1_000_000_000
+_PRESSURE_FILE = "/proc/pressure/cpu"
+
+
+def cpu_pressure() -> float | None:
+    """The kernel's CPU pressure, ``some avg10`` in percent; None where PSI is not available."""
+    try:
+        with open(_PRESSURE_FILE, "rb") as f:
+            first = f.readline()
+    except OSError:
+        return None
+    for field in first.split():
+        if field.startswith(b"avg10="):
+            try:
+                return float(field[6:])
+            except ValueError:
+                return None
+    return None
 
 
 def default_max_ns(environ: dict[str, str] | None = None) -> int:
@@ -107,11 +141,19 @@ class LoopSpinner:
     with any event loop (asyncio's or uvloop). ``poke`` is cheap (a clock read and a comparison).
     """
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, max_ns: int | None = None) -> None:
+    def __init__(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        max_ns: int | None = None,
+        pressure: Callable[[], float | None] = cpu_pressure,
+    ) -> None:
         self._loop = loop
         self.policy = AdaptiveSpin(default_max_ns() if max_ns is None else max_ns)
         self._until = 0
         self._task: asyncio.Task[None] | None = None
+        self._pressure = pressure
+        self._pressure_at = -_PRESSURE_EVERY_NS
+        self._contended = False
         #: Spins started and events that arrived while spinning (for tests and statistics).
         self.spins = 0
         self.hits = 0
@@ -126,7 +168,11 @@ class LoopSpinner:
             self.hits += 1
         else:
             policy.blocked(now - self._until)
-            if policy.window_ns and not self._loop.is_closed():
+            if now - self._pressure_at >= _PRESSURE_EVERY_NS:
+                self._pressure_at = now
+                value = self._pressure()
+                self._contended = value is not None and value > PRESSURE_LIMIT
+            if policy.window_ns and not self._contended and not self._loop.is_closed():
                 self.spins += 1
                 self._task = self._loop.create_task(self._spin())
         self._until = now + policy.window_ns

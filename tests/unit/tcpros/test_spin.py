@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import asyncio
 import os
+from pathlib import Path
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mrosd.spin import DEFAULT_SPIN_US, AdaptiveSpin, LoopSpinner, default_max_ns, loop_spinner
+from mrosd import spin
+from mrosd.spin import DEFAULT_SPIN_US, AdaptiveSpin, LoopSpinner, cpu_pressure, default_max_ns, loop_spinner
 
 MAX = 200_000
 
@@ -73,13 +75,18 @@ def test_a_process_confined_to_one_cpu_never_spins(monkeypatch: pytest.MonkeyPat
     assert default_max_ns({"MROSD_SPIN_US": "500"}) == 0
 
 
+def no_pressure() -> float:
+    return 0.0
+
+
 async def wait_idle(spinner: LoopSpinner, timeout: float = 5.0) -> None:
     if spinner._task is not None:
         await asyncio.wait_for(spinner._task, timeout)  # the spin ends by itself at the window's end
 
 
 async def test_the_loop_spinner_spins_after_close_events_and_stops_by_itself() -> None:
-    spinner = LoopSpinner(asyncio.get_running_loop(), max_ns=50_000_000)  # 50 ms: far above scheduling noise
+    # 50 ms: far above scheduling noise
+    spinner = LoopSpinner(asyncio.get_running_loop(), max_ns=50_000_000, pressure=no_pressure)
     spinner.poke()  # first event ever: nothing to learn from, no spin
     assert spinner._task is None
     spinner.poke()  # a second event right after: the window opens and the loop spins
@@ -91,7 +98,7 @@ async def test_the_loop_spinner_spins_after_close_events_and_stops_by_itself() -
 
 
 async def test_the_loop_spinner_stays_asleep_for_sparse_events() -> None:
-    spinner = LoopSpinner(asyncio.get_running_loop(), max_ns=1_000_000)  # 1 ms
+    spinner = LoopSpinner(asyncio.get_running_loop(), max_ns=1_000_000, pressure=no_pressure)  # 1 ms
     spinner.poke()
     spinner.poke()
     await wait_idle(spinner)
@@ -115,3 +122,26 @@ async def test_a_disabled_spinner_does_nothing() -> None:
 
 async def test_one_spinner_per_loop_is_shared() -> None:
     assert loop_spinner() is loop_spinner(asyncio.get_running_loop())
+
+
+async def test_no_spin_starts_while_the_cpus_are_contended() -> None:
+    pressure = [95.0]
+    spinner = LoopSpinner(asyncio.get_running_loop(), max_ns=50_000_000, pressure=lambda: pressure[0])
+    for _ in range(3):
+        spinner.poke()
+    assert spinner._task is None and spinner.spins == 0  # the window is open, but nobody waits for nothing
+    assert spinner.policy.window_ns > 0
+    spinner._pressure_at -= 2_000_000_000  # a second later the pressure is read again, and has gone
+    pressure[0] = 0.5
+    spinner.poke()
+    assert spinner.spins == 1
+    await wait_idle(spinner)
+
+
+def test_cpu_pressure_reads_some_avg10_or_says_unknown(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    psi = tmp_path / "cpu"
+    psi.write_text("some avg10=12.34 avg60=1.00 avg300=0.50 total=1\nfull avg10=0.00 avg60=0.00 total=0\n")
+    monkeypatch.setattr(spin, "_PRESSURE_FILE", str(psi))
+    assert cpu_pressure() == 12.34
+    monkeypatch.setattr(spin, "_PRESSURE_FILE", str(tmp_path / "missing"))
+    assert cpu_pressure() is None
