@@ -1,15 +1,19 @@
-"""TCPROS benchmark after the mROS paper's section 5.4: /ping -> echo node -> /pong round trips.
+"""TCPROS benchmark after the mROS paper's section 5.4, plus the loads robots carry (images, point clouds).
 
-For each implementation (mrosd, Debian's rospy, a roscpp node compiled here) an echo node of that
-implementation republishes /ping on /pong, and a sender of the same implementation measures the round-trip
-time of 200 messages (after 20 warm-up ones) for std_msgs/String of 1 B to 32 KB and for the paper's
-Coordinate type (float32 x, y, z; time time). Then throughput: bursts of small Strings (msgs/s) and of 1 MB
-and 8 MB sensor_msgs/Image (MB/s, counted on the echoed copies). All against one Debian rosmaster, in one
-run; ratios are printed, and a plot of RTT against size goes to bench/out/tcpros_rtt.png.
+RTT, as the paper measures it: a sender publishes a 1-byte std_msgs/String on /ping that names a size, the
+echo node answers on /pong with a String of that size (1 B to 32 KB in powers of two), and the sender times
+200 round trips per size (after 20 warm-up ones). Coordinate (float32 x, y, z; time) is echoed as received.
+Every implementation is measured against itself and, as the paper measured one implementation against
+another, in mixed pairings (an mrosd sender with a roscpp or rospy echo node and the reverse). Mean, SD,
+median, p99 and max are printed, the means in the layout of the paper's Tables 1-3, and box plots like its
+Figs. 16/17 go to bench/out/. Then throughput: bursts of small Strings (msgs/s) and echoed 1 MB / 8 MB
+sensor_msgs/Image and 1 MB / 4 MB PointCloud2 (MB/s). Finally the RTT and image rows again beside a
+CPU-bound neighbour (one busy-loop process), for every implementation in the same run. All against one
+Debian rosmaster.
 
-Usage: ``python -m bench.tcpros [--count 200] [--quick] [--images-only] [--rounds 3]``; the same module is the
-mrosd echo/sender process
-(``--role echo|ping|burst``). uvloop is used in the mrosd processes when installed.
+Usage: ``python -m bench.tcpros [--count 200] [--quick] [--images-only] [--rounds 3] [--no-neighbour]``; the
+same module is the mrosd echo/sender process (``--role echo|ping|burst``). uvloop is used in the mrosd
+processes when installed.
 """
 
 from __future__ import annotations
@@ -39,7 +43,22 @@ ROS_PYTHON = "/usr/bin/python3"
 SIZES = [2**i for i in range(16)]  # 1 B .. 32 KB
 SMALL = 16
 IMAGES = [(1024 * 1024, 30), (8 * 1024 * 1024, 10)]
+CLOUDS = [(1024 * 1024, 30), (4 * 1024 * 1024, 15)]
 BURST_SMALL = 10000
+#: (sender, echo node): each implementation against itself, then the mixed pairings.
+PAIRINGS = [
+    ("mrosd", "mrosd"),
+    ("rospy", "rospy"),
+    ("roscpp", "roscpp"),
+    ("mrosd", "roscpp"),
+    ("roscpp", "mrosd"),
+    ("mrosd", "rospy"),
+    ("rospy", "mrosd"),
+]
+#: String sizes measured again beside the busy neighbour.
+NEIGHBOUR_SIZES = [1, 1024, 32768]
+#: The paper's Tables 1 and 2 split the sizes here.
+TABLE_SPLIT = 1024
 
 
 # --- the mrosd echo and sender processes ----------------------------------------------------------
@@ -48,14 +67,32 @@ BURST_SMALL = 10000
 def _classes() -> dict[str, Any]:
     from mrosd.msg import get_message_class, load_type
 
+    string = get_message_class("std_msgs/String")
     return {
-        "string": get_message_class("std_msgs/String"),
+        "string": string,
+        "mros": string,
         "image": get_message_class("sensor_msgs/Image"),
+        "cloud": get_message_class("sensor_msgs/PointCloud2"),
         "coordinate": load_type("mros_bench/Coordinate", (DATA / "msg" / "Coordinate.msg").read_text()),
     }
 
 
+def _code(size: int) -> int:
+    """The mROS ping's one byte: 'A' + log2 of the reply's size (rounded up)."""
+    return ord("A") + max(0, size - 1).bit_length()
+
+
 def _make(kind: str, cls: Any, size: int) -> Any:
+    if kind == "mros":
+        return cls(data=chr(_code(size)))
+    if kind == "cloud":
+        from mrosd.msg import get_message_class
+
+        field = get_message_class("sensor_msgs/PointField")
+        fields = [field(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyzi")]
+        width = size // 16
+        return cls(height=1, width=width, fields=fields, point_step=16, row_step=16 * width, is_dense=True,
+                   data=bytes(size))  # fmt: skip
     if kind == "string":
         return cls(data="x" * size)
     if kind == "image":
@@ -81,7 +118,15 @@ async def _echo(kind: str) -> None:
     cls = _classes()[kind]
     async with mrosd.Node(f"mrosd_echo_{os.getpid()}", argv=[]) as node:
         pub = await node.advertise("/pong", cls, queue_size=1000)
-        await node.subscribe("/ping", cls, callback=pub.publish_nowait, queue_size=1000)
+        callback: Any = pub.publish_nowait
+        if kind == "mros":
+            replies = [cls(data="x" * (1 << code)) for code in range(16)]
+
+            def answer(ping: Any) -> None:
+                pub.publish_nowait(replies[ord(ping.data[0]) - ord("A")])
+
+            callback = answer
+        await node.subscribe("/ping", cls, callback=callback, queue_size=1000)
         _settle_gc()
         print("up", flush=True)
         await node.shutdown_event.wait()
@@ -247,18 +292,21 @@ def _commands(impl: str, cpp: str | None) -> tuple[list[str], list[str]] | None:
     return [cpp, "echo"], [cpp]
 
 
-def _run_pair(runner: Runner, impl: str, cpp: str | None, mode: str, kind: str, sizes: list[int], n: int) -> list[str]:
-    cmds = _commands(impl, cpp)
-    if cmds is None:
+def _run_pair(
+    runner: Runner, pair: tuple[str, str], cpp: str | None, mode: str, kind: str, sizes: list[int], n: int
+) -> list[str]:
+    """Run one sender against one echo node (``pair`` = (sender, echo) implementations); the sender's lines."""
+    sender_impl, echo_impl = pair
+    echo_cmds, send_cmds = _commands(echo_impl, cpp), _commands(sender_impl, cpp)
+    if echo_cmds is None or send_cmds is None:
         return []
-    echo_cmd, send_cmd = cmds
-    if impl == "mrosd":
-        echo = runner.start([*echo_cmd, "--kind", kind])
+    echo_cmd, send_cmd = echo_cmds[0], send_cmds[1]
+    echo = runner.start([*echo_cmd, "--kind", kind] if echo_impl == "mrosd" else [*echo_cmd, kind])
+    if sender_impl == "mrosd":
         sender_argv = [*send_cmd, mode, "--kind", kind, "--sizes", ",".join(map(str, sizes)), "--n", str(n)]
     else:
-        echo = runner.start([*echo_cmd, kind])
         sender_argv = [*send_cmd, mode, kind, ",".join(map(str, sizes)), str(n)]
-    if impl != "roscpp":
+    if echo_impl != "roscpp":
         assert echo.stdout is not None
         echo.stdout.readline()  # "up"
     sender = runner.start(sender_argv)
@@ -268,6 +316,19 @@ def _run_pair(runner: Runner, impl: str, cpp: str | None, mode: str, kind: str, 
         runner.stop(sender)
         runner.stop(echo)
     return out.decode().splitlines()
+
+
+def _rtts(lines: list[str]) -> dict[int, list[int]]:
+    return {int(line.split()[1]): [int(v) for v in line.split()[2:]] for line in lines if line.startswith("RTT ")}
+
+
+def _bursts(lines: list[str]) -> list[tuple[int, int, float]]:
+    out = []
+    for line in lines:
+        if line.startswith("BURST "):
+            _, size, got, secs = line.split()
+            out.append((int(size), int(got), float(secs)))
+    return out
 
 
 def _compile_roscpp(tmp: Path) -> str | None:
@@ -287,27 +348,59 @@ def _compile_roscpp(tmp: Path) -> str | None:
     return str(out) if build.returncode == 0 else None
 
 
-def _plot(results: dict[str, dict[int, dict[str, float]]], path: Path) -> None:
+def _label(pair: tuple[str, str]) -> str:
+    return pair[0] if pair[0] == pair[1] else f"{pair[0]}->{pair[1]}"
+
+
+def _box_plots(rtt: dict[str, dict[int, list[int]]], coord: dict[str, list[int]]) -> list[Path]:
+    """Box plots like the paper's Fig. 16 (RTT against String size, one panel per pairing) and Fig. 17."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for impl, by_size in results.items():
-        if by_size:
-            xs = sorted(by_size)
-            ax.plot(xs, [by_size[x]["median"] for x in xs], marker="o", label=f"{impl} (median)")
-    ax.set_xscale("log", base=2)
-    ax.set_yscale("log")
-    ax.set_xlabel("std_msgs/String payload (bytes)")
-    ax.set_ylabel("round-trip time (µs)")
-    ax.set_title("TCPROS /ping -> echo -> /pong RTT (200 messages per size)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    written = []
+    labels = [label for label, by_size in rtt.items() if by_size]
+    if labels:
+        cols = min(3, len(labels))
+        rows = (len(labels) + cols - 1) // cols
+        fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 3.6 * rows), sharey=True, squeeze=False)
+        for ax, label in zip(axes.flat, labels, strict=False):
+            sizes = sorted(rtt[label])
+            ax.boxplot([[v / 1000 for v in rtt[label][x]] for x in sizes], showfliers=True, flierprops={"ms": 2})
+            ax.set_xticks(range(1, len(sizes) + 1), [str(x) for x in sizes], rotation=90, fontsize=7)
+            ax.set_yscale("log")
+            ax.set_title(f"sender {label}" if "->" in label else label, fontsize=9)
+            ax.set_xlabel("String size (B)", fontsize=8)
+            ax.set_ylabel("RTT (µs)", fontsize=8)
+            ax.grid(True, axis="y", which="both", alpha=0.3)
+        for ax in list(axes.flat)[len(labels) :]:
+            ax.set_visible(False)
+        fig.suptitle("1-byte /ping -> echo answers with the size -> /pong (mROS paper Fig. 16's method)")
+        fig.tight_layout()
+        path = OUT / "tcpros_rtt_box.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+    if coord:
+        fig, ax = plt.subplots(figsize=(7, 4))
+        names = list(coord)
+        ax.boxplot([[v / 1000 for v in coord[n]] for n in names], showfliers=True, flierprops={"ms": 2})
+        ax.set_xticks(range(1, len(names) + 1), names, fontsize=8)
+        ax.set_ylabel("RTT (µs)")
+        ax.set_title("Coordinate echoed (mROS paper Fig. 17's method)")
+        ax.grid(True, axis="y", alpha=0.3)
+        fig.tight_layout()
+        path = OUT / "tcpros_coordinate_box.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+    return written
+
+
+def _busy_loop(runner: Runner) -> subprocess.Popen[bytes]:
+    """A CPU-bound neighbour: one process spinning in a loop for as long as it runs."""
+    return runner.start([sys.executable, "-c", "while True: pass"], out=subprocess.DEVNULL)
 
 
 def main(argv: list[str]) -> int:
@@ -315,7 +408,9 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--count", type=int, default=200, help="round trips per size (default 200)")
     parser.add_argument("--quick", action="store_true", help="fewer sizes and smaller bursts")
     parser.add_argument("--impl", default="mrosd,rospy,roscpp", help="comma-separated implementations")
-    parser.add_argument("--images-only", action="store_true", help="only the 1 MB / 8 MB image throughput")
+    parser.add_argument("--images-only", action="store_true", help="only the image and point cloud throughput")
+    parser.add_argument("--no-mixed", action="store_true", help="only each implementation against itself")
+    parser.add_argument("--no-neighbour", action="store_true", help="skip the runs beside a busy-loop process")
     parser.add_argument(
         "--rounds", type=int, default=3, help="image bursts per implementation, interleaved; the median is reported"
     )
@@ -330,106 +425,159 @@ def main(argv: list[str]) -> int:
         print("Debian's rosmaster is not installed: run scripts/install-system-deps.sh", file=sys.stderr)
         return 2
     impls = args.impl.split(",")
+    pairs = [p for p in PAIRINGS if p[0] in impls and p[1] in impls and (p[0] == p[1] or not args.no_mixed)]
+    selves = [p for p in pairs if p[0] == p[1]]
     sizes = [1, 64, 1024, 32768] if args.quick else SIZES
     burst_small = 2000 if args.quick else BURST_SMALL
     OUT.mkdir(parents=True, exist_ok=True)
+    res = Results()
     with tempfile.TemporaryDirectory(prefix="mrosd-bench-tcpros-") as tmp_name:
         tmp = Path(tmp_name)
         cpp = _compile_roscpp(tmp) if "roscpp" in impls else None
         if "roscpp" in impls and cpp is None:
             print("roscpp: cannot compile the echo node (g++/libroscpp-dev missing); skipped")
         runner = Runner(tmp)
-        rtt: dict[str, dict[int, dict[str, float]]] = {i: {} for i in impls}
-        coord: dict[str, dict[str, float]] = {}
-        small: dict[str, float] = {}
-        images: dict[str, dict[int, float]] = {i: {} for i in impls}
-        image_runs: dict[str, dict[int, list[float]]] = {i: {size: [] for size, _ in IMAGES} for i in impls}
         try:
-            for impl in [] if args.images_only else impls:
-                for line in _run_pair(runner, impl, cpp, "ping", "string", sizes, args.count):
-                    if line.startswith("RTT "):
-                        _, size, *vals = line.split()
-                        rtt[impl][int(size)] = latency_summary([int(v) for v in vals])
-                if impl != "roscpp":
-                    for line in _run_pair(runner, impl, cpp, "ping", "coordinate", [0], args.count):
-                        if line.startswith("RTT "):
-                            coord[impl] = latency_summary([int(v) for v in line.split()[2:]])
-                for line in _run_pair(runner, impl, cpp, "burst", "string", [SMALL], burst_small):
-                    if line.startswith("BURST "):
-                        _, _, got, secs = line.split()
-                        small[impl] = int(got) / float(secs) if float(secs) > 0 else 0.0
-            # Large-message throughput is the noisiest figure on a shared machine: rounds interleave the
-            # implementations so that a burst of outside load hits them alike, and the median is kept.
-            for _ in range(max(1, args.rounds)):
-                for impl in impls:
-                    for size, n in IMAGES:
-                        for line in _run_pair(runner, impl, cpp, "burst", "image", [size], n):
-                            if line.startswith("BURST "):
-                                _, _, got, secs = line.split()
-                                if float(secs) > 0:
-                                    image_runs[impl][size].append(int(got) * size / 1e6 / float(secs))
-            for impl in impls:
-                for size, runs in image_runs[impl].items():
-                    if runs:
-                        images[impl][size] = statistics.median(runs)
+            if not args.images_only:
+                for pair in pairs:
+                    res.rtt[_label(pair)] = _rtts(_run_pair(runner, pair, cpp, "ping", "mros", sizes, args.count))
+                    if "roscpp" not in pair:  # the roscpp node has no Coordinate type compiled in
+                        coord = _rtts(_run_pair(runner, pair, cpp, "ping", "coordinate", [0], args.count))
+                        if coord:
+                            res.coord[_label(pair)] = coord[0]
+                for pair in selves:
+                    lines = _run_pair(runner, pair, cpp, "burst", "string", [SMALL], burst_small)
+                    for _, count, secs in _bursts(lines):
+                        res.small[pair[0]] = count / secs if secs > 0 else 0.0
+            _throughput(runner, selves, cpp, max(1, args.rounds), res.large)
+            if not args.no_neighbour:
+                busy = _busy_loop(runner)
+                try:
+                    for pair in [] if args.images_only else selves:
+                        res.busy_rtt[pair[0]] = _rtts(
+                            _run_pair(runner, pair, cpp, "ping", "mros", NEIGHBOUR_SIZES, args.count)
+                        )
+                    _throughput(runner, selves, cpp, 1, res.busy_large, kinds=("image",))
+                finally:
+                    runner.stop(busy)
         finally:
             runner.close()
-    _report(impls, [] if args.images_only else sizes, rtt, coord, small, images)
+    _report(impls, res)
     if not args.images_only:
-        _plot(rtt, OUT / "tcpros_rtt.png")
-        print(f"\nplot: {OUT / 'tcpros_rtt.png'} (bench/out/ is git-ignored: generated files are never committed)")
+        written = _box_plots(res.rtt, res.coord)
+        print(f"\nplots: {', '.join(map(str, written))} (bench/out/ is git-ignored: never committed)")
     return 0
 
 
-def _median(table: dict[str, dict[str, float]], impl: str) -> float | None:
-    return table.get(impl, {}).get("median")
+class Results:
+    """Everything one run measured (raw samples in ns, throughputs in msgs/s or MB/s)."""
+
+    def __init__(self) -> None:
+        self.rtt: dict[str, dict[int, list[int]]] = {}
+        self.coord: dict[str, list[int]] = {}
+        self.small: dict[str, float] = {}
+        #: (kind, size) -> implementation -> MB/s (median of rounds)
+        self.large: dict[tuple[str, int], dict[str, float]] = {}
+        self.busy_rtt: dict[str, dict[int, list[int]]] = {}
+        self.busy_large: dict[tuple[str, int], dict[str, float]] = {}
+
+
+def _throughput(
+    runner: Runner,
+    selves: list[tuple[str, str]],
+    cpp: str | None,
+    rounds: int,
+    into: dict[tuple[str, int], dict[str, float]],
+    kinds: tuple[str, ...] = ("image", "cloud"),
+) -> None:
+    """Echoed large-message bursts. Rounds interleave the implementations so that a burst of outside load
+    hits them alike (large-message throughput is the noisiest figure on a shared machine); the median is kept."""
+    runs: dict[tuple[str, int], dict[str, list[float]]] = {}
+    for _ in range(rounds):
+        for pair in selves:
+            for kind in kinds:
+                for size, n in IMAGES if kind == "image" else CLOUDS:
+                    for got_size, got, secs in _bursts(_run_pair(runner, pair, cpp, "burst", kind, [size], n)):
+                        if secs > 0:
+                            runs.setdefault((kind, got_size), {}).setdefault(pair[0], []).append(
+                                got * got_size / 1e6 / secs
+                            )
+    for key, by_impl in runs.items():
+        into[key] = {impl: statistics.median(values) for impl, values in by_impl.items()}
 
 
 def _ratio(a: float | None, b: float | None) -> str:
-    return f"{a / b:6.2f}x" if a and b else "    n/a"
+    return f"{a / b:5.2f}x" if a and b else "  n/a"
 
 
-def _report(
-    impls: list[str],
-    sizes: list[int],
-    rtt: dict[str, dict[int, dict[str, float]]],
-    coord: dict[str, dict[str, float]],
-    small: dict[str, float],
-    images: dict[str, dict[int, float]],
-) -> None:
-    if sizes:
-        print("RTT of std_msgs/String over /ping -> echo -> /pong (µs): mean / median / p99 / max")
-    for size in sizes:
+def _paper_table(title: str, labels: list[str], sizes: list[int], rtt: dict[str, dict[int, list[int]]]) -> None:
+    """Means in the layout of the mROS paper's Tables 1 and 2 (rows: implementations, columns: sizes)."""
+    if not sizes:
+        return
+    print(title)
+    print(f"{'':>16}" + "".join(f"{_size(x):>9}" for x in sizes))
+    for label in labels:
         cells = []
-        for impl in impls:
-            s = rtt[impl].get(size)
-            cells.append(
-                f"{impl} {s['mean']:7.1f} {s['median']:7.1f} {s['p99']:7.1f} {s['max']:8.1f}" if s else f"{impl} n/a"
-            )
-        ours = rtt.get("mrosd", {}).get(size, {}).get("median")
-        py = rtt.get("rospy", {}).get(size, {}).get("median")
-        cpp = rtt.get("roscpp", {}).get(size, {}).get("median")
+        for x in sizes:
+            values = rtt.get(label, {}).get(x)
+            cells.append(f"{latency_summary(values)['mean']:9.1f}" if values else f"{'n/a':>9}")
+        print(f"{label:>16}" + "".join(cells))
+
+
+def _size(x: int) -> str:
+    return f"{x // 1024} KB" if x >= 1024 else f"{x} B"
+
+
+def _stat_line(s: dict[str, float]) -> str:
+    return f"{s['mean']:8.1f} {s['sd']:7.1f} {s['median']:8.1f} {s['p99']:8.1f} {s['max']:9.1f}"
+
+
+def _report(impls: list[str], res: Results) -> None:
+    labels = [label for label in res.rtt if res.rtt[label]]
+    sizes = sorted({x for by_size in res.rtt.values() for x in by_size})
+    _paper_table("Table 1 layout: mean RTT (µs), 1 B-512 B", labels, [x for x in sizes if x < TABLE_SPLIT], res.rtt)
+    _paper_table("Table 2 layout: mean RTT (µs), 1 KB-32 KB", labels, [x for x in sizes if x >= TABLE_SPLIT], res.rtt)
+    if res.coord:
+        print("Table 3 layout: Coordinate RTT (µs)      mean      SD   median      p99       max")
+        for label, values in res.coord.items():
+            print(f"{label:>36} {_stat_line(latency_summary(values))}")
+    if sizes:
         print(
-            f"{size:6d} B | "
-            + " | ".join(cells)
-            + f" | rospy/mrosd {_ratio(py, ours)} mrosd/roscpp {_ratio(ours, cpp)}"
+            "RTT per size (µs)          mean      SD   median      p99       max   | medians: rospy/mrosd, mrosd/roscpp"
         )
-    if coord:
-        print("RTT of Coordinate (µs): " + " | ".join(
-            f"{impl} mean {s['mean']:.1f} median {s['median']:.1f} p99 {s['p99']:.1f} max {s['max']:.1f}"
-            for impl, s in coord.items()
-        ) + f" | rospy/mrosd {_ratio(_median(coord, 'rospy'), _median(coord, 'mrosd'))}")  # fmt: skip
-    if small:
+    for x in sizes:
+        med = {}
+        for label in labels:
+            samples = res.rtt[label].get(x)
+            if samples:
+                s = latency_summary(samples)
+                med[label] = s["median"]
+                print(f"{_size(x):>7} {label:>16} {_stat_line(s)}")
+        ours, py, cpp = med.get("mrosd"), med.get("rospy"), med.get("roscpp")
+        print(f"{'':>7} {'':>16} {'':>45}   | {_ratio(py, ours):>11} {_ratio(ours, cpp):>12}")
+    if res.small:
         print(f"small-message throughput ({SMALL} B Strings, echoed, msgs/s): " + " | ".join(
-            f"{impl} {v:,.0f}" for impl, v in small.items()
-        ) + f" | mrosd/rospy {_ratio(small.get('mrosd'), small.get('rospy'))}"
-          + f" mrosd/roscpp {_ratio(small.get('mrosd'), small.get('roscpp'))}")  # fmt: skip
-    for size, _ in IMAGES:
-        vals = {impl: images[impl].get(size) for impl in impls}
-        print(f"image throughput {size // (1024 * 1024)} MB (echoed, MB/s, median of rounds): " + " | ".join(
-            f"{impl} {v:.1f}" if v else f"{impl} n/a" for impl, v in vals.items()
-        ) + f" | mrosd/rospy {_ratio(vals.get('mrosd'), vals.get('rospy'))}"
-          + f" mrosd/roscpp {_ratio(vals.get('mrosd'), vals.get('roscpp'))}")  # fmt: skip
+            f"{impl} {v:,.0f}" for impl, v in res.small.items()
+        ) + f" | mrosd/rospy {_ratio(res.small.get('mrosd'), res.small.get('rospy'))}"
+          + f" mrosd/roscpp {_ratio(res.small.get('mrosd'), res.small.get('roscpp'))}")  # fmt: skip
+    for title, table in (("", res.large), ("beside a busy-loop process: ", res.busy_large)):
+        for (kind, size), vals in sorted(table.items()):
+            name = f"{title}{'image' if kind == 'image' else 'PointCloud2'}"
+            print(f"{name} throughput {size // (1024 * 1024)} MB (echoed, MB/s, median of rounds): " + " | ".join(
+                f"{impl} {vals[impl]:.1f}" if vals.get(impl) else f"{impl} n/a" for impl in impls
+            ) + f" | mrosd/rospy {_ratio(vals.get('mrosd'), vals.get('rospy'))}"
+              + f" mrosd/roscpp {_ratio(vals.get('mrosd'), vals.get('roscpp'))}")  # fmt: skip
+    if res.busy_rtt:
+        print("beside a busy-loop process: RTT median (µs), and idle -> busy")
+        for x in NEIGHBOUR_SIZES:
+            cells = []
+            for impl, by_size in res.busy_rtt.items():
+                if by_size.get(x):
+                    busy = latency_summary(by_size[x])["median"]
+                    idle_values = res.rtt.get(impl, {}).get(x)
+                    idle = f"{latency_summary(idle_values)['median']:.1f} -> " if idle_values else ""
+                    cells.append(f"{impl} {idle}{busy:.1f}")
+            print(f"{_size(x):>7} | " + " | ".join(cells))
 
 
 if __name__ == "__main__":

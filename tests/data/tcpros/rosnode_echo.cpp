@@ -1,5 +1,7 @@
 // A tiny roscpp node for mrosd's interop tests and benchmark (compiled at test time, never shipped).
-//   echo <string|image>               republish every /ping message on /pong
+//   echo <string|image|cloud>         republish every /ping message on /pong
+//   echo mros                         mROS paper section 5.4: answer each 1-byte /ping String "c" with a String of
+//                                     2^(c - 'A') bytes on /pong (the sender picks the size, the echo node sends it)
 //   ping <string|image> <sizes> <n>   for each comma-separated size, send n messages on /ping, wait for each on /pong,
 //                                     print "RTT <size> <ns> <ns> ..." (one round trip per message)
 //   burst <string|image> <sizes> <n>  for each size, send n messages back to back, count replies on /pong,
@@ -7,6 +9,7 @@
 #include <ros/callback_queue.h>
 #include <ros/ros.h>
 #include <sensor_msgs/Image.h>
+#include <sensor_msgs/PointCloud2.h>
 #include <std_msgs/String.h>
 
 #include <chrono>
@@ -20,6 +23,22 @@ static long long now_ns() {
 }
 
 static void fill(std_msgs::String& m, size_t size) { m.data.assign(size, 'x'); }
+static void fill(sensor_msgs::PointCloud2& m, size_t size) {
+  m.height = 1;
+  m.width = size / 16;
+  m.fields.resize(4);
+  const char* names[] = {"x", "y", "z", "intensity"};
+  for (int i = 0; i < 4; ++i) {
+    m.fields[i].name = names[i];
+    m.fields[i].offset = 4 * i;
+    m.fields[i].datatype = sensor_msgs::PointField::FLOAT32;
+    m.fields[i].count = 1;
+  }
+  m.point_step = 16;
+  m.row_step = 16 * m.width;
+  m.is_dense = true;
+  m.data.assign(size, 7);
+}
 static void fill(sensor_msgs::Image& m, size_t size) {
   m.encoding = "mono8";
   m.height = 1;
@@ -29,6 +48,12 @@ static void fill(sensor_msgs::Image& m, size_t size) {
 }
 
 template <class M>
+struct Node;
+
+template <class M>
+static void sized_reply(Node<M>& node, const M& ping);
+
+template <class M>
 struct Node {
   ros::NodeHandle nh;
   ros::Publisher pub;
@@ -36,14 +61,18 @@ struct Node {
   long long received = 0;
   long long last_ns = 0;
   bool echo = false;
+  bool mros = false;  // answer with a sized reply instead of the message itself (std_msgs::String only)
   void cb(const boost::shared_ptr<M const>& m) {
-    if (echo) {
+    if (echo && mros) {
+      reply(*m);
+    } else if (echo) {
       pub.publish(*m);
     } else {
       ++received;
       last_ns = now_ns();
     }
   }
+  void reply(const M& ping) { sized_reply(*this, ping); }
   Node(bool echo_, const char* in, const char* out) : echo(echo_) {
     pub = nh.advertise<M>(out, 1000);
     sub = nh.subscribe(in, 1000, &Node::cb, this, ros::TransportHints().tcpNoDelay());
@@ -63,12 +92,26 @@ struct Node {
 };
 
 template <class M>
-static int run_size(Node<M>& node, const std::string& mode, size_t size, long long n);
+static void sized_reply(Node<M>& node, const M& ping) {
+  node.pub.publish(ping);
+}
+template <>
+void sized_reply(Node<std_msgs::String>& node, const std_msgs::String& ping) {
+  static std_msgs::String replies[16];
+  int code = ping.data.empty() ? 0 : ping.data[0] - 'A';
+  if (code < 0 || code > 15) code = 0;
+  if (replies[code].data.size() != (size_t(1) << code)) replies[code].data.assign(size_t(1) << code, 'x');
+  node.pub.publish(replies[code]);
+}
 
 template <class M>
-static int run(const std::string& mode, const std::string& sizes, long long n) {
+static int run_size(Node<M>& node, const std::string& mode, size_t size, long long n, bool mros);
+
+template <class M>
+static int run(const std::string& mode, const std::string& sizes, long long n, bool mros = false) {
   if (mode == "echo") {
     Node<M> node(true, "/ping", "/pong");
+    node.mros = mros;
     ros::spin();
     return 0;
   }
@@ -78,7 +121,7 @@ static int run(const std::string& mode, const std::string& sizes, long long n) {
   while (pos <= sizes.size()) {
     size_t comma = sizes.find(',', pos);
     if (comma == std::string::npos) comma = sizes.size();
-    int rc = run_size(node, mode, std::strtoull(sizes.substr(pos, comma - pos).c_str(), nullptr, 10), n);
+    int rc = run_size(node, mode, std::strtoull(sizes.substr(pos, comma - pos).c_str(), nullptr, 10), n, mros);
     if (rc != 0) return rc;
     pos = comma + 1;
   }
@@ -86,9 +129,23 @@ static int run(const std::string& mode, const std::string& sizes, long long n) {
 }
 
 template <class M>
-static int run_size(Node<M>& node, const std::string& mode, size_t size, long long n) {
-  M msg;
+static void ping_for(M& msg, size_t size) {
   fill(msg, size);
+}
+static void ping_for(std_msgs::String& msg, size_t size) {  // mROS mode: one byte naming the reply's size
+  int code = 0;
+  while ((size_t(1) << code) < size) ++code;
+  msg.data.assign(1, char('A' + code));
+}
+
+template <class M>
+static int run_size(Node<M>& node, const std::string& mode, size_t size, long long n, bool mros) {
+  M msg;
+  if (mros) {
+    ping_for(msg, size);
+  } else {
+    fill(msg, size);
+  }
   if (mode == "ping") {
     for (int i = 0; i < 20; ++i) {  // warm-up
       long long want = node.received + 1;
@@ -133,5 +190,6 @@ int main(int argc, char** argv) {
   std::string sizes = argc > 3 ? argv[3] : "0";
   long long n = argc > 4 ? std::strtoll(argv[4], nullptr, 10) : 0;
   if (type == "image") return run<sensor_msgs::Image>(mode, sizes, n);
-  return run<std_msgs::String>(mode, sizes, n);
+  if (type == "cloud") return run<sensor_msgs::PointCloud2>(mode, sizes, n);
+  return run<std_msgs::String>(mode, sizes, n, type == "mros");
 }

@@ -1,7 +1,7 @@
 """A small rospy node for mrosd's interop tests and benchmark; runs under Debian's /usr/bin/python3.
 
-Modes (kind is string, image or coordinate):
-  echo KIND                  republish /ping on /pong
+Modes (kind is string, image, cloud or coordinate; or mros for the mROS paper's section 5.4):
+  echo KIND                  republish /ping on /pong (mros: answer the 1-byte String "c" with 2^(c-'A') bytes)
   ping KIND SIZES N          N round trips per size (comma-separated) on /ping -> /pong; "RTT SIZE ns ..."
   burst KIND SIZES N         N messages per size back to back; prints "BURST SIZE received seconds"
   talk KIND TOPIC LATCH      publish a known message (once if LATCH=1, else at 20 Hz)
@@ -17,7 +17,7 @@ import time
 
 import rospy
 from genpy.dynamic import generate_dynamic
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import Image, PointCloud2, PointField
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, SetBoolResponse
 
@@ -26,10 +26,18 @@ COORDINATE_TYPE = "mros_bench/Coordinate"
 with open(os.path.join(HERE, "msg", "Coordinate.msg")) as f:
     Coordinate = generate_dynamic(COORDINATE_TYPE, f.read())[COORDINATE_TYPE]
 
-CLASSES = {"string": String, "image": Image, "coordinate": Coordinate}
+CLASSES = {"string": String, "mros": String, "image": Image, "cloud": PointCloud2, "coordinate": Coordinate}
 
 
 def make(kind, size=0):
+    if kind == "mros":  # one byte naming the size of the reply: 'A' + log2(size)
+        return String(data=chr(ord("A") + max(0, size - 1).bit_length()))
+    if kind == "cloud":
+        fields = [PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1) for i, n in enumerate("xyzi")]
+        width = size // 16
+        return PointCloud2(
+            height=1, width=width, fields=fields, point_step=16, row_step=16 * width, is_dense=True, data=bytes(size)
+        )
     if kind == "string":
         return String(data="x" * size if size else "hello from rospy")
     if kind == "image":
@@ -52,7 +60,14 @@ def main():
     rospy.init_node("rospy_" + mode, anonymous=True, disable_signals=True)
     if mode == "echo":
         pub = rospy.Publisher("/pong", CLASSES[kind], queue_size=1000)
-        rospy.Subscriber("/ping", CLASSES[kind], pub.publish, queue_size=1000, tcp_nodelay=True)
+        callback = pub.publish
+        if kind == "mros":
+            replies = [String(data="x" * (1 << code)) for code in range(16)]
+
+            def callback(m):
+                pub.publish(replies[ord(m.data[0]) - ord("A")])
+
+        rospy.Subscriber("/ping", CLASSES[kind], callback, queue_size=1000, tcp_nodelay=True)
         print("up", flush=True)
         rospy.spin()
     elif mode in ("ping", "burst"):
