@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 import sys
 
-PARTS = ["msg", "master", "tcpros", "ixm", "cli"]
+PARTS = ["msg", "master", "tcpros", "ixm", "cli", "bag"]
 
 
 def main(argv: list[str]) -> int:

@@ -80,6 +80,10 @@ def test_shipped_definitions_are_verbatim_copies_of_debians(genmsg_table: dict[s
     for path in shipped:
         if path.suffix not in (".msg", ".srv"):
             continue
+        if path.relative_to(BUILTIN_DIR).parts[0] == "roscpp":
+            # Debian ships roscpp's logger types only as generated Python; tests/interop/tcpros compares them
+            # with genpy's classes instead (test_the_roscpp_logger_types_match_genpys).
+            continue
         original = Path("/usr/share") / path.relative_to(BUILTIN_DIR)
         assert path.read_bytes() == original.read_bytes(), path
 
