@@ -75,6 +75,22 @@ def resolve(name: str, node_name: str, remappings: Mapping[str, str] | None = No
     return resolved
 
 
+def script_resolve(name: str, script: str, environ: Mapping[str, str] | None = None) -> str:
+    """A name typed on a command-line tool's command line, resolved as rostopic/rosparam/rosservice do.
+
+    Relative names are relative to ``ROS_NAMESPACE`` (default ``/``), ``~name`` is private to the tool
+    (``/<namespace>/<script>/name``), the empty name is the namespace itself. No validation: a tool's
+    argument may carry a field path (``/odom/pose/points[0]``) that is checked where it is used.
+    """
+    env = os.environ if environ is None else environ
+    namespace = canonicalize(SEP + (env.get("ROS_NAMESPACE") or SEP).lstrip(SEP)) or SEP
+    if not name:
+        return namespace
+    if name.startswith(PRIV):
+        return join(join(namespace, script), name[1:]) if name != PRIV else join(namespace, script)
+    return join(namespace, name)
+
+
 def parse_argv(argv: Sequence[str]) -> tuple[dict[str, str], dict[str, str], list[str]]:
     """Split ``argv`` into (special ``__key`` args, ``from:=to`` remaps, everything else).
 

@@ -2,19 +2,19 @@
 
 Also owns what every noun shares: the global ``--master-uri`` option, running one coroutine per command,
 the clients of the master (``master_client``, a ``mrosd.master.client.MasterClient``) and of nodes'
-slave APIs (``slave_call``) and the exit codes scripts rely on: 0 success, 1 error (one line on
-stderr, ``mros: error: ...``), 2 usage error (click's), 130 interrupted.
+slave APIs (``slave_call``), user-typed name resolution (``resolve_name``, via ``mrosd.names``) and the exit
+codes scripts rely on: 0 success, 1 error (one line on stderr, ``mros: error: ...``), 2 usage error (click's,
+and where rosservice exits 2), 130 interrupted.
 """
 
 from __future__ import annotations
 
-import asyncio
 import importlib
 import importlib.util
 import os
 import sys
-from collections.abc import Awaitable, Coroutine
-from typing import TYPE_CHECKING, Any, TypeVar
+from collections.abc import Coroutine
+from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
 import click
 
@@ -68,6 +68,20 @@ def master_uri(ctx: click.Context | None = None) -> str:
     return master_uri_from_env()
 
 
+def resolve_name(name: str) -> str:
+    """A graph name typed by the user, resolved as rostopic/rosparam do (relative to ``$ROS_NAMESPACE``)."""
+    from mrosd.names import script_resolve
+
+    return script_resolve(name, "mros")
+
+
+def anonymous(name: str) -> str:
+    """rostopic's anonymous node names: ``mros_<name>_<pid>_<ms>``."""
+    import time
+
+    return f"mros_{name}_{os.getpid()}_{int(time.time() * 1000)}"
+
+
 def master_client(xmlrpc: XmlRpcClient | None = None) -> MasterClient:
     """A ``MasterClient`` for this invocation's master URI, as ``CALLER_ID``, bounded by ``CALL_TIMEOUT``.
 
@@ -93,24 +107,17 @@ async def slave_call(xmlrpc: XmlRpcClient, uri: str, method: str, *args: Any, ti
     return unwrap_reply(method, reply)
 
 
-def run(coro: Coroutine[Any, Any, T] | Awaitable[T]) -> T:
-    """Run one command's coroutine on a fresh loop (uvloop when installed, unless ``MROSD_LOOP=asyncio``)."""
-    factory: Any = None
-    if os.environ.get("MROSD_LOOP", "uvloop") != "asyncio":
-        try:
-            import uvloop
+def run(coro: Coroutine[Any, Any, T]) -> T:
+    """Run one command's coroutine on a fresh loop chosen by ``mrosd.loop`` (uvloop unless ``MROSD_LOOP=asyncio``)."""
+    from mrosd.loop import run as run_on_loop
 
-            factory = uvloop.new_event_loop
-        except ImportError:
-            factory = None
-    with asyncio.Runner(loop_factory=factory) as runner:
-        return runner.run(coro)  # type: ignore[arg-type]
+    return run_on_loop(coro)
 
 
-def fail(message: str) -> None:
-    """Print one error line on stderr and exit with code 1."""
+def fail(message: str, code: int = EXIT_ERROR) -> NoReturn:
+    """Print one error line on stderr and exit with ``code`` (1 unless a ROS tool exits otherwise there)."""
     click.echo(f"mros: error: {message}", err=True)
-    sys.exit(EXIT_ERROR)
+    sys.exit(code)
 
 
 class LazyGroup(click.Group):

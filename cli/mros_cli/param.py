@@ -8,7 +8,6 @@ documents. Names are resolved against ``$ROS_NAMESPACE`` as rosparam does.
 
 from __future__ import annotations
 
-import os
 import re
 import sys
 from typing import TYPE_CHECKING, Any
@@ -16,8 +15,9 @@ from typing import TYPE_CHECKING, Any
 import click
 import yaml
 
-from mros_cli.main import master_client, run
+from mros_cli.main import master_client, resolve_name, run
 from mrosd.errors import MrosError
+from mrosd.names import join
 
 if TYPE_CHECKING:
     from mrosd.master.client import MasterClient
@@ -30,25 +30,7 @@ MAX_XMLRPC_INT = 2**31 - 1
 
 def resolve(name: str) -> str:
     """A parameter name resolved as rosparam's script_resolve_name does (relative to $ROS_NAMESPACE)."""
-    if not name:
-        name = "/"
-    if name.startswith("~"):
-        name = "/mros/" + name[1:]
-    if not name.startswith("/"):
-        ns = os.environ.get("ROS_NAMESPACE", "/") or "/"
-        name = ns.rstrip("/") + "/" + name
-        if not name.startswith("/"):
-            name = "/" + name
-    if len(name) > 1:
-        name = name.rstrip("/")
-    return name
-
-
-def join(ns: str, key: str) -> str:
-    """``ns_join``: key under namespace ns."""
-    if key.startswith("/"):
-        return key
-    return ns.rstrip("/") + "/" + key
+    return resolve_name(name)
 
 
 def yaml_text(value: Any) -> str:
@@ -115,21 +97,50 @@ def group() -> None:
     """
 
 
+def pretty_text(value: Any, indent: str = "") -> str:
+    """``rosparam get -p``'s text for a dictionary: sorted keys, nested dicts indented, multi-line strings as
+    ``key: |`` blocks, other values as YAML after the key (readable, and like rosparam's, not YAML-safe)."""
+    out: list[str] = []
+    for key in sorted(value):
+        item = value[key]
+        if type(item) is dict:
+            out.append(f"{indent}{key}:\n{pretty_text(item, indent + '  ')}")
+        elif type(item) is str:
+            if "\n" in item:
+                out.append(f"{indent}{key}: |\n" + "".join(f"{indent}  {line}\n" for line in item.split("\n")))
+            else:
+                out.append(f"{indent}{key}: {item}\n")
+        else:
+            dump = yaml.dump(_plain(item))
+            if dump.endswith("\n...\n"):
+                dump = dump[:-4]
+            out.append(f"{indent}{key}: {dump}")
+    return "".join(out)
+
+
 @group.command()
 @click.argument("name")
-def get(name: str) -> None:
+@click.option("-p", "pretty", is_flag=True, help="Pretty-print a dictionary or string (readable, not YAML-safe).")
+def get(name: str, pretty: bool) -> None:
     """Print a parameter (or a namespace as a dictionary) as YAML.
 
     \b
-    Example:
+    Examples:
       mros param get /robot_description
+      mros param get -p /robot
     """
 
     async def main() -> Any:
         async with master_client() as master:
             return await master.get_param(resolve(name))
 
-    sys.stdout.write(yaml_text(run(main())) + "\n")
+    value = run(main())
+    if pretty and type(value) is dict:
+        sys.stdout.write(pretty_text(value))
+    elif pretty and type(value) is str:
+        sys.stdout.write(value + "\n")
+    else:
+        sys.stdout.write(yaml_text(value) + "\n")
 
 
 class NegativeNumbersCommand(click.Command):
