@@ -192,7 +192,7 @@ def write(  # noqa: PLR0917  (one parameter per click option)
         handle = ixm.open(key, type_name, count=count, max_size=max_size, mode="w")
         t = handle.type
         if t.is_message:
-            from mros_cli.topic import build_message
+            from mros_cli.values import build_message
             from mrosd.msg import get_message_class
 
             data = build_message(get_message_class(t.name), data)

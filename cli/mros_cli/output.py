@@ -11,8 +11,9 @@ Speed matters here (``mros topic echo`` must keep up with camera streams), so ea
 cached rendering plan, short ASCII strings skip PyYAML, and ``uint8[]`` is turned into decimal text with
 bytes.translate and slice assignment instead of one Python object per byte.
 
-This module knows message instances only through their ``__struct_fields__`` and ``_field_types`` (the
-contract of ``mrosd.msg``); it does no I/O.
+``PlotRenderer`` prints ``rostopic echo -p``'s CSV. ``CoalescedWriter`` is the one piece that does I/O: it
+writes what one event-loop turn rendered in one ``writelines`` to a pipe it enlarged. The renderers know
+message instances only through their ``__struct_fields__`` and ``_field_types`` (the contract of ``mrosd.msg``).
 """
 
 from __future__ import annotations
@@ -25,7 +26,17 @@ from typing import Any
 import msgspec
 import yaml
 
-__all__ = ["SEPARATOR", "JsonRenderer", "TextRenderer", "extract_field", "quote_string", "uint8_bytes", "uint8_text"]
+__all__ = [
+    "SEPARATOR",
+    "CoalescedWriter",
+    "JsonRenderer",
+    "PlotRenderer",
+    "TextRenderer",
+    "extract_field",
+    "quote_string",
+    "uint8_bytes",
+    "uint8_text",
+]
 
 #: What rostopic writes after each message ('---' is YAML's document separator).
 SEPARATOR = "\n---\n"
@@ -38,6 +49,13 @@ _FAST_QUOTE_MAX = 70
 _HUNDREDS = bytes(0 if b < 100 else 0x30 + b // 100 for b in range(256))
 _TENS = bytes(0 if b < 10 else 0x30 + (b // 10) % 10 for b in range(256))
 _UNITS = bytes(0x30 + b % 10 for b in range(256))
+
+
+#: Field types that are not messages (their arrays are transformed by --nostr; arrays of messages are not).
+_NOT_MESSAGES = frozenset({
+    "bool", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64",
+    "float32", "float64", "string", "time", "duration", "char", "byte",
+})  # fmt: skip
 
 
 def quote_string(value: str) -> str:
@@ -146,11 +164,17 @@ class TextRenderer:
 
     Args:
         noarr: replace arrays by ``<array type: T, length: N>`` as ``rostopic echo --noarr``.
+        nostr: replace ``string`` fields by ``<string length: N>`` and ``string[]`` ones by
+            ``<array type: string, length: N>`` as ``rostopic echo --nostr`` (which, like rostopic, leaves the
+            strings inside arrays of messages alone).
         offset_ns: when not None, print time fields as offsets from this time (``rostopic echo --offset``).
     """
 
-    def __init__(self, *, noarr: bool = False) -> None:
+    def __init__(self, *, noarr: bool = False, nostr: bool = False) -> None:
         self.noarr = noarr
+        self.nostr = nostr
+        #: arrays of messages under --nostr: rostopic does not transform their elements.
+        self._plain: TextRenderer | None = TextRenderer() if nostr else None
         self.offset_ns: int | None = None
         #: while ``render_bytes`` runs: uint8[] texts kept as bytes, marked by NUL in the text (which never
         #: contains a NUL otherwise: strings are quoted with escapes, char[] printed as a repr).
@@ -159,9 +183,7 @@ class TextRenderer:
 
     def render(self, value: Any, type_info: str | None = None) -> str:
         """The text rostopic prints for ``value`` (a message, or a field value of ROS type ``type_info``)."""
-        if type_info is not None and "[" in type_info:
-            if self.noarr:
-                return quote_string(f"<array type: {type_info.rstrip('[]')}, length: {len(value)}>")
+        if type_info is not None and ("[" in type_info or (self.nostr and type_info == "string")):
             return self._field_renderer(type_info)(value, "")
         return self._value(value, "")
 
@@ -198,9 +220,11 @@ class TextRenderer:
 
     def _field_renderer(self, rostype: str) -> Callable[[Any, str], str]:
         if "[" in rostype:
-            if self.noarr:
+            if self.noarr or (self.nostr and rostype == "string[]"):
                 element = rostype.rstrip("[]")
                 return lambda v, _i: quote_string(f"<array type: {element}, length: {len(v)}>")
+            if self._plain is not None and rostype.partition("[")[0] not in _NOT_MESSAGES:
+                return self._plain._value
             if rostype.startswith("uint8["):
                 return self._uint8_field
             if rostype.startswith("bool["):
@@ -210,6 +234,8 @@ class TextRenderer:
                 # genpy keeps char[] as bytes and prints their repr.
                 return self._char_field
             return self._value
+        if rostype == "string" and self.nostr:
+            return lambda v, _i: quote_string(f"<string length: {len(v)}>")
         if rostype == "string":
             return lambda v, _i: quote_string(v) if isinstance(v, str) else self._value(v, _i)
         if rostype in ("time", "duration"):
@@ -294,3 +320,170 @@ class JsonRenderer:
         if _is_time(value) and not isinstance(value, msgspec.Struct):
             return self._encoder.encode(_json_default(value))
         return self._encoder.encode(value)
+
+
+# -- rostopic echo -p ------------------------------------------------------------------------------------
+
+
+class PlotRenderer:
+    """``rostopic echo -p``'s CSV: a ``%time,field.a,field.b`` heading, then ``<time>,a,b`` per message.
+
+    The time column is the message's ``header.stamp`` in nanoseconds when it has a Header, else the receive
+    time; numbers print as Python prints them, bools as 1/0, times as nanoseconds, strings unquoted; ``uint8[]``
+    and ``char[]`` (bytes) and empty arrays print nothing, as under rostopic on Python 3. ``noarr``/``nostr``
+    drop array and string fields (columns and values), as rostopic's field filter does.
+    """
+
+    def __init__(self, *, noarr: bool = False, nostr: bool = False) -> None:
+        self.noarr = noarr
+        self.nostr = nostr
+
+    def _fields(self, msg: Any) -> list[str]:
+        return [
+            name
+            for name, rostype in _fields(type(msg))
+            if not (self.noarr and "[" in rostype) and not (self.nostr and "string" in rostype)
+        ]
+
+    def heading(self, value: Any) -> str:
+        """The first line rostopic -p prints (``%time,`` and the column names)."""
+        return "%time," + (self._names(value, "field") or "")
+
+    def row(self, value: Any, now_ns: int, offset_ns: int | None = None) -> str:
+        """One message's line (no newline); ``offset_ns`` as ``--offset``: times relative to it."""
+        text = self._values(value, offset_ns) or ""
+        if _has_header(value):
+            stamp = int(value.header.stamp.secs) * 1_000_000_000 + int(value.header.stamp.nsecs)
+        else:
+            stamp = now_ns
+        return f"{stamp - (offset_ns or 0)},{text}"
+
+    def _names(self, value: Any, prefix: str) -> str | None:
+        kind = type(value)
+        if kind in (bool, int, float, str) or _is_time(value):
+            return prefix
+        if hasattr(kind, "_field_types"):
+            subs = [s for f in self._fields(value) if (s := self._names(getattr(value, f), f"{prefix}.{f}"))]
+            return ",".join(subs) if subs else None
+        items = _as_list(value)
+        if not items:
+            return None
+        first = items[0]
+        if type(first) in (bool, int, float, str) or _is_time(first):
+            return ",".join(f"{prefix}{i}" for i in range(len(items)))
+        if hasattr(type(first), "_field_types"):
+            subs = [s for i, v in enumerate(items) if (s := self._names(v, f"{prefix}{i}"))]
+            return ",".join(subs) if subs else None
+        return None
+
+    def _values(self, value: Any, offset_ns: int | None) -> str | None:
+        kind = type(value)
+        if kind is bool:
+            return "1" if value else "0"
+        if kind in (int, float):
+            return str(value)
+        if kind is str:
+            return str(value)
+        if _is_time(value):
+            nsec = int(value.secs) * 1_000_000_000 + int(value.nsecs)
+            if offset_ns is not None and kind.__name__ == "Time":
+                nsec -= offset_ns
+            return str(nsec)
+        if hasattr(kind, "_field_types"):
+            subs = [s for f in self._fields(value) if (s := self._values(getattr(value, f), offset_ns)) is not None]
+            return ",".join(subs) if subs else None
+        items = _as_list(value)
+        if not items:
+            return None
+        first = items[0]
+        if type(first) is bool:
+            return ",".join("1" if v else "0" for v in items)
+        if type(first) in (int, float, str) or _is_time(first):
+            return ",".join(self._values(v, offset_ns) or "" for v in items)
+        if hasattr(type(first), "_field_types"):
+            subs = [s for v in items if (s := self._values(v, offset_ns)) is not None]
+            return ",".join(subs) if subs else None
+        return None
+
+
+def _has_header(value: Any) -> bool:
+    """genpy's ``_has_header``: the message's first field is ``Header header``."""
+    types = getattr(type(value), "_field_types", None)
+    if not types:
+        return False
+    first: str = type(value).__struct_fields__[0]
+    return first == "header" and types[0] in ("Header", "std_msgs/Header")
+
+
+def _as_list(value: Any) -> list[Any] | None:
+    """A message array as a list; None for bytes (``uint8[]``/``char[]``), which rostopic -p leaves out."""
+    if isinstance(value, list):
+        return value
+    if isinstance(value, tuple):
+        return list(value)
+    if hasattr(value, "tolist") and not isinstance(value, bytes | bytearray | memoryview):
+        items: list[Any] = value.tolist()
+        return items
+    return None
+
+
+# -- writing -----------------------------------------------------------------------------------------------
+
+#: Pipe buffer asked for when stdout is a pipe: a 1 MB image prints ~3.6 MB, which through Linux's default
+#: 64 KiB pipe costs ~60 writer/reader wake-ups per frame.
+PIPE_SIZE = 1 << 20
+
+
+def grow_pipe(out: Any) -> None:
+    """Enlarge a pipe's buffer (Linux ``F_SETPIPE_SZ``); silently keep the default where not allowed."""
+    import fcntl
+    import os
+    import stat
+
+    setpipe = getattr(fcntl, "F_SETPIPE_SZ", None)
+    try:
+        fd = out.fileno()
+        if setpipe is None or not stat.S_ISFIFO(os.fstat(fd).st_mode):
+            return
+        fcntl.fcntl(fd, setpipe, PIPE_SIZE)
+    except (OSError, ValueError, AttributeError):
+        return
+
+
+class CoalescedWriter:
+    """Pieces queued during one event-loop turn leave stdout in one ``writelines`` (rostopic flushes after
+    every message, which is why it falls behind fast topics). ``broken`` is set, and ``on_broken`` called,
+    when the reader went away (``mros topic echo | head``)."""
+
+    def __init__(self, out: Any, on_broken: Callable[[], None] | None = None) -> None:
+        self._out = out
+        self._on_broken = on_broken
+        grow_pipe(out)
+        self._pending: list[bytes] = []
+        self._scheduled = False
+        self.broken = False
+
+    def add(self, pieces: list[bytes]) -> None:
+        """Queue pieces and make sure a flush runs at the end of this loop turn."""
+        self._pending.extend(pieces)
+        if not self._scheduled:
+            self._scheduled = True
+            import asyncio
+
+            asyncio.get_running_loop().call_soon(self.flush)
+
+    def flush(self) -> None:
+        """Write everything queued: a burst of small pieces as one joined write, a few big pieces (an image's
+        ``uint8[]`` text) through the buffered writer as they are, never copied again."""
+        self._scheduled = False
+        if not self._pending:
+            return
+        data = self._pending if len(self._pending) < 64 else [b"".join(self._pending)]
+        self._pending = []
+        try:
+            self._out.writelines(data)
+            self._out.flush()
+        except BrokenPipeError:
+            self.broken = True
+            if self._on_broken is not None:
+                self._on_broken()

@@ -1,61 +1,48 @@
-"""``mros topic``: list, inspect, echo, publish and measure topics, with rostopic's output.
+"""``mros topic``: list, inspect, find, echo, publish and measure topics, with rostopic's output.
 
-``list``, ``info`` and ``type`` only ask the master. ``echo``, ``hz`` and ``bw`` subscribe in raw mode
-(``AnyMsg``) so they need no local definition of the type: echo builds the class from the publisher's
-``message_definition`` (``mrosd.msg.load_type``), the way a ROS user wishes rostopic did. ``pub`` parses
-YAML arguments as rostopic does (one dictionary, or one value per field in order) and checks every value
-against the field's ROS type, naming the field when it is wrong.
-
-Output writes are coalesced: messages rendered in one event-loop turn leave in one ``write``, which is how
-echo keeps up with fast topics (rostopic flushes after every message).
+``list``, ``info``, ``type`` and ``find`` only ask the master. ``echo``, ``hz``, ``bw`` and ``delay`` subscribe
+in raw mode (``AnyMsg``) so they need no local definition of the type: messages are decoded with a class
+built from the publisher's ``message_definition`` (``mrosd.msg.load_type``), the way a ROS user wishes
+rostopic did. ``pub`` lives in ``mros_cli.publish``; the YAML-to-message builder in ``mros_cli.values``;
+rendering and the coalesced stdout writer in ``mros_cli.output``; the statistics in ``mros_cli.stats``.
 """
 
 from __future__ import annotations
 
 import asyncio
-import concurrent.futures
 import contextlib
-import math
-import os
 import sys
 import time
-from collections import deque
 from typing import TYPE_CHECKING, Any
 
 import click
-import yaml
 
-from mros_cli.main import master_client, master_uri, run
-from mros_cli.output import SEPARATOR, JsonRenderer, TextRenderer, extract_field
+from mros_cli.main import anonymous, master_client, resolve_name, run
+from mros_cli.output import SEPARATOR, CoalescedWriter, JsonRenderer, PlotRenderer, TextRenderer, extract_field
+from mros_cli.publish import pub
+from mros_cli.stats import BandwidthStats, DelayStats, RateStats
+from mros_cli.values import build_message, file_documents, parse_pub_args
 from mrosd.errors import MrosError
-from mrosd.msg import Duration, Time, get_message_class, load_type
-from mrosd.msg.spec import INT_RANGES
+from mrosd.msg import get_message_class, load_type
 
 if TYPE_CHECKING:
     from mrosd.master.client import MasterClient
 
+#: Re-exported for ``mros_cli.ixm`` and older imports; the builder lives in ``mros_cli.values``.
+__all__ = ["build_message", "file_documents", "group", "parse_pub_args"]
+
 _SEPARATOR_BYTES = SEPARATOR.encode()
 
-#: rostopic pub -1 keeps its latched message up this long so that subscribers can connect.
-ONCE_DELAY = 3.0
 #: rostopic hz's default window ("-1": effectively everything).
 HZ_WINDOW = 50000
 #: rostopic bw's default window.
 BW_WINDOW = 100
-#: How often echo/hz/bw look for a topic that is not published yet.
+#: rostopic delay's default window ("-1": effectively everything).
+DELAY_WINDOW = 50000
+#: How often echo/hz/bw/delay look for a topic that is not published yet.
 TOPIC_POLL = 0.5
 
-
-def resolve(name: str) -> str:
-    """A topic name resolved like rostopic (relative to $ROS_NAMESPACE); a trailing ``/`` is dropped."""
-    from mros_cli.param import resolve as resolve_name
-
-    return resolve_name(name)
-
-
-def anonymous(name: str) -> str:
-    """rostopic's anonymous node names: ``/mros_<pid>_<ms>``."""
-    return f"mros_{name}_{os.getpid()}_{int(time.time() * 1000)}"
+resolve = resolve_name
 
 
 async def topic_types(master: MasterClient) -> dict[str, str]:
@@ -65,15 +52,35 @@ async def topic_types(master: MasterClient) -> dict[str, str]:
 
 
 def split_topic(name: str, types: dict[str, str]) -> tuple[str, str, list[str]] | None:
-    """``/topic/field/sub`` -> (topic, type, [field, sub]) by exact, else longest-prefix, match."""
+    """``/topic/field/sub`` -> (topic, type, [field, sub]) by exact, else longest-prefix, match.
+
+    As rostopic, a prefix whose type is known locally and has no such field is not a match (so echo keeps
+    waiting for the topic); one whose type is not known locally is taken as it is.
+    """
     if name in types:
         return name, types[name], []
     candidates = sorted((t for t in types if name.startswith(t.rstrip("/") + "/")), key=len, reverse=True)
-    if not candidates:
-        return None
-    topic = candidates[0]
-    fields = [f for f in name[len(topic) :].split("/") if f]
-    return topic, types[topic], fields
+    for topic in candidates:
+        fields = [f for f in name[len(topic) :].split("/") if f]
+        if _has_fields(types[topic], name[len(topic) :].split("[", 1)[0]):
+            return topic, types[topic], fields
+    return None
+
+
+def _has_fields(msg_type: str, path: str) -> bool:
+    """False only when ``msg_type`` is known locally and has no field ``path`` (``a/b``; True if unknown)."""
+    names = [f for f in path.split("/") if f]
+    if not names:
+        return True
+    try:
+        get_message_class(msg_type)
+    except MrosError:
+        return True
+    try:
+        _field_type(msg_type, names)
+    except MrosError:
+        return False
+    return True
 
 
 async def wait_for_topic(master: MasterClient, name: str) -> tuple[str, str, list[str]]:
@@ -112,6 +119,7 @@ def group() -> None:
       mros topic pub /chatter std_msgs/String "data: hello" -r 10
       mros topic pub -1 /cmd_vel geometry_msgs/Twist "{linear: {x: 0.5}}"
       mros topic hz /camera/image
+      mros topic find sensor_msgs/Image
     """
 
 
@@ -251,84 +259,128 @@ def _field_type(msg_type: str, fields: list[str]) -> str:
     return current
 
 
+@group.command()
+@click.argument("msg_type", metavar="TYPE")
+def find(msg_type: str) -> None:
+    """Print the topics of a message type, in the master's order (as rostopic find).
+
+    \b
+    Example:
+      mros topic find sensor_msgs/Image
+    """
+
+    async def main() -> list[str]:
+        async with master_client() as master:
+            return [t for t, ty in (await topic_types(master)).items() if ty == msg_type]
+
+    click.echo("\n".join(run(main())))
+
+
 # --- echo ---------------------------------------------------------------------------------------------
 
 
-#: Pipe buffer asked for when stdout is a pipe: a 1 MB image prints ~3.6 MB, which through Linux's default
-#: 64 KiB pipe costs ~60 writer/reader wake-ups per frame.
-PIPE_SIZE = 1 << 20
+class MessageFilter:
+    """``--filter EXPR``: a Python expression evaluated per message with ``m`` (the message) and ``topic``.
+
+    This runs code given on the command line, in this process, exactly as rostopic's ``--filter`` does; it is
+    the user's own expression, never data from the graph. A message for which the expression raises is not
+    shown, and the first such error is reported on stderr in one line (rostopic prints a traceback per message).
+    """
+
+    def __init__(self, expression: str, topic: str) -> None:
+        try:
+            self.code = compile(expression, "<--filter>", "eval")
+        except SyntaxError as exc:
+            raise MrosError(f"--filter {expression!r} is not a Python expression: {exc.msg}") from exc
+        self.expression = expression
+        self.topic = topic
+        self.warned = False
+
+    def __call__(self, msg: Any) -> bool:
+        try:
+            return bool(eval(self.code, {"m": msg, "topic": self.topic}))  # the user's own expression, as rostopic
+        except Exception as exc:  # any error of the user's expression skips the message
+            if not self.warned:
+                self.warned = True
+                click.echo(f"WARNING: --filter {self.expression!r} raised {type(exc).__name__}: {exc}", err=True)
+            return False
 
 
-def _grow_pipe(out: Any) -> None:
-    """Enlarge stdout's pipe buffer (Linux ``F_SETPIPE_SZ``); silently keep the default where not allowed."""
-    import fcntl
-    import stat
+class Decoder:
+    """Message classes built from each publisher's connection header, cached by (type, md5)."""
 
-    setpipe = getattr(fcntl, "F_SETPIPE_SZ", None)
-    try:
-        fd = out.fileno()
-        if setpipe is None or not stat.S_ISFIFO(os.fstat(fd).st_mode):
-            return
-        fcntl.fcntl(fd, setpipe, PIPE_SIZE)
-    except (OSError, ValueError, AttributeError):
-        return
+    def __init__(self) -> None:
+        self._classes: dict[tuple[str, str], Any] = {}
+
+    def decode(self, raw: Any) -> Any:
+        header = raw.header
+        key = (_header_value(header, "type"), _header_value(header, "md5sum"))
+        cls = self._classes.get(key)
+        if cls is None:
+            cls = load_type(key[0], _header_value(header, "message_definition"))
+            self._classes[key] = cls
+        return cls.deserialize(raw.data)
 
 
 class Echo:
     """Decodes raw messages with the publisher's own definition and writes them, coalesced per loop turn."""
 
-    def __init__(self, fields: list[str], count: int | None, *, noarr: bool, as_json: bool, offset: bool) -> None:
+    def __init__(
+        self,
+        fields: list[str],
+        count: int | None,
+        *,
+        noarr: bool,
+        as_json: bool,
+        offset: bool,
+        nostr: bool = False,
+        plot: bool = False,
+        keep: MessageFilter | None = None,
+    ) -> None:
         self.fields = fields
         self.count = count
         self.shown = 0
         self.offset = offset
-        self.text = TextRenderer(noarr=noarr)
+        self.keep = keep
+        self.text = TextRenderer(noarr=noarr, nostr=nostr)
         self.json = JsonRenderer() if as_json else None
+        self.plot = PlotRenderer(noarr=noarr, nostr=nostr) if plot else None
         self.done = asyncio.Event()
         self.error: BaseException | None = None
-        self._classes: dict[tuple[str, str], Any] = {}
-        self._pending: list[bytes] = []
-        self._flush_scheduled = False
-        self._out = sys.stdout.buffer
-        _grow_pipe(self._out)
+        self.decoder = Decoder()
+        self.writer = CoalescedWriter(sys.stdout.buffer, on_broken=self.done.set)
         self._field_type: str | None = None
 
-    def _class_for(self, header: Any) -> Any:
-        msg_type = _header_value(header, "type")
-        md5 = _header_value(header, "md5sum")
-        cls = self._classes.get((msg_type, md5))
-        if cls is None:
-            cls = load_type(msg_type, _header_value(header, "message_definition"))
-            self._classes[(msg_type, md5)] = cls
-        return cls
-
     def on_raw(self, raw: Any) -> None:
-        """Subscriber callback: decode, render, queue for the coalesced write."""
+        """Subscriber callback: decode, filter, render, queue for the coalesced write."""
         if self.done.is_set():
             return
         try:
-            cls = self._class_for(raw.header)
-            msg = cls.deserialize(raw.data)
+            msg = self.decoder.decode(raw)
+            if self.keep is not None and not self.keep(msg):
+                return
             value = extract_field(msg, self.fields) if self.fields else msg
-            if self.json is not None:
-                self._pending.append(self.json.render(value) + b"\n")
-            else:
-                if self.offset:
-                    self.text.offset_ns = time.time_ns()
-                type_info = self._type_info(cls) if self.fields else None
-                self._pending.extend(self.text.render_chunks(value, type_info))
-                self._pending.append(_SEPARATOR_BYTES)
+            self.writer.add(self._render(value, type(msg)))
         except (MrosError, KeyError) as exc:
             self.error = exc
             self.done.set()
             return
         self.shown += 1
         if self.count is not None and self.shown >= self.count:
-            self.flush()
+            self.writer.flush()
             self.done.set()
-        elif not self._flush_scheduled:
-            self._flush_scheduled = True
-            asyncio.get_running_loop().call_soon(self.flush)
+
+    def _render(self, value: Any, cls: Any) -> list[bytes]:
+        if self.json is not None:
+            return [self.json.render(value) + b"\n"]
+        now = time.time_ns()
+        if self.plot is not None:
+            row = self.plot.row(value, now, now if self.offset else None) + "\n"
+            return [(self.plot.heading(value) + "\n" + row).encode() if self.shown == 0 else row.encode()]
+        if self.offset:
+            self.text.offset_ns = now
+        type_info = self._type_info(cls) if self.fields else None
+        return [*self.text.render_chunks(value, type_info), _SEPARATOR_BYTES]
 
     def _type_info(self, cls: Any) -> str | None:
         if self._field_type is None:
@@ -339,44 +391,78 @@ class Echo:
         return self._field_type or None
 
     def flush(self) -> None:
-        """Write everything rendered so far: a burst of small messages as one joined write, a few big
-        pieces (an image's ``uint8[]`` text) through the buffered writer as they are, never copied again."""
-        self._flush_scheduled = False
-        if not self._pending:
-            return
-        data = self._pending if len(self._pending) < 64 else [b"".join(self._pending)]
-        self._pending = []
-        try:
-            self._out.writelines(data)
-            self._out.flush()
-        except BrokenPipeError:
-            self.done.set()
+        """Write what is still queued."""
+        self.writer.flush()
+
+
+filter_option = click.option(
+    "--filter",
+    "filter_expr",
+    metavar="EXPR",
+    help="Only messages for which this Python expression is true; it sees m (the message) and topic. "
+    "It runs as local code, as rostopic's --filter does.",
+)
 
 
 @group.command()
 @click.argument("topic")
 @click.option("-n", "count", type=click.IntRange(min=1), help="Exit after N messages.")
-@click.option("--noarr", is_flag=True, help="Show arrays as <array type: T, length: N>.")
+@click.option("-p", "plot", is_flag=True, help="Plot-friendly CSV, as rostopic echo -p.")
+@filter_option
+@click.option("--noarr", is_flag=True, help="Show arrays as <array type: T, length: N> (with -p: leave them out).")
+@click.option("--nostr", is_flag=True, help="Show strings as <string length: N> (with -p: leave them out).")
 @click.option("--json", "as_json", is_flag=True, help="One JSON object per line instead of YAML text.")
 @click.option("--offset", is_flag=True, help="Print time fields as offsets from the current time.")
-def echo(topic: str, count: int | None, noarr: bool, as_json: bool, offset: bool) -> None:
+@click.option("-b", "--bag", "bag", metavar="BAGFILE", help="Echo the messages stored in a bag file instead.")
+def echo(  # noqa: PLR0917  (one parameter per click option)
+    topic: str,
+    count: int | None,
+    plot: bool,
+    filter_expr: str | None,
+    noarr: bool,
+    nostr: bool,
+    as_json: bool,
+    offset: bool,
+    bag: str | None,
+) -> None:
     """Print messages as rostopic echo does (``---`` after each); ``/topic/field`` prints one field.
 
-    The type need not be known locally: it is built from the publisher's message definition.
+    The type need not be known locally: it is built from the publisher's message definition. A topic (or
+    the topic of a field path) that is not published yet is waited for, with a warning, as rostopic does.
 
     \b
     Examples:
       mros topic echo /chatter
       mros topic echo /odom/pose/pose/position -n 1
       mros topic echo /scan --noarr
+      mros topic echo -p /odom/pose/pose/position > pos.csv
+      mros topic echo /chatter --filter "'hello' in m.data"
       mros topic echo /chatter --json
+      mros topic echo -b run.bag /chatter
     """
+    if plot and as_json:
+        raise click.UsageError("give only one of -p and --json")
     name = resolve(topic)
+    if bag is not None:
+        if offset:
+            raise click.UsageError("--offset does not apply to bag files (as in rostopic)")
+        from mros_cli.bag import echo_bag
+
+        keep_bag = MessageFilter(filter_expr, name) if filter_expr is not None else None
+        echo_bag(
+            bag,
+            name,
+            lambda fields: Echo(
+                fields, count, noarr=noarr, nostr=nostr, as_json=as_json, offset=False, plot=plot, keep=keep_bag
+            ),
+        )
+        return
 
     async def main() -> None:
         async with master_client() as master:
             real, _type, fields = await wait_for_topic(master, name)
-        echo = Echo(fields, count, noarr=noarr, as_json=as_json, offset=offset)
+        keep = MessageFilter(filter_expr, real) if filter_expr is not None else None
+        echo = Echo(fields, count, noarr=noarr, nostr=nostr, as_json=as_json, offset=offset, plot=plot, keep=keep)
         from mrosd.tcpros import AnyMsg, Node  # aiohttp and the TCPROS stack: only when a node is needed
 
         async with Node(anonymous("echo"), master_uri=master.master_uri, argv=[]) as node:
@@ -389,426 +475,10 @@ def echo(topic: str, count: int | None, noarr: bool, as_json: bool, offset: bool
     run(main())
 
 
-# --- pub ----------------------------------------------------------------------------------------------
-
-
-
-def _class(rostype: str) -> Any:
-    return get_message_class("std_msgs/Header" if rostype == "Header" else rostype)
-
-
-def _time_value(rostype: str, value: Any, where: str) -> Any:
-    kind = Time if rostype == "time" else Duration
-    if value == "now" and rostype == "time":
-        return Time.now()
-    if isinstance(value, dict):
-        unknown = set(value) - {"secs", "nsecs"}
-        if unknown:
-            raise MrosError(f"field {where}: unknown key {sorted(unknown)[0]!r} (a {rostype} has secs and nsecs)")
-        return kind(int(value.get("secs", 0)), int(value.get("nsecs", 0)))
-    if isinstance(value, int | float) and not isinstance(value, bool):
-        return kind.from_sec(float(value)) if hasattr(kind, "from_sec") else kind(int(value), 0)
-    raise MrosError(f"field {where}: expected {rostype} ({{secs: S, nsecs: N}}, seconds or 'now'), got {value!r}")
-
-
-def _scalar(rostype: str, value: Any, where: str) -> Any:
-    if rostype in INT_RANGES:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise MrosError(f"field {where}: expected {rostype}, got {type(value).__name__} {value!r}")
-        low, high = INT_RANGES[rostype]
-        if not low <= value <= high:
-            raise MrosError(f"field {where}: {value} is out of range for {rostype} ({low}..{high})")
-        return value
-    if rostype in ("float32", "float64"):
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            if isinstance(value, str) and value.strip().lower() in ("nan", "inf", "-inf", ".nan", ".inf", "-.inf"):
-                return float(value.strip().lower().replace(".", ""))
-            raise MrosError(f"field {where}: expected {rostype}, got {type(value).__name__} {value!r}")
-        return float(value)
-    if rostype == "bool":
-        if isinstance(value, bool) or value in (0, 1):
-            return bool(value)
-        raise MrosError(f"field {where}: expected bool, got {type(value).__name__} {value!r}")
-    if rostype == "string":
-        if isinstance(value, bool | int | float):
-            return str(value)
-        if not isinstance(value, str):
-            raise MrosError(f"field {where}: expected string, got {type(value).__name__} {value!r}")
-        return value
-    if rostype in ("time", "duration"):
-        return _time_value(rostype, value, where)
-    return build_message(_class(rostype), value, where)
-
-
-def _field_value(rostype: str, value: Any, where: str) -> Any:
-    if "[" not in rostype:
-        return _scalar(rostype, value, where)
-    element, _, size = rostype.partition("[")
-    size = size.rstrip("]")
-    if element in ("uint8", "char") and isinstance(value, str | bytes):
-        data = value.encode("latin-1") if isinstance(value, str) else value
-        items: list[Any] = list(data)
-    elif isinstance(value, list | tuple):
-        items = list(value)
-    else:
-        raise MrosError(f"field {where}: expected a list for {rostype}, got {type(value).__name__} {value!r}")
-    if size and len(items) != int(size):
-        raise MrosError(f"field {where}: {rostype} needs exactly {size} items, got {len(items)}")
-    converted = [_scalar(element, item, f"{where}[{i}]") for i, item in enumerate(items)]
-    if element in ("uint8", "char"):
-        return bytes(converted)
-    return converted
-
-
-def build_message(cls: Any, value: Any, where: str = "") -> Any:
-    """A message of class ``cls`` from a YAML value: a dict by field name, or a list of fields in order.
-
-    ``'now'`` fills a time with the current time and ``'auto'`` a Header with a stamp of now, as rostopic.
-
-    Raises:
-        MrosError: a field is unknown, missing from a positional list, or has the wrong type or range;
-            the message names the field (``pose.position.x``).
-    """
-    names: tuple[str, ...] = cls.__struct_fields__
-    types: tuple[str, ...] = tuple(cls._field_types)
-    prefix = f"{where}." if where else ""
-    if value == "auto" and getattr(cls, "_type", "") == "std_msgs/Header":
-        value = {"stamp": "now"}
-    if value is None:
-        value = {}
-    if isinstance(value, list | tuple):
-        if len(value) != len(names):
-            raise MrosError(
-                f"{where or cls._type}: got {len(value)} values for {len(names)} fields ({', '.join(names)})"
-            )
-        value = dict(zip(names, value, strict=True))
-    if not isinstance(value, dict):
-        if len(names) == 1:
-            value = {names[0]: value}
-        else:
-            fields = ", ".join(names)
-            raise MrosError(f"{where or cls._type}: expected a dictionary of fields ({fields}), got {value!r}")
-    table = dict(zip(names, types, strict=True))
-    kwargs: dict[str, Any] = {}
-    for key, item in value.items():
-        if key not in table:
-            raise MrosError(f"field {prefix}{key}: {cls._type} has no such field; its fields are: {', '.join(names)}")
-        kwargs[key] = _field_value(table[key], item, f"{prefix}{key}")
-    try:
-        return cls(**kwargs)
-    except (TypeError, ValueError, MrosError) as exc:
-        raise MrosError(f"{where or cls._type}: {exc}") from exc
-
-
-def parse_pub_args(args: tuple[str, ...]) -> Any:
-    """rostopic pub's argument rules: one YAML dict, or one YAML value per field."""
-    values: list[Any] = []
-    for arg in args:
-        try:
-            values.append(yaml.safe_load(arg))
-        except yaml.YAMLError as exc:
-            raise MrosError(f"argument {arg!r} is not valid YAML: {' '.join(str(exc).split())}") from exc
-    if len(values) == 1 and (isinstance(values[0], dict) or values[0] is None):
-        return values[0]
-    return values
-
-
-#: -f/stdin input without -r, -l or -1 is published at this rate, as rostopic does.
-STREAM_RATE = 10.0
-#: How long -f/stdin publishing waits for a first subscriber before it starts (rostopic: 5 s).
-STREAM_SUBSCRIBER_WAIT = 5.0
-
-
-def stdin_is_input() -> bool:
-    """Whether stdin is piped or redirected from a file (a terminal or /dev/null is not message input)."""
-    import stat
-
-    try:
-        mode = os.fstat(sys.stdin.fileno()).st_mode
-    except (OSError, ValueError, AttributeError):
-        return False
-    return stat.S_ISFIFO(mode) or stat.S_ISREG(mode)
-
-
-def file_documents(path: str) -> list[Any]:
-    """Every YAML document in ``path`` (``---``-separated, like a rostopic -f file); empty ones are skipped.
-
-    Raises:
-        MrosError: the file cannot be read or is not valid YAML (nothing is published then).
-    """
-    try:
-        with open(path, encoding="utf-8") as stream:
-            docs = list(yaml.safe_load_all(stream))
-    except OSError as exc:
-        raise MrosError(f"cannot read {path}: {exc.strerror or exc}") from exc
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise MrosError(f"invalid YAML in {path}: {' '.join(str(exc).split())}") from exc
-    return [d for d in docs if d is not None]
-
-
-def load_document(text: str, where: str) -> Any:
-    """One YAML document from stdin; ``None`` when it is empty."""
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise MrosError(f"invalid YAML in {where}: {' '.join(str(exc).split())}") from exc
-
-
-@group.command()
-@click.argument("topic")
-@click.argument("msg_type", metavar="TYPE")
-@click.argument("args", nargs=-1)
-@click.option("-r", "--rate", type=click.FloatRange(min=0, min_open=True), help="Publish at this rate (Hz).")
-@click.option("-1", "--once", is_flag=True, help="Publish one latched message, wait 3 s for subscribers, exit.")
-@click.option("-l", "--latch", is_flag=True, help="Latch the message (with -r, -f or stdin; otherwise always).")
-@click.option("-n", "count", type=click.IntRange(min=1), help="With -r: exit after N messages.")
-@click.option(
-    "-f",
-    "--file",
-    "path",
-    metavar="FILE",
-    help="Read messages from a YAML file, one document per message ('-' for stdin).",
-)
-def pub(  # noqa: PLR0917  (one parameter per click option)
-    topic: str,
-    msg_type: str,
-    args: tuple[str, ...],
-    rate: float | None,
-    once: bool,
-    latch: bool,
-    count: int | None,
-    path: str | None,
-) -> None:
-    """Publish a message built from YAML arguments, as rostopic pub does.
-
-    Without -r the message is published once, latched, until Ctrl-C. Put ``--`` before negative numbers.
-
-    With -f FILE (or with no values and a pipe on stdin) each YAML document is one message, published at
-    10 Hz unless -r, -l or -1 says otherwise; a file holding a single message with -r is repeated at that
-    rate. On stdin a document ends at a ``---`` line (what ``mros topic echo`` prints), as in rostopic; an
-    unterminated last document is not published and a warning says so.
-
-    \b
-    Examples:
-      mros topic pub /chatter std_msgs/String "data: hello" -r 10
-      mros topic pub -1 /chatter std_msgs/String hello
-      mros topic pub /cmd_vel geometry_msgs/Twist "{linear: {x: 0.5}, angular: {z: 0.1}}" -r 5
-      mros topic pub -1 /n std_msgs/Int32 -- -5
-      mros topic pub /cmd_vel geometry_msgs/Twist -f twists.yaml
-      mros topic echo /chatter | mros topic pub /copy std_msgs/String
-    """
-    if once and rate is not None:
-        raise click.UsageError("give only one of -r and -1")
-    if path is not None and args:
-        raise click.UsageError("give message values either as arguments or with -f, not both")
-    name = resolve(topic)
-    cls = _class(msg_type)
-    from_stdin = path == "-" or (path is None and not args and bool(cls.__struct_fields__) and stdin_is_input())
-    if path is not None and path != "-":
-        docs = [build_message(cls, d) for d in file_documents(path)]
-        for m in docs:
-            m.serialize()  # every message is checked before the first one is published
-        _publish_stream(name, cls, iter_list(docs), rate, once, latch, count, repeat_single=len(docs) == 1)
-        return
-    if from_stdin:
-        _publish_stream(name, cls, None, rate, once, latch, count, repeat_single=False)
-        return
-    msg = build_message(cls, parse_pub_args(args))
-    msg.serialize()  # fail now, with the field named, rather than in the publisher
-    latched = latch or rate is None
-
-    async def main() -> None:
-        from mrosd.tcpros import Node  # aiohttp and the TCPROS stack: only when a node is needed
-
-        async with Node(anonymous("pub"), master_uri=master_uri(), argv=[]) as node:
-            publisher = await node.advertise(name, cls, latch=latched)
-            if rate is None:
-                note = f" for {ONCE_DELAY:g} seconds" if once else ". Press ctrl-C to terminate"
-                click.echo(f"publishing and latching message{note}")
-                await publisher.publish(msg)
-                if once:
-                    await asyncio.sleep(ONCE_DELAY)
-                else:
-                    await asyncio.Event().wait()
-                return
-            await _repeat(publisher, msg, rate, count)
-
-    run(main())
-
-
-async def iter_list(items: list[Any]) -> Any:
-    """An async iterator over ``items`` (file input is loaded and checked up front)."""
-    for item in items:
-        yield item
-
-
-#: Lines read ahead from stdin; the reader thread waits (nothing is dropped) while the publisher catches up.
-STDIN_QUEUE = 256
-
-
-def _start_stdin_reader(loop: asyncio.AbstractEventLoop, queue: asyncio.Queue[str]) -> None:
-    """Feed stdin's lines into ``queue`` from a daemon thread ('' at EOF); it never holds up the exit."""
-    import threading
-
-    def read() -> None:
-        while True:
-            line = sys.stdin.readline()
-            try:
-                asyncio.run_coroutine_threadsafe(queue.put(line), loop).result()
-            except (RuntimeError, concurrent.futures.CancelledError):
-                return  # the loop is closed or closing: the command is over
-            if not line:
-                return
-
-    threading.Thread(target=read, name="mros-stdin", daemon=True).start()
-
-
-async def _stdin_messages(cls: Any) -> Any:
-    """Messages from stdin, one per ``---``-terminated YAML document, as they arrive."""
-    queue: asyncio.Queue[str] = asyncio.Queue(maxsize=STDIN_QUEUE)
-    _start_stdin_reader(asyncio.get_running_loop(), queue)
-    buf: list[str] = []
-    number = 0
-    while True:
-        line = await queue.get()
-        if not line:
-            break
-        if line.strip() != "---":
-            buf.append(line)
-            continue
-        number += 1
-        value = load_document("".join(buf), f"stdin document {number}")
-        buf = []
-        if value is not None:
-            msg = build_message(cls, value)
-            msg.serialize()
-            yield msg
-    if "".join(buf).strip():
-        click.echo("WARNING: the last document on stdin has no '---' after it; it was not published", err=True)
-
-
-async def _repeat(publisher: Any, msg: Any, rate: float, count: int | None) -> None:
-    period = 1.0 / rate
-    sent = 0
-    next_at = time.monotonic()
-    while count is None or sent < count:
-        await publisher.publish(msg)
-        sent += 1
-        next_at += period
-        await asyncio.sleep(max(0.0, next_at - time.monotonic()))
-
-
-def _publish_stream(  # noqa: PLR0917
-    name: str,
-    cls: Any,
-    messages: Any,
-    rate: float | None,
-    once: bool,
-    latch: bool,
-    count: int | None,
-    *,
-    repeat_single: bool,
-) -> None:
-    """rostopic's -f/stdin publishing: one message per document, paced by the rate, then exit."""
-    if rate is None and not latch and not once:
-        rate = STREAM_RATE
-    latched = latch or rate is None
-
-    async def main() -> None:
-        source = messages if messages is not None else _stdin_messages(cls)
-        from mrosd.tcpros import Node  # aiohttp and the TCPROS stack: only when a node is needed
-
-        async with Node(anonymous("pub"), master_uri=master_uri(), argv=[]) as node:
-            publisher = await node.advertise(name, cls, latch=latched)
-            with contextlib.suppress(TimeoutError, MrosError):
-                await publisher.wait_for_subscribers(1, timeout=STREAM_SUBSCRIBER_WAIT)
-            if repeat_single and rate is not None and not once:
-                click.echo("Got one message and a rate, publishing repeatedly")
-                async for msg in source:
-                    await _repeat(publisher, msg, rate, count)
-                return
-            sent = 0
-            next_at = time.monotonic()
-            async for msg in source:
-                await publisher.publish(msg)
-                sent += 1
-                if once or (count is not None and sent >= count):
-                    break
-                if rate is not None:
-                    next_at += 1.0 / rate
-                    await asyncio.sleep(max(0.0, next_at - time.monotonic()))
-            if once or (latched and sent):
-                # Latched: give subscribers the same grace rostopic -1 gives them before the node goes.
-                await asyncio.sleep(ONCE_DELAY)
-
-    run(main())
-
-
-# --- hz / bw ------------------------------------------------------------------------------------------
-
-
-class RateStats:
-    """rostopic hz's statistics over the inter-arrival times of a bounded window."""
-
-    def __init__(self, window: int) -> None:
-        self.deltas: deque[float] = deque(maxlen=max(window - 1, 1))
-        self.last: float | None = None
-        self.last_printed: float | None = None
-
-    def on_message(self, now: float) -> None:
-        """Record one arrival at wall time ``now``."""
-        if self.last is not None and now >= self.last:
-            self.deltas.append(now - self.last)
-        elif self.last is not None:
-            self.deltas.clear()
-        self.last = now
-
-    def report(self) -> str:
-        """The two lines rostopic hz prints each second, or ``no new messages``."""
-        if not self.deltas or self.last == self.last_printed:
-            return "no new messages"
-        self.last_printed = self.last
-        n = len(self.deltas)
-        mean = sum(self.deltas) / n
-        rate = 1.0 / mean if mean > 0 else 0.0
-        std = math.sqrt(sum((d - mean) ** 2 for d in self.deltas) / n)
-        return (
-            f"average rate: {rate:.3f}\n\tmin: {min(self.deltas):.3f}s max: {max(self.deltas):.3f}s "
-            f"std dev: {std:.5f}s window: {n + 1}"
-        )
-
-
-class BandwidthStats:
-    """rostopic bw's statistics over the sizes of the last messages."""
-
-    def __init__(self, window: int) -> None:
-        self.times: deque[float] = deque(maxlen=window)
-        self.sizes: deque[int] = deque(maxlen=window)
-
-    def on_message(self, now: float, size: int) -> None:
-        """Record one message of ``size`` body bytes."""
-        self.times.append(now)
-        self.sizes.append(size)
-
-    def report(self, now: float) -> str | None:
-        """rostopic bw's two lines, or None until two messages arrived."""
-        if len(self.times) < 2:
-            return None
-        n = len(self.times)
-        total = sum(self.sizes)
-        per_s = total / max(now - self.times[0], 1e-9)
-        values = [per_s, total / n, min(self.sizes), max(self.sizes)]
-        if per_s < 1000:
-            bw, mean, low, high = [f"{v:.2f}B" for v in values]
-        elif per_s < 1000000:
-            bw, mean, low, high = [f"{v / 1000:.2f}KB" for v in values]
-        else:
-            bw, mean, low, high = [f"{v / 1000000:.2f}MB" for v in values]
-        return f"average: {bw}/s\n\tmean: {mean} min: {low} max: {high} window: {n}"
+# --- hz / bw / delay ----------------------------------------------------------------------------------
 
 
 async def _measure(topic: str, on_raw: Any, tick: Any, duration: float | None) -> None:
-
     async with master_client() as master:
         real, _type, _fields = await wait_for_topic(master, resolve(topic))
     from mrosd.tcpros import AnyMsg, Node  # aiohttp and the TCPROS stack: only when a node is needed
@@ -822,22 +492,32 @@ async def _measure(topic: str, on_raw: Any, tick: Any, duration: float | None) -
             tick()
 
 
+window_help = "Number of messages to average over."
+
+
 @group.command()
 @click.argument("topic")
-@click.option("-w", "--window", type=click.IntRange(min=2), default=HZ_WINDOW, show_default=True,
-              help="Number of messages to average over.")  # fmt: skip
+@click.option("-w", "--window", type=click.IntRange(min=2), default=HZ_WINDOW, show_default=True, help=window_help)
+@filter_option
 @click.option("--duration", type=float, help="Stop after this many seconds.")
-def hz(topic: str, window: int, duration: float | None) -> None:
+def hz(topic: str, window: int, filter_expr: str | None, duration: float | None) -> None:
     """Print a topic's publishing rate every second (rostopic hz's format).
 
     \b
-    Example:
+    Examples:
       mros topic hz /camera/image -w 100
+      mros topic hz /chatter --filter "m.data.startswith('hello')"
     """
     stats = RateStats(window)
+    keep = MessageFilter(filter_expr, resolve(topic)) if filter_expr is not None else None
+    decoder = Decoder()
+
+    def on_raw(raw: Any) -> None:
+        if keep is None or keep(decoder.decode(raw)):
+            stats.on_message(time.time())
 
     async def main() -> None:
-        await _measure(topic, lambda _raw: stats.on_message(time.time()), lambda: click.echo(stats.report()), duration)
+        await _measure(topic, on_raw, lambda: click.echo(stats.report()), duration)
 
     with contextlib.suppress(KeyboardInterrupt):
         run(main())
@@ -845,8 +525,7 @@ def hz(topic: str, window: int, duration: float | None) -> None:
 
 @group.command()
 @click.argument("topic")
-@click.option("-w", "--window", type=click.IntRange(min=2), default=BW_WINDOW, show_default=True,
-              help="Number of messages to average over.")  # fmt: skip
+@click.option("-w", "--window", type=click.IntRange(min=2), default=BW_WINDOW, show_default=True, help=window_help)
 @click.option("--duration", type=float, help="Stop after this many seconds.")
 def bw(topic: str, window: int, duration: float | None) -> None:
     """Print a topic's bandwidth every second (rostopic bw's format).
@@ -867,3 +546,45 @@ def bw(topic: str, window: int, duration: float | None) -> None:
 
     with contextlib.suppress(KeyboardInterrupt):
         run(main())
+
+
+@group.command()
+@click.argument("topic")
+@click.option("-w", "--window", type=click.IntRange(min=2), default=DELAY_WINDOW, show_default=True, help=window_help)
+@click.option("--duration", type=float, help="Stop after this many seconds.")
+def delay(topic: str, window: int, duration: float | None) -> None:
+    """Print the delay between a message's header stamp and its arrival, every second (rostopic delay).
+
+    The topic's messages must start with a Header.
+
+    \b
+    Example:
+      mros topic delay /camera/image
+    """
+    stats = DelayStats(window)
+    decoder = Decoder()
+    failed: list[str] = []
+
+    def on_raw(raw: Any) -> None:
+        msg = decoder.decode(raw)
+        stamp = getattr(getattr(msg, "header", None), "stamp", None)
+        if stamp is None or not hasattr(stamp, "to_sec"):
+            failed.append(f"{resolve(topic)}: {getattr(msg, '_type', 'the message')} does not have a header")
+            return
+        stats.on_message(time.time(), stamp.to_sec())
+
+    def tick() -> None:
+        if failed:
+            raise MrosError(failed[0])
+        text = stats.report()
+        if text is not None:
+            click.echo(text)
+
+    async def main() -> None:
+        await _measure(topic, on_raw, tick, duration)
+
+    with contextlib.suppress(KeyboardInterrupt):
+        run(main())
+
+
+group.add_command(pub)
