@@ -8,14 +8,13 @@ from __future__ import annotations
 
 import contextlib
 import re
-import sys
 import time
 from collections.abc import AsyncIterator, Sequence
 from typing import TYPE_CHECKING, Any
 
 import click
 
-from mros_cli.main import CALL_TIMEOUT, CALLER_ID, fail, master_client, run, slave_call
+from mros_cli.main import CALL_TIMEOUT, CALLER_ID, fail, master_client, resolve_name, run, slave_call
 from mrosd.errors import MasterError, MasterUnreachableError, MrosError, XmlRpcError
 
 if TYPE_CHECKING:
@@ -29,11 +28,7 @@ CONNECTION_PATTERN = re.compile(r"\w+ connection on port (\d+) to \[(.*) on sock
 PING_TIMEOUT = 3.0
 
 
-def resolve(name: str) -> str:
-    """Node names are global in the CLI unless given relative to $ROS_NAMESPACE."""
-    from mros_cli.param import resolve as resolve_name
-
-    return resolve_name(name)
+resolve = resolve_name
 
 
 def node_names(state: Sequence[Any]) -> list[str]:
@@ -73,6 +68,7 @@ def group() -> None:
       mros node list
       mros node info /talker
       mros node ping /talker -c 3
+      mros node machine
       mros node kill /talker
       mros node cleanup -y
     """
@@ -199,9 +195,10 @@ def _connections(pid: Any, bus: list[Any], uris: dict[str, str]) -> str:
 @click.option("-a", "--all", "ping_all", is_flag=True, help="Ping every node.")
 @click.option("-c", "count", type=click.IntRange(min=1), help="Number of pings (default: until Ctrl-C).")
 def ping(node: str | None, ping_all: bool, count: int | None) -> None:
-    """Check that a node's XML-RPC server answers, and how fast.
+    """Check that a node's XML-RPC server answers, and how fast (rosnode ping's output).
 
-    Exit code 1 when the node is unknown or does not answer.
+    As rosnode, the exit code is 0 even when the node is unknown or does not answer: the failure is the
+    line on stderr. Scripts that need a verdict can use ``mros node info -q`` or ``mros daemon status``.
 
     \b
     Examples:
@@ -211,7 +208,7 @@ def ping(node: str | None, ping_all: bool, count: int | None) -> None:
     if not node and not ping_all:
         raise click.UsageError("give a NODE or --all")
 
-    async def main() -> bool:
+    async def main() -> None:
         async with _clients() as (master, xmlrpc):
             if ping_all:
                 names = node_names(await master.get_system_state())
@@ -219,11 +216,12 @@ def ping(node: str | None, ping_all: bool, count: int | None) -> None:
                 dead = [n for n in names if not await _ping(master, xmlrpc, n, 1)]
                 if dead:
                     click.echo("ERROR: connection refused to " + ", ".join(dead), err=True)
-                return not dead
-            return await _ping(master, xmlrpc, resolve(node or ""), count)
+                return
+            name = resolve(node or "")
+            click.echo(f"rosnode: node is [{name}]")
+            await _ping(master, xmlrpc, name, count)
 
-    if not run(main()):
-        sys.exit(1)
+    run(main())
 
 
 async def _ping(master: MasterClient, xmlrpc: XmlRpcClient, name: str, count: int | None) -> bool:
@@ -233,7 +231,7 @@ async def _ping(master: MasterClient, xmlrpc: XmlRpcClient, name: str, count: in
     if uri is None:
         click.echo(f"cannot ping [{name}]: unknown node", err=True)
         return False
-    click.echo(f"pinging {name} with a timeout of {PING_TIMEOUT:g}s")
+    click.echo(f"pinging {name} with a timeout of {PING_TIMEOUT}s")
     done = 0
     while count is None or done < count:
         if done:
@@ -247,6 +245,58 @@ async def _ping(master: MasterClient, xmlrpc: XmlRpcClient, name: str, count: in
         click.echo(f"xmlrpc reply from {uri}\ttime={(time.perf_counter() - start) * 1000:f}ms")
         done += 1
     return True
+
+
+async def _addresses(host: str) -> set[str]:
+    """Every address ``host`` resolves to (empty when it does not resolve)."""
+    import asyncio
+    import socket
+
+    try:
+        infos = await asyncio.get_running_loop().getaddrinfo(host, 0, proto=socket.IPPROTO_TCP)
+    except (OSError, UnicodeError):
+        return set()
+    return {str(info[4][0]) for info in infos}
+
+
+@group.command()
+@click.argument("host", required=False)
+def machine(host: str | None) -> None:
+    """List the machines nodes run on, or the nodes on one machine (as rosnode machine).
+
+    A node is on HOST when its XML-RPC URI names HOST or an address HOST resolves to.
+
+    \b
+    Examples:
+      mros node machine
+      mros node machine 192.168.1.20
+    """
+    import urllib.parse
+
+    async def main() -> list[str]:
+        async with master_client() as master:
+            names = node_names(await master.get_system_state())
+            hosts: dict[str, str] = {}
+            for name in names:
+                uri = await _lookup(master, name)
+                hostname = urllib.parse.urlsplit(uri).hostname if uri else None
+                if hostname:
+                    hosts[name] = hostname
+            if host is None:
+                return sorted(set(hosts.values()))
+            wanted = await _addresses(host)
+            if not wanted:
+                fail(f"cannot resolve machine name [{host}] to address")
+            known: dict[str, bool] = {}
+            found = []
+            for name, hostname in hosts.items():
+                if hostname not in known:
+                    known[hostname] = hostname == host or bool(wanted & await _addresses(hostname))
+                if known[hostname]:
+                    found.append(name)
+            return sorted(found)
+
+    click.echo("\n".join(run(main())))
 
 
 @group.command()
@@ -265,10 +315,17 @@ def kill(nodes: tuple[str, ...], kill_all: bool) -> None:
     async def main() -> list[str]:
         failed: list[str] = []
         async with _clients() as (master, xmlrpc):
-            names = node_names(await master.get_system_state()) if kill_all else [resolve(n) for n in nodes]
+            known = node_names(await master.get_system_state())
+            names = known if kill_all else [resolve(n) for n in nodes]
+            unknown = [n for n in names if n not in known]
+            if unknown:
+                fail("Unknown node(s): " + ", ".join(unknown))
+            if len(names) > 1:
+                click.echo("killing:\n" + "\n".join(f" * {n}" for n in names))
+            elif names:
+                click.echo(f"killing {names[0]}")
             for name in names:
                 uri = await _lookup(master, name)
-                click.echo(f"killing {name}")
                 if uri is None:
                     failed.append(name)
                     continue
@@ -279,7 +336,7 @@ def kill(nodes: tuple[str, ...], kill_all: bool) -> None:
 
     failed = run(main())
     if failed:
-        fail("could not kill " + ", ".join(failed))
+        fail("Failed to kill: " + ", ".join(failed))
     click.echo("killed")
 
 
