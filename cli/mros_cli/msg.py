@@ -1,14 +1,19 @@
 """``mros msg``: show, md5, list and generate message types (``rosmsg`` and ``genpy`` in one place).
 
-``show`` prints what ``rosmsg show`` prints (constants first, nested types indented by two spaces,
-``-r`` for the raw definition); ``md5`` the genmsg md5sum; ``list`` every type on the search path;
-``gen`` writes importable Python packages (``OUT/<pkg>/msg``, ``OUT/<pkg>/srv``) from the same codegen
-the runtime uses. The search path is mrosd's shipped definitions, then ``-I pkg:dir``, then
-``$ROS_PACKAGE_PATH``, then the system share directories. No protocol logic lives here.
+``show`` prints what ``rosmsg show`` prints, byte for byte (constants first, nested types indented by two
+spaces, a blank line at the end, ``-r`` for the raw definition, short names searched in every package);
+``md5`` the genmsg md5sum; ``list`` every type on the search path; ``gen`` writes importable Python packages
+(``OUT/<pkg>/msg``, ``OUT/<pkg>/srv``) from the same codegen the runtime uses. The search path is mrosd's
+shipped definitions, then ``-I pkg:dir``, then ``$ROS_PACKAGE_PATH``, then the system share directories.
+No protocol logic lives here.
 """
 
 from __future__ import annotations
 
+import glob
+import os
+import re
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -16,7 +21,10 @@ import click
 
 from mrosd.errors import MsgNotFoundError
 from mrosd.msg.spec import MsgSpec
-from mrosd.msg.typestore import TypeStore, parse_include
+from mrosd.msg.typestore import BUILTIN_DIR, MAX_PACKAGE_DEPTH, TypeStore, parse_include
+
+#: A package.xml's name, as the type store reads it.
+_PACKAGE_NAME = re.compile(r"<name>\s*([^<\s]+)\s*</name>")
 
 INCLUDE_HELP = "Search PACKAGE:DIR for definitions (DIR is the package or its msg/ directory); repeatable."
 
@@ -24,6 +32,91 @@ INCLUDE_HELP = "Search PACKAGE:DIR for definitions (DIR is the package or its ms
 def make_store(includes: Sequence[str]) -> TypeStore:
     """A type store with the command line's ``-I`` includes."""
     return TypeStore([parse_include(item) for item in includes])
+
+
+def package_order(store: TypeStore) -> list[str]:
+    """Package names in the order rosmsg searches them for a short type name (rospack's crawl order).
+
+    rospack crawls ``/usr/share`` first, then ``$ROS_PACKAGE_PATH`` from its last entry to its first, each
+    in directory order, so that is the order here too; mrosd's own definitions and ``-I`` packages that no
+    crawl found come after, sorted.
+    """
+    order: dict[str, None] = {}
+    roots: list[tuple[Path, int]] = []
+    for pattern in store.system_dirs:
+        roots += [(Path(root), 1) for root in sorted(glob.glob(pattern))]
+    roots += [(Path(root), MAX_PACKAGE_DEPTH) for root in reversed(store.ros_package_path.split(os.pathsep)) if root]
+    for root, depth in roots:
+        for name in _crawl(root, depth):
+            order[name] = None
+    extra = {pkg for pkg, _dir in store.includes}
+    if store.builtin and BUILTIN_DIR.is_dir():
+        extra |= {p.name for p in BUILTIN_DIR.iterdir() if p.is_dir()}
+    for name in sorted(extra - order.keys()):
+        order[name] = None
+    return list(order)
+
+
+def _crawl(root: Path, depth: int) -> list[str]:
+    """Package names under ``root`` in directory order, not below another package or a CATKIN_IGNORE."""
+    try:
+        entries = list(os.scandir(root))
+    except OSError:
+        return []
+    names: list[str] = []
+    for entry in entries:
+        try:
+            if not entry.is_dir() or entry.name.startswith("."):
+                continue
+            manifest = Path(entry.path) / "package.xml"
+            if manifest.is_file():
+                match = _PACKAGE_NAME.search(manifest.read_text(encoding="utf-8", errors="replace"))
+                names.append(match.group(1) if match else entry.name)
+            elif depth > 1 and not (Path(entry.path) / "CATKIN_IGNORE").exists():
+                names += _crawl(Path(entry.path), depth - 1)
+        except OSError:
+            continue
+    return names
+
+
+def find_short(store: TypeStore, short: str, kind: str) -> list[str]:
+    """Every ``pkg/short`` of ``kind`` on the search path, in rosmsg's order (``Twist`` -> geometry_msgs/Twist)."""
+    return [
+        f"{pkg}/{short}"
+        for pkg in package_order(store)
+        if any((d / f"{short}.{kind}").is_file() for d in store.package_dirs(pkg, kind))
+    ]
+
+
+def show_text(name: str, store: TypeStore, kind: str, raw: bool) -> str:
+    """What ``rosmsg show``/``rossrv show`` print for a full name (the final blank line included)."""
+    if kind == "srv":
+        srv = store.srv_spec(name)
+        if raw:
+            return srv.text + "\n"
+        return _tree(srv.request, store) + "---\n" + _tree(srv.response, store) + "\n"
+    spec = store.msg_spec(name)
+    return (spec.text if raw else _tree(spec, store)) + "\n"
+
+
+def _tree(spec: MsgSpec, store: TypeStore) -> str:
+    return "".join(line + "\n" for line in show_lines(spec, store))
+
+
+def show_type(type_name: str, store: TypeStore, kind: str, raw: bool) -> None:
+    """Print a type as rosmsg/rossrv show: a short name prints every match under a ``[pkg/Type]:`` line."""
+    name = type_name.strip()
+    if name.endswith("." + kind):
+        name = name[: -len(kind) - 1]
+    if "/" in name:
+        click.echo(show_text(name, store, kind, raw), nl=False)
+        return
+    found = find_short(store, name, kind)
+    if not found:
+        click.echo(f"Could not find {kind} '{name}'", err=True)
+        sys.exit(1)
+    for full in found:
+        click.echo(f"[{full}]:\n" + show_text(full, store, kind, raw), nl=False)
 
 
 def show_lines(spec: MsgSpec, store: TypeStore, indent: str = "") -> list[str]:
@@ -58,21 +151,22 @@ def group() -> None:
 @click.option("--full", is_flag=True, help="Print the full message_definition sent in TCPROS headers.")
 @include_option
 def show(type_name: str, raw: bool, full: bool, includes: tuple[str, ...]) -> None:
-    """Show the fields of a message type (as rosmsg show).
+    """Show the fields of a message type, byte for byte as rosmsg show.
+
+    A name without a package (``Twist``) is looked up in every package, and each match is shown under a
+    ``[package/Type]:`` line, as rosmsg does.
 
     \b
     Example:
       mros msg show sensor_msgs/Image
+      mros msg show Twist
       mros msg show -I my_msgs:src/my_msgs my_msgs/Coordinate
     """
     store = make_store(includes)
-    spec = store.msg_spec(type_name)
     if full:
-        click.echo(store.full_text(spec.full_name))
-    elif raw:
-        click.echo(spec.text, nl=not spec.text.endswith("\n"))
+        click.echo(store.full_text(store.msg_spec(type_name).full_name))
     else:
-        click.echo("\n".join(show_lines(spec, store)))
+        show_type(type_name, store, "msg", raw)
 
 
 @group.command()

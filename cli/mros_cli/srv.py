@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from mros_cli.msg import include_option, make_store, show_lines
+from mros_cli.msg import include_option, make_store, show_type
 
 
 @click.group(name="srv")
@@ -24,19 +24,13 @@ def group() -> None:
 @click.option("-r", "--raw", is_flag=True, help="Print the definition text as written (comments included).")
 @include_option
 def show(type_name: str, raw: bool, includes: tuple[str, ...]) -> None:
-    """Show the request and response fields of a service type (as rossrv show).
+    """Show the request and response fields of a service type, byte for byte as rossrv show (short names too).
 
     \b
     Example:
       mros srv show std_srvs/SetBool
     """
-    store = make_store(includes)
-    spec = store.srv_spec(type_name)
-    if raw:
-        click.echo(spec.text, nl=not spec.text.endswith("\n"))
-        return
-    lines = [*show_lines(spec.request, store), "---", *show_lines(spec.response, store)]
-    click.echo("\n".join(lines))
+    show_type(type_name, make_store(includes), "srv", raw)
 
 
 @group.command()

@@ -49,12 +49,12 @@ def test_show_prints_constants_first_and_nested_fields_indented() -> None:
         "std_msgs/Header header",
     ]
     assert lines[6:9] == ["  uint32 seq", "  time stamp", "  string frame_id"]
-    assert lines[-1] == "string[] topics"
+    assert lines[-2:] == ["string[] topics", ""]
 
 
 def test_show_raw_and_full_print_the_definition_texts() -> None:
     code, output = invoke("msg", "show", "-r", "std_msgs/String")
-    assert (code, output) == (0, "string data\n")
+    assert (code, output) == (0, "string data\n\n")
     code, output = invoke("msg", "show", "--full", "geometry_msgs/PoseStamped")
     assert code == 0
     assert "MSG: std_msgs/Header" in output
@@ -68,7 +68,7 @@ def test_md5_prints_one_line_per_type() -> None:
 
 def test_user_types_are_found_through_include_directories() -> None:
     code, output = invoke("msg", "show", "-I", f"mros_test_msgs:{COORDINATE}", "mros_test_msgs/Coordinate")
-    assert (code, output) == (0, "float32 x\nfloat32 y\nfloat32 z\ntime time\n")
+    assert (code, output) == (0, "float32 x\nfloat32 y\nfloat32 z\ntime time\n\n")
     code, output = invoke("msg", "list", "-I", f"mros_test_msgs:{COORDINATE}", "mros_test_msgs")
     assert (code, output) == (0, "mros_test_msgs/Coordinate\n")
 
@@ -81,7 +81,7 @@ def test_list_includes_the_shipped_standard_types() -> None:
 
 
 def test_srv_show_md5_and_list() -> None:
-    assert invoke("srv", "show", "std_srvs/SetBool") == (0, "bool data\n---\nbool success\nstring message\n")
+    assert invoke("srv", "show", "std_srvs/SetBool") == (0, "bool data\n---\nbool success\nstring message\n\n")
     assert invoke("srv", "md5", "std_srvs/SetBool") == (0, "09fb03525b03e7ea1fd3992bafd87e16\n")
     code, output = invoke("srv", "list", "std_srvs")
     assert code == 0
