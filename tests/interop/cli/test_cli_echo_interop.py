@@ -7,7 +7,6 @@ are compared exactly. mros decodes every type from the publisher's message_defin
 from __future__ import annotations
 
 import json
-import re
 import subprocess
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -15,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.interop.cli.cliutil import mros, ros_tool
-from tests.rosenv import Processes, needs_ros, ros_env, start_rosmaster
+from tests.interop.cli.cliutil import mask_seq, mros, ros_tool, start_rospy
+from tests.rosenv import Processes, needs_ros, start_rosmaster
 
 pytestmark = [needs_ros, pytest.mark.interop]
 
@@ -64,20 +63,13 @@ TOPICS = [
 ]  # fmt: skip
 
 
-def _same_but_seq(text: str) -> str:
-    """rospy stamps header.seq anew for every connection to a latched topic, so seq differs per subscriber."""
-    return re.sub(r"(?m)^(\s*)seq: \d+$", r"\1seq: N", text)
-
-
 @pytest.fixture(scope="module")
 def corpus(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """One rosmaster and one latching rospy node for the whole module (they only answer reads)."""
     procs = Processes(tmp_path_factory.mktemp("corpus"))
     try:
         master = start_rosmaster(procs)
-        node = procs.python(CORPUS, ros_env(master, procs.tmp), stderr=subprocess.DEVNULL)
-        assert node.stdout is not None
-        assert node.stdout.readline().strip() == b"up"
+        start_rospy(procs, CORPUS, master, stderr=subprocess.DEVNULL)
         yield master
     finally:
         procs.close()
@@ -99,7 +91,7 @@ FIELD_CASES = [
 def _both(corpus: str, tmp: Path, argv: list[str]) -> tuple[list[str], str, str, int]:
     ours = mros(corpus, tmp, "topic", "echo", "-n", "1", *argv)
     theirs = ros_tool(corpus, tmp, "rostopic", "echo", "-n", "1", *argv)
-    return argv, _same_but_seq(ours.stdout), _same_but_seq(theirs.stdout), ours.returncode
+    return argv, mask_seq(ours.stdout), mask_seq(theirs.stdout), ours.returncode
 
 
 def test_echo_of_every_corpus_message_and_option_matches_rostopic_exactly(corpus: str, tmp_path: Path) -> None:

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-from tests.interop.cli.cliutil import mros
+from tests.interop.cli.cliutil import mros, mros_process
 from tests.rosenv import Processes, iter_lines_until, needs_ros, ros_env
 
 pytestmark = [needs_ros, pytest.mark.interop]
@@ -16,19 +15,11 @@ pytestmark = [needs_ros, pytest.mark.interop]
 DOCS = "data: one\n---\ndata: two\n---\ndata: three\n"
 
 
-def _mros_pub(
-    procs: Processes, master: str, *args: str, stdin: int | None = subprocess.DEVNULL
-) -> subprocess.Popen[bytes]:
-    return procs.start(
-        [sys.executable, "-m", "mros_cli.main", "topic", "pub", *args], ros_env(master, procs.tmp), stdin=stdin
-    )
-
-
 def test_each_document_of_a_file_is_published_once_in_order(procs: Processes, rosmaster: str) -> None:
     doc = procs.tmp / "msgs.yaml"
     doc.write_text(DOCS)
     echo = procs.start(["rostopic", "echo", "-n", "3", "/fromfile"], ros_env(rosmaster, procs.tmp))
-    pub = _mros_pub(procs, rosmaster, "-r", "20", "/fromfile", "std_msgs/String", "-f", str(doc))
+    pub = mros_process(procs, rosmaster, "topic", "pub", "-r", "20", "/fromfile", "std_msgs/String", "-f", str(doc))
     assert list(iter_lines_until(echo, 6, timeout=30)) == [
         'data: "one"',
         "---",
@@ -42,7 +33,9 @@ def test_each_document_of_a_file_is_published_once_in_order(procs: Processes, ro
 
 def test_mros_echo_output_piped_to_pub_on_stdin_is_republished(procs: Processes, rosmaster: str) -> None:
     echo = procs.start(["rostopic", "echo", "-n", "2", "/fromstdin"], ros_env(rosmaster, procs.tmp))
-    pub = _mros_pub(procs, rosmaster, "-r", "50", "/fromstdin", "std_msgs/String", stdin=subprocess.PIPE)
+    pub = mros_process(
+        procs, rosmaster, "topic", "pub", "-r", "50", "/fromstdin", "std_msgs/String", stdin=subprocess.PIPE
+    )
     assert pub.stdin is not None
     pub.stdin.write(b'data: "first"\n---\ndata: "second"\n---\n')
     pub.stdin.close()

@@ -2,19 +2,14 @@
 
 from __future__ import annotations
 
-import subprocess
 from pathlib import Path
 
 import pytest
 
-from tests.interop.cli.cliutil import mros
+from tests.interop.cli.cliutil import mros, mros_process
 from tests.rosenv import Processes, iter_lines_until, needs_ros, ros_env
 
 pytestmark = [needs_ros, pytest.mark.interop]
-
-
-def _mros_proc(procs: Processes, master: str, *args: str) -> subprocess.Popen[bytes]:
-    return procs.our_python(["-m", "mros_cli.main", *args], ros_env(master, procs.tmp))
 
 
 @pytest.mark.parametrize(
@@ -32,7 +27,7 @@ def test_a_message_published_once_by_mros_is_echoed_by_rostopic(
 ) -> None:
     env = ros_env(rosmaster, procs.tmp)
     echo = procs.start(["rostopic", "echo", "-n", "1", "/pubtest"], env)
-    pub = _mros_proc(procs, rosmaster, "topic", "pub", "-1", "/pubtest", msg_type, *args)
+    pub = mros_process(procs, rosmaster, "topic", "pub", "-1", "/pubtest", msg_type, *args)
     lines = list(iter_lines_until(echo, len(expected), timeout=30))
     assert lines == expected
     assert pub.wait(timeout=30) == 0
@@ -41,21 +36,21 @@ def test_a_message_published_once_by_mros_is_echoed_by_rostopic(
 def test_a_rate_publication_reaches_a_rospy_subscriber_repeatedly(procs: Processes, rosmaster: str) -> None:
     env = ros_env(rosmaster, procs.tmp)
     echo = procs.start(["rostopic", "echo", "-n", "3", "/rated"], env)
-    _mros_proc(procs, rosmaster, "topic", "pub", "-r", "20", "/rated", "std_msgs/String", "data: tick")
+    mros_process(procs, rosmaster, "topic", "pub", "-r", "20", "/rated", "std_msgs/String", "data: tick")
     assert list(iter_lines_until(echo, 6, timeout=30)) == ['data: "tick"', "---"] * 3
 
 
 def test_mros_echo_hz_and_bw_follow_a_rostopic_publisher(procs: Processes, rosmaster: str) -> None:
     env = ros_env(rosmaster, procs.tmp)
     procs.start(["rostopic", "pub", "-r", "20", "/ticks", "std_msgs/String", "data: tick"], env)
-    echo = _mros_proc(procs, rosmaster, "topic", "echo", "/ticks", "-n", "2")
+    echo = mros_process(procs, rosmaster, "topic", "echo", "/ticks", "-n", "2")
     assert list(iter_lines_until(echo, 4, timeout=30)) == ['data: "tick"', "---"] * 2
-    hz = _mros_proc(procs, rosmaster, "topic", "hz", "/ticks", "--duration", "2.5")
+    hz = mros_process(procs, rosmaster, "topic", "hz", "/ticks", "--duration", "2.5")
     lines = list(iter_lines_until(hz, 3, timeout=30))
     assert lines[0] == "subscribed to [/ticks]"
     assert lines[1].startswith("average rate: ")
     assert 10 < float(lines[1].split()[-1]) < 30
-    bw = _mros_proc(procs, rosmaster, "topic", "bw", "/ticks", "--duration", "2.5")
+    bw = mros_process(procs, rosmaster, "topic", "bw", "/ticks", "--duration", "2.5")
     lines = list(iter_lines_until(bw, 3, timeout=30))
     assert lines[1].startswith("average: ") and lines[1].endswith("B/s")
     assert "mean: 8.00B" in lines[2]
