@@ -11,8 +11,8 @@ Lifecycle, as systemd sees it (``Type=notify``):
      one error line naming the part and why, and the daemon runs degraded (``--strict``: exit 1);
   2. send ``READY=1`` with a status line (``running: ...`` or ``degraded: ...``); ping ``WATCHDOG=1`` at
      half ``WATCHDOG_USEC`` while the master still answers its own ``getPid``;
-  3. ``SIGHUP`` re-reads the file and reloads the IXM access rules (other sections need a restart); any
-     error keeps the running configuration;
+  3. ``SIGHUP`` re-reads the file, reloads the IXM access rules (other sections need a restart) and starts
+     again the parts that failed to start; any error keeps the running configuration;
   4. ``SIGTERM``/``SIGINT`` send ``STOPPING=1`` and close the parts in reverse order within
      ``SHUTDOWN_TIMEOUT`` seconds (the IXM server removes its socket), then exit 0. Signals arrive on a
      thread of their own, so a blocked event loop cannot hold the process past the deadline.

@@ -1,7 +1,8 @@
 """``Master``: the ROS 1 master process part, composing the handlers, the notifier and the XML-RPC server.
 
 Owns the listening socket, the outgoing XML-RPC client used for callbacks, and the optional
-allow-list of client networks (connections from other addresses get HTTP 403 before any parsing).
+allow-list of client networks (connections from other addresses get HTTP 403 once their bounded request is
+in; it is never decoded or handled).
 HTTP framing and connection limits are ``httpserver`` (lean asyncio protocol); the XML-RPC codec and dispatch
 are ``mrosd.xmlrpc``.
 """

@@ -18,7 +18,7 @@ from collections.abc import Awaitable, Callable
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
-from mrosd.errors import InvalidNameError
+from mrosd.errors import InvalidArgument, InvalidNameError
 from mrosd.names import SEP, canonicalize, is_valid_name, join, namespace_of
 
 if TYPE_CHECKING:
@@ -32,50 +32,46 @@ FAILURE = 0
 ERROR = -1
 
 
-class _Invalid(Exception):
-    """An argument failed validation; the text is the status message."""
-
-
 def _global_name(what: str, value: Any, caller_id: str) -> str:
     if not isinstance(value, str) or not value:
-        raise _Invalid(f"ERROR: parameter [{what}] must be a non-empty string")
+        raise InvalidArgument(f"ERROR: parameter [{what}] must be a non-empty string")
     if not value.startswith(SEP):
-        raise _Invalid(f"ERROR: parameter [{what}] must be a globally referenced name")
+        raise InvalidArgument(f"ERROR: parameter [{what}] must be a globally referenced name")
     return canonicalize(value)
 
 
 def _topic(what: str, value: Any, caller_id: str) -> str:
     """A legal topic name, resolved in the caller's namespace when relative (rospy's is_topic)."""
     if not isinstance(value, str) or not value:
-        raise _Invalid(f"ERROR: parameter [{what}] must be a non-empty string")
+        raise InvalidArgument(f"ERROR: parameter [{what}] must be a non-empty string")
     if not is_valid_name(value) or value.startswith("~"):
-        raise _Invalid(f"ERROR: parameter [{what}] contains illegal chars")
+        raise InvalidArgument(f"ERROR: parameter [{what}] contains illegal chars")
     if value == SEP:
-        raise _Invalid(f"ERROR: parameter [{what}] cannot be the global namespace")
+        raise InvalidArgument(f"ERROR: parameter [{what}] cannot be the global namespace")
     try:
         return join(namespace_of(caller_id) if caller_id.startswith(SEP) else SEP, value)
     except InvalidNameError as exc:
-        raise _Invalid(f"ERROR: parameter [{what}] is not a legal name: {exc}") from None
+        raise InvalidArgument(f"ERROR: parameter [{what}] is not a legal name: {exc}") from None
 
 
 def _uri_list(what: str, value: Any, caller_id: str) -> list[str]:
     if not isinstance(value, list):
-        raise _Invalid(f"ERROR: param [{what}] must be a list")
+        raise InvalidArgument(f"ERROR: param [{what}] must be a list")
     for uri in value:
         if not isinstance(uri, str):
-            raise _Invalid(f"ERROR: param [{what}] must be a list of strings")
+            raise InvalidArgument(f"ERROR: param [{what}] must be a list of strings")
         parts = urlsplit(uri)
         if not parts.scheme or not parts.netloc:
-            raise _Invalid(f"ERROR: param [{what}] does not contain valid URLs [{uri}]")
+            raise InvalidArgument(f"ERROR: param [{what}] does not contain valid URLs [{uri}]")
     return value
 
 
 def _protocols(what: str, value: Any, caller_id: str) -> list[Any]:
     # rospy checks only non-emptiness and answers 0 for a string; ros_comm's test_slave_api wants -1 for it.
     if not value:
-        raise _Invalid(f"ERROR: parameter [{what}] must be specified and non-empty")
+        raise InvalidArgument(f"ERROR: parameter [{what}] must be specified and non-empty")
     if not isinstance(value, list):
-        raise _Invalid(f"ERROR: parameter [{what}] must be a list of protocols")
+        raise InvalidArgument(f"ERROR: parameter [{what}] must be a list of protocols")
     return value
 
 
@@ -102,7 +98,7 @@ def _api(
             for (what, check), value in zip(validators, args[1:], strict=False):
                 try:
                     checked.append(value if check is None else check(what, value, args[0]))
-                except _Invalid as exc:
+                except InvalidArgument as exc:
                     log.debug("slave API %s: %s", name, exc)
                     return [ERROR, str(exc), empty]
             return await fn(*checked)
