@@ -1,4 +1,4 @@
-"""Length-prefixed TCPROS framing: an incremental decoder and the frame encoder.
+"""Length-prefixed framing, the one decoder and encoder of TCPROS topics, TCPROS services and IXM control.
 
 Bytes go in with ``feed()``; ``maybe_next_frame()`` returns one complete frame body or None while
 incomplete. ``feed_frames()`` is the batch form (one call per socket read). For
@@ -9,6 +9,10 @@ becomes the decoded message's storage (see ``mrosd.msg.runtime.FrameBuffer`` for
 That buffer grows with the bytes that actually arrive, never with the announced length, and the length is
 checked against the decoder's limit before anything is buffered: a 4 GB claim is refused at once, and a
 1 GiB claim followed by 5 bytes costs kilobytes. No sockets, no asyncio.
+
+Service responses put one ok byte (1 = success) before each frame: a decoder made with ``ok_byte=True``
+reads them with ``feed_responses()``, and ``encode_frame(body, ok=...)`` writes them. The IXM control
+protocol (``mrosd.ixm.protocol``) uses the same decoder with its own limits.
 """
 
 from __future__ import annotations
@@ -19,13 +23,26 @@ import sys
 from mrosd.errors import RemoteProtocolError
 from mrosd.msg.runtime import FrameBuffer
 
-__all__ = ["GROWTH", "LARGE_FRAME", "MAX_FRAME_SIZE", "FrameBuffer", "FrameDecoder", "encode_frame"]
+__all__ = [
+    "GROWTH",
+    "LARGE_FRAME",
+    "MAX_FRAME_SIZE",
+    "FrameBuffer",
+    "FrameDecoder",
+    "Response",
+    "encode_frame",
+    "frame_prefix",
+]
 
 #: Largest message frame accepted. roscpp refuses messages over 1 GB as well ("a message of over a
 #: gigabyte was predicted"); an 8 MB image or a large point cloud is far below it.
 MAX_FRAME_SIZE = 1024 * 1024 * 1024
 
 _U32 = struct.Struct("<I")
+_OK_U32 = struct.Struct("<BI")
+
+#: A service response as ``feed_responses()`` returns it: (the ok byte was 1, the frame body).
+Response = tuple[bool, bytes | bytearray]
 
 #: Frames above this size that span socket reads get a buffer of their own size (one copy, no regrowth);
 #: below it, joining a straddling tail costs less than a separate allocation.
@@ -44,9 +61,17 @@ RECV_BUFFER_SIZE = 64 * 1024
 _COMPACT_AT = 64 * 1024
 
 
-def encode_frame(body: bytes | bytearray | memoryview) -> bytes:
-    """Prefix a serialized body with its 4-byte little-endian length (one copy of the body)."""
-    return _U32.pack(len(body)) + bytes(body)
+def frame_prefix(size: int, *, ok: bool | None = None) -> bytes:
+    """What goes on the wire before a body of ``size`` bytes: its 4-byte little-endian length, after the ok
+    byte of a service response when ``ok`` is given. For vectored writes (prefix, then the body's pieces)."""
+    if ok is None:
+        return _U32.pack(size)
+    return _OK_U32.pack(1 if ok else 0, size)
+
+
+def encode_frame(body: bytes | bytearray | memoryview, *, ok: bool | None = None) -> bytes:
+    """``frame_prefix(len(body), ok=ok)`` and the body in one bytes (one copy of the body)."""
+    return frame_prefix(len(body), ok=ok) + bytes(body)
 
 
 def _grown(buf: FrameBuffer, filled: int, size: int) -> FrameBuffer:
@@ -72,9 +97,28 @@ class FrameDecoder:
     peer announced: a peer that claims 1 GiB and sends 5 bytes costs about LARGE_FRAME.
     """
 
-    __slots__ = ("_buf", "_large", "_large_filled", "_large_size", "_pos", "_recv", "_spare", "_then_max", "max_size")
+    __slots__ = (
+        "_buf",
+        "_large",
+        "_large_filled",
+        "_large_ok",
+        "_large_size",
+        "_pos",
+        "_recv",
+        "_spare",
+        "_then_max",
+        "max_size",
+        "ok_byte",
+    )
 
-    def __init__(self, max_size: int = MAX_FRAME_SIZE, *, header_max_size: int | None = None) -> None:
+    def __init__(
+        self, max_size: int = MAX_FRAME_SIZE, *, header_max_size: int | None = None, ok_byte: bool = False
+    ) -> None:
+        #: Every frame after the connection header (every frame without ``header_max_size``) follows an ok
+        #: byte, as service responses do: read them with ``feed_responses()``, not the frame methods (which
+        #: do not check it on the data path; ``maybe_next_frame`` refuses).
+        self.ok_byte = ok_byte
+        self._large_ok = True
         self._buf = bytearray()
         self._pos = 0
         self._large: FrameBuffer | None = None
@@ -146,24 +190,15 @@ class FrameDecoder:
         """
         frames: list[bytes | bytearray] = []
         view = memoryview(data)
-        large = self._large
-        if large is not None:
-            filled = self._large_filled
-            take = min(self._large_size - filled, len(view))
-            if filled + take > len(large):
-                large = self._large = _grown(large, filled, max(filled + take, self._capacity_for(filled + take)))
-            large[filled : filled + take] = view[:take]
-            self._large_filled = filled = filled + take
-            if filled < self._large_size:
+        if self._large is not None:
+            take = self._fill_large(view)
+            if self._large_filled < self._large_size:
                 return frames
             frames.append(self._finish_large())
             self._first_out()
             view = view[take:]
         if len(self._buf) != self._pos:
-            # A short tail (a length prefix or a small frame) straddled the previous read: join it.
-            view = memoryview(bytes(self._buf[self._pos :]) + bytes(view))
-            self._buf.clear()
-            self._pos = 0
+            view = self._join_tail(view)
         size = len(view)
         pos = 0
         unpack = _U32.unpack_from
@@ -184,6 +219,75 @@ class FrameDecoder:
         if pos < size:
             self._buf += view[pos:]
         return frames
+
+    def feed_responses(self, data: bytes | bytearray | memoryview) -> list[Response]:
+        """``feed_frames`` for a decoder made with ``ok_byte=True``: every complete (ok, body), ok being
+        whether the frame's ok byte was 1. The connection header, which has no ok byte, comes out as ok.
+
+        Same limits, large-frame handling and errors as ``feed_frames``; the length after an ok byte is
+        judged before anything of the frame is kept.
+
+        Raises:
+            RemoteProtocolError: a length prefix exceeds ``max_size``; the connection must be closed.
+            RuntimeError: the decoder was not made with ``ok_byte=True``.
+        """
+        if not self.ok_byte:
+            raise RuntimeError("feed_responses() needs a FrameDecoder(ok_byte=True)")
+        out: list[Response] = []
+        view = memoryview(data)
+        if self._large is not None:
+            take = self._fill_large(view)
+            if self._large_filled < self._large_size:
+                return out
+            out.append((self._large_ok, self._finish_large()))
+            self._first_out()
+            view = view[take:]
+        if len(self._buf) != self._pos:
+            view = self._join_tail(view)
+        size = len(view)
+        pos = 0
+        unpack = _U32.unpack_from
+        while True:
+            skip = 0 if self._then_max is not None else 1  # the header has no ok byte
+            start = pos + skip + 4
+            if start > size:
+                break
+            (length,) = unpack(view, start - 4)
+            if length > self.max_size:
+                raise RemoteProtocolError(f"frame of {length} bytes announced, the limit is {self.max_size}")
+            ok = view[pos] == 1 if skip else True
+            end = start + length
+            if end > size:
+                if length > LARGE_FRAME:
+                    self._large_ok = ok
+                    self._start_large(length, view[start:size])
+                    return out
+                break
+            out.append((ok, bytes(view[start:end])))
+            pos = end
+            self._first_out()
+        if pos < size:
+            self._buf += view[pos:]
+        return out
+
+    def _fill_large(self, view: memoryview) -> int:
+        """Copy the pending large frame's next bytes from the front of ``view``; return how many."""
+        large = self._large
+        assert large is not None
+        filled = self._large_filled
+        take = min(self._large_size - filled, len(view))
+        if filled + take > len(large):
+            large = self._large = _grown(large, filled, max(filled + take, self._capacity_for(filled + take)))
+        large[filled : filled + take] = view[:take]
+        self._large_filled = filled + take
+        return take
+
+    def _join_tail(self, view: memoryview) -> memoryview:
+        """A short tail (a length prefix or a small frame) straddled the previous read: join it to ``view``."""
+        joined = memoryview(bytes(self._buf[self._pos :]) + bytes(view))
+        self._buf.clear()
+        self._pos = 0
+        return joined
 
     # --- receiving in place (asyncio.BufferedProtocol) -------------------------------------------------
 
@@ -232,20 +336,15 @@ class FrameDecoder:
             raise RuntimeError("buffer_updated() without get_buffer()")
         return self.feed_frames(memoryview(self._recv)[:nbytes])
 
-    def take(self, count: int) -> bytes | None:
-        """Return exactly ``count`` raw bytes (e.g. a service ok byte), or None while fewer are buffered."""
-        if len(self._buf) - self._pos < count:
-            return None
-        out = bytes(self._buf[self._pos : self._pos + count])
-        self._advance(count)
-        return out
-
     def maybe_next_frame(self) -> bytes | None:
         """The next complete frame body, or None while incomplete.
 
         Raises:
             RemoteProtocolError: the length prefix exceeds ``max_size``; the connection must be closed.
+            RuntimeError: the decoder reads service responses (``ok_byte=True``): use ``feed_responses``.
         """
+        if self.ok_byte:
+            raise RuntimeError("a FrameDecoder(ok_byte=True) is read with feed_responses()")
         buf = self._buf
         pos = self._pos
         avail = len(buf) - pos
@@ -262,6 +361,9 @@ class FrameDecoder:
         self._advance(4 + length)
         self._first_out()
         return body
+
+    #: Transitional name used by ``mrosd/shm/endpoint.py``; remove once it calls ``maybe_next_frame``.
+    maybe_next = maybe_next_frame
 
     def _first_out(self) -> None:
         """A frame was returned: from now on ``max_size`` is the message limit (the header is done)."""

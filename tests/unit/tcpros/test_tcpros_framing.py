@@ -12,7 +12,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mrosd.errors import RemoteProtocolError
-from mrosd.tcpros.framing import GROWTH, LARGE_FRAME, MAX_FRAME_SIZE, FrameBuffer, FrameDecoder, encode_frame
+from mrosd.tcpros.framing import (
+    GROWTH,
+    LARGE_FRAME,
+    MAX_FRAME_SIZE,
+    FrameBuffer,
+    FrameDecoder,
+    Response,
+    encode_frame,
+    frame_prefix,
+)
 
 
 def pieces(stream: bytes, cuts: list[int]) -> Iterator[bytes]:
@@ -63,14 +72,6 @@ def test_the_limit_is_per_decoder() -> None:
     with pytest.raises(RemoteProtocolError):
         dec.maybe_next_frame()
     assert MAX_FRAME_SIZE == 1 << 30
-
-
-def test_take_reads_raw_bytes_between_frames() -> None:
-    dec = FrameDecoder()
-    dec.feed(b"\x01" + encode_frame(b"ok"))
-    assert dec.take(1) == b"\x01"
-    assert dec.maybe_next_frame() == b"ok"
-    assert dec.take(1) is None
 
 
 def test_many_frames_survive_buffer_compaction() -> None:
@@ -302,3 +303,98 @@ def test_the_first_frame_has_the_header_limit_and_later_ones_the_message_limit(c
     strict = FrameDecoder(max_size=1000, header_max_size=10)
     with pytest.raises(RemoteProtocolError, match="300 bytes announced, the limit is 10"):
         strict.feed_frames(stream)
+
+
+# --- service responses: an ok byte before each frame after the header -----------------------------------
+
+
+def test_a_service_response_is_an_ok_byte_then_a_frame() -> None:
+    assert encode_frame(b"hi", ok=True) == b"\x01\x02\x00\x00\x00hi"
+    assert encode_frame(b"no", ok=False) == b"\x00\x02\x00\x00\x00no"
+    assert frame_prefix(7) == struct.pack("<I", 7) and frame_prefix(7, ok=True) == b"\x01" + struct.pack("<I", 7)
+
+
+def _response_stream(header: bytes, answers: list[tuple[int, bytes]]) -> bytes:
+    return encode_frame(header) + b"".join(bytes([flag]) + encode_frame(body) for flag, body in answers)
+
+
+def _feed_responses(dec: FrameDecoder, stream: bytes, cuts: list[int]) -> list[Response]:
+    out: list[Response] = []
+    for piece in pieces(stream, cuts):
+        out.extend(dec.feed_responses(piece))
+    return out
+
+
+_answers = st.lists(
+    st.tuples(
+        st.integers(0, 255),
+        st.one_of(st.binary(max_size=40), st.integers(LARGE_FRAME + 1, LARGE_FRAME + 3000).map(lambda n: b"L" * n)),
+    ),
+    max_size=5,
+)
+
+
+@settings(deadline=None, max_examples=80)
+@given(st.binary(max_size=60), _answers, st.lists(st.integers(1, 70_000), min_size=1, max_size=6))
+def test_any_cut_of_a_service_stream_yields_the_same_header_responses_and_ok_flags(
+    header: bytes, answers: list[tuple[int, bytes]], cuts: list[int]
+) -> None:
+    dec = FrameDecoder(header_max_size=100, ok_byte=True)
+    got = _feed_responses(dec, _response_stream(header, answers), cuts)
+    # the header has no ok byte and comes out as ok; a response is ok exactly when its byte is 1
+    assert got == [(True, header)] + [(flag == 1, body) for flag, body in answers]
+    assert dec.buffered == 0
+
+
+@settings(deadline=None, max_examples=50)
+@given(st.lists(st.tuples(st.booleans(), st.binary(max_size=30)), max_size=6), st.lists(st.integers(1, 9), min_size=1))
+def test_without_a_header_limit_every_frame_has_an_ok_byte(answers: list[tuple[bool, bytes]], cuts: list[int]) -> None:
+    stream = b"".join(encode_frame(body, ok=ok) for ok, body in answers)
+    assert _feed_responses(FrameDecoder(ok_byte=True), stream, cuts) == answers
+
+
+@settings(deadline=None, max_examples=50)
+@given(st.integers(11, 2**32 - 1), st.integers(0, 255), st.lists(st.integers(1, 6), min_size=1))
+def test_a_lying_response_length_is_refused_before_its_body_is_kept(claim: int, flag: int, cuts: list[int]) -> None:
+    dec = FrameDecoder(max_size=10, header_max_size=100, ok_byte=True)
+    stream = encode_frame(b"h" * 50) + bytes([flag]) + struct.pack("<I", claim)
+    got: list[Response] = []
+    with pytest.raises(RemoteProtocolError, match=f"{claim} bytes announced, the limit is 10"):
+        for piece in pieces(stream, cuts):
+            got.extend(dec.feed_responses(piece))
+    assert got == [(True, b"h" * 50)][: len(got)]
+    assert dec.buffered <= 4  # at most the length prefix's first bytes: nothing of the frame was kept
+
+
+def test_a_response_claiming_a_gigabyte_costs_what_arrived() -> None:
+    dec = FrameDecoder(ok_byte=True)
+    claim = b"\x01" + struct.pack("<I", MAX_FRAME_SIZE) + b"12345"
+    chunk = b"x" * (1024 * 1024)
+    tracemalloc.start()
+    try:
+        assert dec.feed_responses(claim) == []
+        assert tracemalloc.get_traced_memory()[1] < 4 * LARGE_FRAME
+        assert dec.feed_responses(chunk) == []
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert dec.buffered == 5 + 1024 * 1024
+    assert peak < 2 * GROWTH * 1024 * 1024
+
+
+def test_a_large_response_keeps_its_ok_flag_and_arrives_as_one_buffer() -> None:
+    body = bytes(range(256)) * 1000
+    dec = FrameDecoder(ok_byte=True)
+    stream = encode_frame(body, ok=False) + encode_frame(b"after", ok=True)
+    got = _feed_responses(dec, stream, [1000])
+    assert got == [(False, body), (True, b"after")]
+    assert isinstance(got[0][1], FrameBuffer)
+
+
+def test_the_ok_byte_mode_and_the_frame_methods_are_not_mixed() -> None:
+    with pytest.raises(RuntimeError, match="ok_byte=True"):
+        FrameDecoder().feed_responses(encode_frame(b"x", ok=True))
+    dec = FrameDecoder(ok_byte=True)
+    dec.feed(encode_frame(b"x", ok=True))
+    with pytest.raises(RuntimeError, match="feed_responses"):
+        dec.maybe_next_frame()
