@@ -16,7 +16,7 @@ from collections import deque
 from collections.abc import Sequence
 
 from mrosd.errors import RemoteProtocolError
-from mrosd.ixm.protocol import FrameDecoder
+from mrosd.tcpros.framing import FrameDecoder
 
 __all__ = ["MAX_FDS_PER_MESSAGE", "MAX_PENDING_FDS", "FdReader", "recv_with_fds", "send_frame"]
 
@@ -72,6 +72,14 @@ class FdReader:
             return False
         self.decoder.feed(data)
         return True
+
+    def next_frame(self) -> bytes | None:
+        """The next complete frame body, or None while incomplete.
+
+        Raises:
+            RemoteProtocolError: the frame announces more than the connection's limit.
+        """
+        return self.decoder.maybe_next_frame()
 
     def take_fds(self, n: int) -> list[int]:
         """The next ``n`` received fds (the caller owns them now).

@@ -23,7 +23,6 @@ from mrosd.ixm.keys import KeyState, Pushes
 from mrosd.ixm.protocol import (
     MAX_REPLY_SIZE,
     Error,
-    FrameDecoder,
     Open,
     Opened,
     Reply,
@@ -32,6 +31,7 @@ from mrosd.ixm.protocol import (
     decode_reply,
     encode,
 )
+from mrosd.tcpros.framing import FrameDecoder
 
 __all__ = ["TRUSTED_UIDS_ENV", "ClientConnection", "check_daemon", "error_from", "trusted_uids"]
 
@@ -126,7 +126,7 @@ class ClientConnection:
             RemoteProtocolError: a malformed frame, or a reply that announces descriptors that never came.
         """
         while True:
-            body = self._decoder.maybe_next()
+            body = self._decoder.maybe_next_frame()
             if body is None:
                 return None
             reply = decode_reply(body)

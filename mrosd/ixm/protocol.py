@@ -1,7 +1,8 @@
 """The control protocol between IXM clients and the daemon: tagged msgpack Structs in length-prefixed frames.
 
-This module owns the message types and the pure framing (``encode``, ``FrameDecoder.feed`` /
-``maybe_next``) in the style of msgspec's asyncio key-value example; it has no socket. File descriptors
+This module owns the message types and their encoding (``encode``, ``decode_request``, ``decode_reply``) in
+the style of msgspec's asyncio key-value example; it has no socket. Frames are TCPROS frames, cut by the one
+``FrameDecoder`` of ``mrosd.tcpros.framing`` with the limits below. File descriptors
 travel beside the bytes (SCM_RIGHTS): a message states how many it carries (``Open.wake``: one eventfd;
 ``Opened``: one segment fd; ``WakeList.count``) and the receiver takes them, in order, from the fds that
 arrived with the stream. Data never flows through this protocol: it is only for opening, closing and
@@ -15,19 +16,18 @@ and process). A frame over the limit or a body that does not decode as a known m
 
 from __future__ import annotations
 
-import struct
 from typing import Literal
 
 import msgspec
 
 from mrosd.errors import RemoteProtocolError
+from mrosd.tcpros.framing import encode_frame
 
 __all__ = [
     "MAX_REPLY_SIZE",
     "MAX_REQUEST_SIZE",
     "Close",
     "Error",
-    "FrameDecoder",
     "Hello",
     "List",
     "Listing",
@@ -48,8 +48,6 @@ __all__ = [
 MAX_REQUEST_SIZE = 4096
 #: 16 MiB: a full listing of a busy daemon (thousands of keys and processes) fits easily.
 MAX_REPLY_SIZE = 16 << 20
-
-_LEN = struct.Struct("<I")
 
 
 class Hello(msgspec.Struct, tag_field="op", tag="hello", gc=False):
@@ -157,8 +155,7 @@ _reply_decoder = msgspec.msgpack.Decoder(Reply)
 
 def encode(message: Request | Reply) -> bytes:
     """One frame: 4-byte little-endian length, then the msgpack body."""
-    body = _encoder.encode(message)
-    return _LEN.pack(len(body)) + body
+    return encode_frame(_encoder.encode(message))
 
 
 def decode_request(body: bytes | memoryview) -> Request:
@@ -177,36 +174,3 @@ def decode_reply(body: bytes | memoryview) -> Reply:
     except (msgspec.DecodeError, UnicodeDecodeError) as exc:
         raise RemoteProtocolError(f"malformed IXM reply: {exc}") from exc
     return reply
-
-
-class FrameDecoder:
-    """Incremental length-prefixed framing: ``feed`` bytes, then ``maybe_next`` until it returns None."""
-
-    def __init__(self, max_size: int) -> None:
-        self.max_size = max_size
-        self._buf = bytearray()
-
-    def feed(self, data: bytes | memoryview) -> None:
-        self._buf += data
-
-    def maybe_next(self) -> bytes | None:
-        """The next complete frame body, or None while incomplete.
-
-        Raises:
-            RemoteProtocolError: the announced length exceeds ``max_size``.
-        """
-        buf = self._buf
-        if len(buf) < 4:
-            return None
-        (n,) = _LEN.unpack_from(buf, 0)
-        if n > self.max_size:
-            raise RemoteProtocolError(f"IXM frame of {n} bytes exceeds the {self.max_size}-byte limit")
-        if len(buf) < 4 + n:
-            return None
-        body = bytes(buf[4 : 4 + n])
-        del buf[: 4 + n]
-        return body
-
-    @property
-    def buffered(self) -> int:
-        return len(self._buf)

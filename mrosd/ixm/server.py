@@ -346,7 +346,7 @@ class IxmServer:
                 self._drop(client, "closed its connection", level=logging.DEBUG)
                 return
             while not client.closed:
-                body = client.reader.decoder.maybe_next()
+                body = client.reader.next_frame()
                 if body is None:
                     break
                 self._handle(client, decode_request(body))

@@ -205,6 +205,31 @@ def check_tcpros_frames(case: FrameCase) -> None:
     assert dec.buffered <= len(stream)
 
 
+def check_tcpros_responses(case: FrameCase) -> None:
+    """Service responses (an ok byte before each frame): however cut, the same (ok, body) pairs, then only
+    oversize claims refused. The ok bytes are taken from the bodies' first bytes so every value occurs."""
+    from mrosd.tcpros.framing import FrameDecoder, Response
+
+    flags = [b[0] if b else 1 for b in case.bodies]
+    stream = b"".join(bytes([f]) + _U32.pack(len(b)) + b for f, b in zip(flags, case.bodies, strict=True)) + case.junk
+    dec = FrameDecoder(case.limit, ok_byte=True)
+    got: list[Response] = []
+    cuts = sorted({c % (len(stream) + 1) for c in case.cuts} | {len(stream)})
+    start = 0
+    sent = [(f == 1, b) for f, b in zip(flags, case.bodies, strict=True)]
+    try:
+        for cut in cuts:
+            got.extend(dec.feed_responses(stream[start:cut]))
+            start = cut
+    except RemoteProtocolError:
+        too_big = [len(b) > case.limit for b in case.bodies]
+        assert any(too_big) or (len(case.junk) >= 5 and _U32.unpack_from(case.junk, 1)[0] > case.limit)
+        assert got == sent[: len(got)]
+        return
+    assert got[: len(sent)] == sent
+    assert dec.buffered <= len(stream)
+
+
 # --- .msg text and connection-header message_definitions (compiled into classes at run time) ---------------
 
 _MSG_TYPES = (
@@ -333,7 +358,8 @@ KNOWN_IXM_ESCAPES: tuple[type[BaseException], ...] = ()
 
 
 def check_ixm_request(body: bytes) -> None:
-    from mrosd.ixm.protocol import MAX_REQUEST_SIZE, FrameDecoder, decode_request, encode
+    from mrosd.ixm.protocol import MAX_REQUEST_SIZE, decode_request, encode
+    from mrosd.tcpros.framing import FrameDecoder
 
     try:
         request = decode_request(body)
@@ -345,7 +371,7 @@ def check_ixm_request(body: bytes) -> None:
     dec = FrameDecoder(MAX_REQUEST_SIZE)
     dec.feed(_U32.pack(len(body)) + body)
     try:
-        assert dec.maybe_next() == body
+        assert dec.maybe_next_frame() == body
     except RemoteProtocolError:
         assert len(body) > MAX_REQUEST_SIZE
 
@@ -580,9 +606,10 @@ TARGETS: dict[str, Target] = {
     "xmlrpc-response": Target(xmlrpc_bodies, check_xmlrpc_response, "mrosd.xmlrpc.decode_response"),
     "tcpros-header": Target(tcpros_headers, check_tcpros_header, "mrosd.tcpros.header.decode_header"),
     "tcpros-frames": Target(frame_cases, check_tcpros_frames, "mrosd.tcpros.framing.FrameDecoder"),
+    "tcpros-responses": Target(frame_cases, check_tcpros_responses, "FrameDecoder(ok_byte=True).feed_responses"),
     "msg-text": Target(msg_texts, check_msg_text, "mrosd.msg parser + load_type of message_definition"),
     "msg-body": Target(msg_bodies, check_msg_body, "generated deserializers of mrosd.msg classes"),
-    "ixm-request": Target(ixm_bodies, check_ixm_request, "mrosd.ixm.protocol.decode_request + FrameDecoder"),
+    "ixm-request": Target(ixm_bodies, check_ixm_request, "mrosd.ixm.protocol.decode_request + the TCPROS FrameDecoder"),
     "ixm-reply": Target(ixm_bodies, check_ixm_reply, "mrosd.ixm.protocol.decode_reply"),
     "pub-yaml": Target(pub_args, check_pub_args, "mros topic pub YAML args -> message"),
     "xmlrpc-fast-path": Target(

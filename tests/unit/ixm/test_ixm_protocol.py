@@ -1,4 +1,4 @@
-"""Control protocol: exact frames, incremental decoding, limits, malformed input."""
+"""Control protocol: exact frames, incremental decoding (the shared TCPROS decoder), limits, malformed input."""
 
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ from mrosd.errors import RemoteProtocolError
 from mrosd.ixm.protocol import (
     MAX_REQUEST_SIZE,
     Close,
-    FrameDecoder,
     Open,
     Opened,
     WakeList,
@@ -18,6 +17,7 @@ from mrosd.ixm.protocol import (
     decode_request,
     encode,
 )
+from mrosd.tcpros.framing import FrameDecoder
 
 
 def test_a_close_request_has_these_exact_bytes() -> None:
@@ -30,7 +30,7 @@ def test_requests_and_replies_round_trip_through_the_decoder_in_pieces() -> None
     got = []
     for i in range(len(frames)):
         dec.feed(frames[i : i + 1])
-        body = dec.maybe_next()
+        body = dec.maybe_next_frame()
         if body is not None:
             got.append(decode_request(body))
     assert got == [Open(key="/a", type="float64", mode="w"), Close("/a")]
@@ -42,8 +42,8 @@ def test_requests_and_replies_round_trip_through_the_decoder_in_pieces() -> None
 def test_a_frame_over_the_limit_is_refused_before_it_is_buffered() -> None:
     dec = FrameDecoder(MAX_REQUEST_SIZE)
     dec.feed((MAX_REQUEST_SIZE + 1).to_bytes(4, "little"))
-    with pytest.raises(RemoteProtocolError, match="exceeds"):
-        dec.maybe_next()
+    with pytest.raises(RemoteProtocolError, match="frame of 4097 bytes announced, the limit is 4096"):
+        dec.maybe_next_frame()
 
 
 @pytest.mark.parametrize(
@@ -59,7 +59,25 @@ def test_arbitrary_bytes_never_raise_anything_but_protocol_errors(data: bytes) -
     dec = FrameDecoder(64)
     dec.feed(data)
     try:
-        while (body := dec.maybe_next()) is not None:
+        while (body := dec.maybe_next_frame()) is not None:
             decode_request(body)
     except RemoteProtocolError:
         pass
+
+
+def test_the_daemon_and_the_client_cut_frames_with_the_one_tcpros_decoder() -> None:
+    import socket
+
+    from mrosd.ixm.channel import FdReader
+    from mrosd.ixm.connection import ClientConnection
+
+    a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+    with a, b:
+        reader = FdReader(a, MAX_REQUEST_SIZE)
+        assert type(reader.decoder) is FrameDecoder and reader.decoder.max_size == MAX_REQUEST_SIZE
+        b.sendall(encode(Close("/k")) + encode(Close("/j"))[:3])
+        assert reader.recv()
+        assert reader.next_frame() == encode(Close("/k"))[4:]
+        assert reader.next_frame() is None
+        reader.close()
+    assert type(ClientConnection()._decoder) is FrameDecoder
