@@ -12,8 +12,7 @@ import asyncio
 import collections
 import inspect
 import logging
-import struct
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from mrosd.errors import (
     HandshakeError,
@@ -24,7 +23,7 @@ from mrosd.errors import (
     ServiceError,
 )
 from mrosd.spin import loop_spinner
-from mrosd.tcpros.framing import MAX_FRAME_SIZE
+from mrosd.tcpros.framing import MAX_FRAME_SIZE, FrameDecoder, Response, encode_frame
 from mrosd.tcpros.handshake import check_service_reply, error_header, service_reply
 from mrosd.tcpros.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header, encode_header
 from mrosd.tcpros.protocol import TcprosProtocol
@@ -36,12 +35,13 @@ if TYPE_CHECKING:
     from mrosd.tcpros.owner import EndpointOwner
 
 log = logging.getLogger(__name__)
-_U32 = struct.Struct("<I")
 
 #: Requests a persistent client may pipeline before we stop reading from it (the bound of its queue).
 MAX_PENDING_REQUESTS = 64
 #: Time allowed for connecting and the handshake, and the default for a whole call.
 CONNECT_TIMEOUT = 10.0
+#: Bytes asked of the stream per read while a response is incomplete.
+_READ_SIZE = 256 * 1024
 
 
 def _srv_attrs(srv_class: Any) -> tuple[str, str, Any, Any]:
@@ -93,7 +93,7 @@ class ServiceProtocol(TcprosProtocol):
             ok, payload = await service._handle(body)
             if self.transport is None:
                 return
-            self.transport.write((b"\x01" if ok else b"\x00") + _U32.pack(len(payload)) + payload)
+            self.transport.write(encode_frame(payload, ok=ok))
             if not self.persistent:
                 self.close()
                 return
@@ -185,7 +185,7 @@ class ServiceProxy:
         self.node = node
         self.name = name
         self.persistent = persistent
-        self._conn: tuple[asyncio.StreamReader, asyncio.StreamWriter] | None = None
+        self._conn: _Connection | None = None
         self._lock = asyncio.Lock()
 
     async def _lookup(self) -> tuple[str, int]:
@@ -196,9 +196,10 @@ class ServiceProxy:
         host, _, port = hostport.rpartition(":")
         return host.strip("[]"), int(port)
 
-    async def _connect(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
+    async def _connect(self) -> _Connection:
         host, port = await self._lookup()
         reader, writer = await asyncio.open_connection(host, port, limit=2**20)
+        conn = _Connection.over(reader, writer)
         try:
             sock = writer.get_extra_info("socket")
             if sock is not None:
@@ -210,12 +211,12 @@ class ServiceProxy:
                 persistent="1" if self.persistent else "0",
             )
             writer.write(encode_header(header))
-            reply = decode_connection_header(await _read_frame(reader, MAX_HEADER_SIZE))
-            check_service_reply(reply, service=self.name, md5sum=self.md5sum)
+            _, raw = await conn.receive()
+            check_service_reply(decode_connection_header(raw), service=self.name, md5sum=self.md5sum)
         except BaseException:
             writer.close()
             raise
-        return reader, writer
+        return conn
 
     async def wait_for_service(self, timeout: float = 10.0) -> None:
         """Wait until the master knows the service.
@@ -247,15 +248,13 @@ class ServiceProxy:
             try:
                 if conn is None:
                     conn = await self._connect()
-                reader, writer = conn
-                writer.write(_U32.pack(len(body)) + body)
+                conn.writer.write(encode_frame(body))
                 loop_spinner().poke()  # the answer is near: keep the loop polling for it
-                ok = await reader.readexactly(1)
-                payload = await _read_frame(reader, MAX_FRAME_SIZE)
+                ok, payload = await conn.receive()
             except HandshakeError:
                 self._drop(conn)
                 raise
-            except (OSError, asyncio.IncompleteReadError, RemoteProtocolError) as exc:
+            except (OSError, RemoteProtocolError) as exc:
                 self._drop(conn)
                 raise ServiceError(f"service {self.name}: connection failed: {exc}") from exc
             except MasterError as exc:
@@ -268,15 +267,15 @@ class ServiceProxy:
                 self._conn = conn
             else:
                 self._drop(conn)
-        if ok != b"\x01":
+        if not ok:
             raise ServiceError(f"service [{self.name}] responded with an error: {payload.decode(errors='replace')}")
         return self.response_class.deserialize(payload)
 
     __call__ = call
 
-    def _drop(self, conn: tuple[asyncio.StreamReader, asyncio.StreamWriter] | None) -> None:
+    def _drop(self, conn: _Connection | None) -> None:
         if conn is not None:
-            conn[1].close()
+            conn.writer.close()
         if conn is self._conn:
             self._conn = None
 
@@ -284,9 +283,9 @@ class ServiceProxy:
         """Close a persistent connection."""
         conn, self._conn = self._conn, None
         if conn is not None:
-            conn[1].close()
+            conn.writer.close()
             try:
-                await conn[1].wait_closed()
+                await conn.writer.wait_closed()
             except OSError:
                 pass
 
@@ -297,8 +296,30 @@ class ServiceProxy:
         await self.aclose()
 
 
-async def _read_frame(reader: asyncio.StreamReader, limit: int) -> bytes:
-    (length,) = _U32.unpack(await reader.readexactly(4))
-    if length > limit:
-        raise RemoteProtocolError(f"frame of {length} bytes announced, the limit is {limit}")
-    return await reader.readexactly(length)
+class _Connection(NamedTuple):
+    """A client's connection to a service: the stream, and the decoder of the server's header and responses."""
+
+    reader: asyncio.StreamReader
+    writer: asyncio.StreamWriter
+    decoder: FrameDecoder
+
+    @classmethod
+    def over(cls, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> _Connection:
+        return cls(reader, writer, FrameDecoder(MAX_FRAME_SIZE, header_max_size=MAX_HEADER_SIZE, ok_byte=True))
+
+    async def receive(self) -> Response:
+        """The server's next frame: its connection header first, then one (ok, body) per request.
+
+        Raises:
+            RemoteProtocolError: the server closed the connection, announced a frame over the limit, or sent
+                more than was asked for (a response nobody requested would answer the next call).
+        """
+        while True:
+            data = await self.reader.read(_READ_SIZE)
+            if not data:
+                raise RemoteProtocolError("the server closed the connection before answering")
+            got = self.decoder.feed_responses(data)
+            if got:
+                if len(got) > 1 or self.decoder.buffered:
+                    raise RemoteProtocolError("the server sent more than one answer to one request")
+                return got[0]
