@@ -17,13 +17,12 @@ import asyncio
 import collections
 import itertools
 import logging
-import struct
 from typing import TYPE_CHECKING, Any
 
 from mrosd.errors import HandshakeError, LocalProtocolError
 from mrosd.msg.runtime import is_immutable
 from mrosd.spin import loop_spinner
-from mrosd.tcpros.framing import LARGE_FRAME
+from mrosd.tcpros.framing import LARGE_FRAME, frame_prefix
 from mrosd.tcpros.handshake import error_header, publisher_reply
 from mrosd.tcpros.header import ConnectionHeader, encode_header
 from mrosd.tcpros.protocol import TcprosProtocol
@@ -33,7 +32,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-_U32 = struct.Struct("<I")
 #: A queued frame: the whole frame, or its pieces (length prefix, then the body's) for a large body that is
 #: never concatenated.
 Frame = bytes | tuple[bytes | bytearray | memoryview, ...]
@@ -221,7 +219,7 @@ class Publisher:
         self._poke()
         # A piece the caller could still change (a bytearray, a writable view) is copied once, as the join
         # in serialize() would: the transport may hold the pieces after this call returns.
-        frame = (_U32.pack(size), *(p if is_immutable(p) else bytes(p) for p in parts))
+        frame = (frame_prefix(size), *(p if is_immutable(p) else bytes(p) for p in parts))
         for link in self.links:
             link.send_parts(frame, size + 4)
 
@@ -235,7 +233,7 @@ class Publisher:
             raise LocalProtocolError(f"publisher of {self.topic} is closed")
         self.messages_published += 1
         self._poke()
-        prefix = _U32.pack(len(body))
+        prefix = frame_prefix(len(body))
         if len(body) > LARGE_FRAME and not self.latch:
             # Large bodies are not concatenated with their prefix: both go to the socket in one vectored write.
             for link in self.links:

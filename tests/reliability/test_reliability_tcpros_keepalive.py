@@ -53,7 +53,7 @@ async def test_topic_and_service_sockets_have_keepalive_on_both_ends(rosmaster: 
         try:
             assert (await proxy.call(Trigger._request_class())).success
             assert proxy._conn is not None
-            assert keepalive(proxy._conn[1].transport) == EXPECTED  # service client
+            assert keepalive(proxy._conn.writer.transport) == EXPECTED  # service client
             (server_side,) = srv.connections
             assert keepalive(server_side.transport) == EXPECTED  # accepted by the service's node
         finally:
