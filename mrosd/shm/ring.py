@@ -1,0 +1,286 @@
+"""The bytes of one shared-memory topic ring: a header, then N slots each under its own seqlock (pure).
+
+One publisher serializes each message once into the next slot; every same-host subscriber reads it from
+there. This module knows nothing of file descriptors or sockets, so that it can be tested on a
+``bytearray``. Layout (the host's byte order; a ring never leaves its host; 64-byte aligned)::
+
+    header (64 bytes)
+    0   4s  magic b"MSHM"
+    4   H   layout version (1)
+    6   H   reserved
+    8   I   slots N
+    12  I   reserved
+    16  Q   capacity of one slot's data, bytes
+    24  Q   head: number of the last completed message (messages are numbered from 1; 0 = none yet)
+    32  Q   retired: 1 once the publisher moved to a bigger ring (its messages up to ``head`` stay final)
+    slot i at 64 + i * stride, stride = 64 + capacity rounded up to 64:
+    0   Q   seq: 2m - 1 while message m is being written into the slot, 2m once it is complete
+    8   Q   length of message m
+    64  ... data (``capacity`` bytes)
+
+Message ``m`` lives in slot ``(m - 1) % N``. The writer of message ``m`` stores ``seq = 2m - 1`` (readers of
+the older message in that slot now know it is going), copies, stores the length, stores ``seq = 2m``, then
+``head = m``. A reader that wants message ``m`` checks ``seq == 2m`` before and after its copy: anything else
+after means the slot was overwritten meanwhile (the reader was lapped) and the copy is discarded and counted
+as a drop. A reader more than N messages behind jumps to the oldest message still in the ring and counts
+what it skipped: drop-oldest, with memory bounded by the ring, and the writer never waits for anyone.
+Every word is read and written as one aligned 8-byte ``memoryview.cast('Q')`` item (atomic on x86-64 and
+arm64, stores kept in order by x86-64's memory model), as ``mrosd.ixm.layout`` does.
+
+A reader maps the ring read-only and trusts none of it: a ``length`` above the capacity, a ``head`` that
+goes backwards or a slot that claims to be older than ``head`` says is a ``RemoteProtocolError``, never an
+out-of-bounds read or an allocation beyond one slot.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterable
+
+from mrosd.errors import LocalProtocolError, RemoteProtocolError
+
+__all__ = [
+    "HEADER_SIZE",
+    "LAYOUT_VERSION",
+    "MAGIC",
+    "MAX_SLOTS",
+    "SLOT_HEADER",
+    "RingCursor",
+    "RingLayout",
+    "ring_size",
+    "slot_stride",
+]
+
+MAGIC = b"MSHM"
+LAYOUT_VERSION = 1
+HEADER_SIZE = 64
+SLOT_HEADER = 64
+#: More slots than this is refused (a subscriber's drop-oldest queue is at most this long).
+MAX_SLOTS = 4096
+
+_HEAD = struct.Struct("=4sHHIIQQQ24x")
+assert _HEAD.size == HEADER_SIZE
+_HEAD_OFF = 24
+_RETIRED_OFF = 32
+
+
+def slot_stride(capacity: int) -> int:
+    """Bytes between two slots: the slot header and the data, rounded up to a cache line."""
+    return SLOT_HEADER + (capacity + 63) // 64 * 64
+
+
+def ring_size(slots: int, capacity: int) -> int:
+    """Bytes a ring of ``slots`` slots of ``capacity`` bytes needs."""
+    return HEADER_SIZE + slots * slot_stride(capacity)
+
+
+class RingLayout:
+    """A view of one ring: header words, per-slot seqlock words and data views.
+
+    ``buf`` may be a read-only mapping (subscribers); the write methods then fail in memoryview itself.
+    """
+
+    __slots__ = ("_head", "_retired", "buf", "capacity", "data", "slots", "words")
+
+    def __init__(self, buf: memoryview) -> None:
+        if len(buf) < HEADER_SIZE:
+            raise RemoteProtocolError(f"shared-memory ring of {len(buf)} bytes is smaller than its header")
+        magic, version, _r, slots, _r2, capacity, _head, _retired = _HEAD.unpack_from(buf, 0)
+        if magic != MAGIC or version != LAYOUT_VERSION:
+            raise RemoteProtocolError(f"not an mrosd shared-memory ring v{LAYOUT_VERSION} ({magic!r}, v{version})")
+        if not 1 <= slots <= MAX_SLOTS:
+            raise RemoteProtocolError(f"shared-memory ring claims {slots} slots (1..{MAX_SLOTS} allowed)")
+        if ring_size(slots, capacity) > len(buf):
+            raise RemoteProtocolError(
+                f"shared-memory ring claims {slots} slots of {capacity} bytes but the mapping has {len(buf)}"
+            )
+        self.buf = buf
+        self.slots: int = slots
+        self.capacity: int = capacity
+        self._head = buf[_HEAD_OFF : _HEAD_OFF + 8].cast("Q")
+        self._retired = buf[_RETIRED_OFF : _RETIRED_OFF + 8].cast("Q")
+        stride = slot_stride(capacity)
+        #: per slot: [seq, length] as native 8-byte words
+        self.words = [buf[HEADER_SIZE + i * stride : HEADER_SIZE + i * stride + 16].cast("Q") for i in range(slots)]
+        self.data = [
+            buf[HEADER_SIZE + i * stride + SLOT_HEADER : HEADER_SIZE + i * stride + SLOT_HEADER + capacity]
+            for i in range(slots)
+        ]
+
+    @staticmethod
+    def header(slots: int, capacity: int, head: int = 0) -> bytes:
+        """A fresh header whose first message will be ``head + 1`` (a replacement ring continues the count)."""
+        return _HEAD.pack(MAGIC, LAYOUT_VERSION, 0, slots, 0, capacity, head, 0)
+
+    @classmethod
+    def initialize(cls, buf: memoryview, slots: int, capacity: int, head: int = 0) -> RingLayout:
+        """Write a fresh header into ``buf`` (zeroed slots) and view it."""
+        if not 1 <= slots <= MAX_SLOTS:
+            raise LocalProtocolError(f"a ring has 1..{MAX_SLOTS} slots, not {slots}")
+        if ring_size(slots, capacity) > len(buf):
+            raise LocalProtocolError(f"buffer of {len(buf)} bytes cannot hold {slots} slots of {capacity} bytes")
+        buf[:HEADER_SIZE] = cls.header(slots, capacity, head)
+        return cls(buf)
+
+    def release(self) -> None:
+        """Release every view so that the mapping can be closed."""
+        for view in (*self.words, *self.data, self._head, self._retired):
+            view.release()
+        self.buf.release()
+
+    @property
+    def head(self) -> int:
+        """Number of the last completed message (0 before the first)."""
+        return int(self._head[0])
+
+    @property
+    def retired(self) -> bool:
+        return bool(self._retired[0])
+
+    def retire(self) -> None:
+        """Mark the ring final: the publisher continues in a bigger one it announces over the socket."""
+        self._retired[0] = 1
+
+    # writing (the publisher: one writer per ring) ----------------------------------------------------------
+
+    def begin(self) -> tuple[int, memoryview]:
+        """Start message ``head + 1``: mark its slot in progress; returns its number and the slot's data view."""
+        m = int(self._head[0]) + 1
+        slot = (m - 1) % self.slots
+        self.words[slot][0] = 2 * m - 1
+        return m, self.data[slot]
+
+    def commit(self, m: int, length: int) -> None:
+        """Publish message ``m`` of ``length`` bytes: length, then seq, then head (in this order)."""
+        slot = (m - 1) % self.slots
+        words = self.words[slot]
+        words[1] = length
+        words[0] = 2 * m
+        self._head[0] = m
+
+    def write(self, data: bytes | bytearray | memoryview) -> int:
+        """Copy one serialized message into the next slot and publish it; returns its number."""
+        n = len(data)
+        if n > self.capacity:
+            raise LocalProtocolError(f"message of {n} bytes does not fit the ring's {self.capacity}-byte slots")
+        m, view = self.begin()
+        view[:n] = data
+        self.commit(m, n)
+        return m
+
+    def write_parts(self, parts: Iterable[bytes | bytearray | memoryview], size: int) -> int:
+        """``write(b"".join(parts))`` (``size`` bytes in all) without building the concatenation."""
+        if size > self.capacity:
+            raise LocalProtocolError(f"message of {size} bytes does not fit the ring's {self.capacity}-byte slots")
+        m, view = self.begin()
+        at = 0
+        for part in parts:
+            end = at + len(part)
+            if end > size:
+                raise LocalProtocolError("message parts are longer than their announced size")
+            view[at:end] = part
+            at = end
+        self.commit(m, at)
+        return m
+
+
+class RingCursor:
+    """One subscriber's position in a ring: the next message it wants, and the messages it lost.
+
+    Reading message ``m`` is ``begin`` (is it there, how long), the copy, then ``finish`` (was it overwritten
+    meanwhile); ``read`` does the three. The halves exist so that tests can interleave a writer between them.
+    """
+
+    __slots__ = ("dropped", "next", "ring")
+
+    def __init__(self, ring: RingLayout, next_message: int) -> None:
+        self.ring = ring
+        #: number of the next message to read
+        self.next = next_message
+        #: messages lost: overwritten before they were read, or while they were being copied
+        self.dropped = 0
+
+    def available(self) -> bool:
+        """Is there a completed message this cursor has not read yet?"""
+        return self.ring.head >= self.next
+
+    def begin(self) -> tuple[int, int] | None:
+        """The next readable message as (number, length) without copying; None when there is none yet.
+
+        Skips (and counts) messages already overwritten.
+
+        Raises:
+            RemoteProtocolError: the ring's words contradict each other (a publisher that lies).
+        """
+        ring = self.ring
+        slots = ring.slots
+        while True:
+            head = ring.head
+            nxt = self.next
+            if head < nxt:
+                if nxt - head > 1 and nxt > 1:
+                    raise RemoteProtocolError(f"the ring's head went back from {nxt - 1} to {head}")
+                return None
+            oldest = head - slots + 1
+            if nxt < oldest:
+                self.dropped += oldest - nxt
+                self.next = nxt = oldest
+            slot = (nxt - 1) % slots
+            words = ring.words[slot]
+            want = 2 * nxt
+            seq = words[0]
+            if seq != want:
+                if seq > want:  # already being overwritten by a newer message: lost
+                    self.dropped += 1
+                    self.next = nxt + 1
+                    continue
+                raise RemoteProtocolError(f"ring slot {slot} holds sequence {seq} but the head says {head}")
+            n = words[1]
+            if n > ring.capacity:
+                raise RemoteProtocolError(
+                    f"ring slot {slot} claims a {n}-byte message but slots hold {ring.capacity} bytes"
+                )
+            return nxt, int(n)
+
+    def finish(self, m: int) -> bool:
+        """After copying message ``m``: True if the copy is consistent (the cursor moves on either way)."""
+        ring = self.ring
+        ok = ring.words[(m - 1) % ring.slots][0] == 2 * m
+        if not ok:
+            self.dropped += 1
+        if self.next == m:
+            self.next = m + 1
+        return ok
+
+    def read(self) -> bytes | None:
+        """The next message, copied out and consistent; None when no new one is complete.
+
+        Raises:
+            RemoteProtocolError: the ring's words contradict each other (a publisher that lies).
+        """
+        while True:
+            got = self.begin()
+            if got is None:
+                return None
+            m, n = got
+            data = bytes(self.ring.data[(m - 1) % self.ring.slots][:n])
+            if self.finish(m):
+                return data
+
+    def view(self) -> tuple[int, memoryview] | None:
+        """Zero-copy: the next message's number and a read-only view of its bytes in the slot, or None.
+
+        The view is consistent only while ``intact(m)`` holds: check it after using the bytes.
+        """
+        got = self.begin()
+        if got is None:
+            return None
+        m, n = got
+        if self.next == m:
+            self.next = m + 1
+        return m, self.ring.data[(m - 1) % self.ring.slots][:n].toreadonly()
+
+    def intact(self, m: int) -> bool:
+        """Message ``m`` is still in its slot (a view of it taken earlier shows its bytes, not a newer one's)."""
+        ring = self.ring
+        return bool(ring.words[(m - 1) % ring.slots][0] == 2 * m)
