@@ -1,0 +1,175 @@
+"""ShmPublisherEndpoint and ShmSubscriberConnection in one event loop: iteration, views, growth, refusals, ends."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable
+
+import pytest
+
+from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
+from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection, ShmView, parse_answer
+from mrosd.shm.negotiate import ShmAnswer
+from mrosd.tcpros.handshake import publisher_reply
+from mrosd.tcpros.header import ConnectionHeader
+
+HEADER = ConnectionHeader(callerid="/listener", topic="/chatter", md5sum="*", type="*")
+
+
+async def endpoint(**kw: object) -> ShmPublisherEndpoint:
+    ep = ShmPublisherEndpoint("/chatter", **kw)  # type: ignore[arg-type]
+    await ep.start()
+    return ep
+
+
+def answer(ep: ShmPublisherEndpoint) -> ShmAnswer:
+    got = parse_answer(ep.answer())
+    assert got is not None
+    return got
+
+
+async def until(cond: Callable[[], object], timeout: float = 5.0) -> None:
+    """Re-check ``cond`` at each turn of the loop (the other side runs in this loop too), bounded."""
+    async with asyncio.timeout(timeout):
+        while not cond():  # noqa: ASYNC110 - the state lives in another object's callbacks
+            await asyncio.sleep(0.005)
+
+
+async def test_iterating_subscriber_reads_copies_in_order_through_a_growing_ring() -> None:
+    ep = await endpoint(queue_size=10, initial_capacity=64)
+    conn = await ShmSubscriberConnection.attach(answer(ep), HEADER)
+    try:
+        await until(lambda: ep.links)
+        sent = [b"a" * 10, b"b" * 1000, b"c" * 5, b"d" * 100_000]
+        for body in sent:
+            ep.publish(body)
+        await asyncio.sleep(0.05)  # the replacement rings are announced before anything is read
+        got = [await anext(conn) for _ in sent]
+        assert got == sent and conn.dropped == 0
+        assert ep.rings_made == 3
+        assert ep.bus_info()[0][3] == "SHMROS"
+        assert ep.stats()[0]["messages"] == 4
+    finally:
+        await conn.aclose()
+        await ep.aclose()
+
+
+async def test_a_handshake_checks_md5_as_tcpros_does() -> None:
+    def handshake(h: ConnectionHeader) -> ConnectionHeader:
+        return publisher_reply(
+            h,
+            topic="/chatter",
+            msg_type="std_msgs/String",
+            md5sum="992ce8a1687cec8c8bd883ec73ca41d1",
+            message_definition="string data",
+            callerid="/talker",
+            latching=False,
+        )
+
+    ep = await endpoint(handshake=handshake)
+    try:
+        good = ConnectionHeader(
+            callerid="/l", topic="/chatter", md5sum="992ce8a1687cec8c8bd883ec73ca41d1", type="std_msgs/String"
+        )
+        conn = await ShmSubscriberConnection.attach(answer(ep), good)
+        assert conn.reply_header is not None and conn.reply_header.callerid == "/talker"
+        await conn.aclose()
+        bad = ConnectionHeader(callerid="/l", topic="/chatter", md5sum="0" * 32, type="std_msgs/Int32")
+        with pytest.raises(HandshakeError, match="md5sums do not match"):
+            await ShmSubscriberConnection.attach(answer(ep), bad)
+        assert not ep.links
+    finally:
+        await ep.aclose()
+
+
+async def test_a_wrong_token_is_refused() -> None:
+    ep = await endpoint()
+    try:
+        wrong = ShmAnswer(version=1, address=ep.address, token="0" * 32)
+        with pytest.raises(HandshakeError, match="wrong token"):
+            await ShmSubscriberConnection.attach(wrong, HEADER)
+    finally:
+        await ep.aclose()
+
+
+async def test_uids_are_checked_on_both_sides() -> None:
+    ep = await endpoint(trusted=frozenset())
+    try:
+        with pytest.raises(RemoteProtocolError, match="closed the connection"):
+            await ShmSubscriberConnection.attach(answer(ep), HEADER)
+    finally:
+        await ep.aclose()
+    ep = await endpoint()
+    try:
+        with pytest.raises(RemoteProtocolError, match="untrusted uid"):
+            await ShmSubscriberConnection.attach(answer(ep), HEADER, trusted=frozenset())
+    finally:
+        await ep.aclose()
+
+
+async def test_zero_copy_views_live_until_the_callback_returns() -> None:
+    ep = await endpoint(queue_size=2)
+    kept: list[ShmView] = []
+    seen: list[tuple[bytes, bool]] = []
+
+    def on_frame(view: ShmView) -> None:
+        seen.append((bytes(view.data), view.intact()))
+        kept.append(view)
+
+    conn = await ShmSubscriberConnection.attach(answer(ep), HEADER, on_frame=on_frame, zero_copy=True)
+    try:
+        await until(lambda: ep.links)
+        ep.publish(b"hello")
+        await until(lambda: seen)
+        assert seen == [(b"hello", True)]
+        with pytest.raises(ValueError):
+            bytes(kept[0].data)  # released when the callback returned
+        for _ in range(3):
+            ep.publish(b"x")
+        assert not kept[0].intact()  # its slot was reused
+        with pytest.raises(LocalProtocolError):
+            await anext(conn)
+    finally:
+        await conn.aclose()
+        await ep.aclose()
+
+
+async def test_the_end_of_either_side_is_seen_by_the_other() -> None:
+    ep = await endpoint()
+    changes: list[int] = []
+    ep.on_change = lambda: changes.append(len(ep.links))
+    conn = await ShmSubscriberConnection.attach(answer(ep), HEADER)
+    await until(lambda: changes == [1])
+    await conn.aclose()
+    await until(lambda: changes == [1, 0])
+    conn = await ShmSubscriberConnection.attach(answer(ep), HEADER)
+    await ep.aclose()
+    await asyncio.wait_for(asyncio.shield(conn.closed), 5)
+    assert conn.error == ""
+    with pytest.raises(StopAsyncIteration):
+        await anext(conn)
+
+
+async def test_nothing_is_allocated_for_a_topic_nobody_reads() -> None:
+    ep = await endpoint()
+    ep.publish(b"x" * 100_000)
+    assert ep.ring is None
+    await ep.aclose()
+    with pytest.raises(LocalProtocolError):
+        ep.publish(b"x")
+
+
+async def test_cancelling_a_waiter_of_closed_still_releases_everything_at_aclose() -> None:
+    ep = await endpoint()
+    conn = await ShmSubscriberConnection.attach(answer(ep), HEADER)
+
+    async def waiter() -> None:
+        await conn.closed  # awaited directly: cancelling this task cancels the future itself
+
+    task = asyncio.ensure_future(waiter())
+    await asyncio.sleep(0)
+    task.cancel()
+    await asyncio.gather(task, return_exceptions=True)
+    await conn.aclose()
+    assert conn._channel is None and conn._ring is None and not conn.connected
+    await ep.aclose()
