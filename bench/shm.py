@@ -1,0 +1,274 @@
+"""Shared-memory topic transport against plain TCPROS: 1 MB and 8 MB messages, one and four subscriber processes.
+
+For each size, subscriber count and transport, one publisher process sends ``count`` messages back to back
+(each a prebuilt body: serialization is the same for both transports and not measured) to 1 or 4 subscriber
+processes, with queues deep enough that nothing is dropped. Reported: per-subscriber throughput (the
+message bytes one subscriber received, over the time from the first publish to the last subscriber's last
+message, CLOCK_MONOTONIC being shared by all processes), and the publisher's CPU time per message
+(``process_time`` from the first publish until every subscriber is done, so TCPROS's deferred socket writes
+are counted). Shared memory: ``mrosd.shm`` endpoints (copy-out subscribers). TCPROS: ``mrosd.Node``
+publisher and ``AnyMsg`` subscribers through an mrosd master started for the run. Rounds interleave the
+transports; the median is printed.
+
+Usage: ``python -m bench.shm [--rounds 3] [--sizes 1,8] [--subs 1,4] [--transports shm,tcpros]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import select
+import socket
+import statistics
+import subprocess
+import sys
+import time
+from typing import Any
+
+COUNTS = {1: 30, 8: 10}  # messages per run, by size in MB
+TOPIC = "/bench_shm"
+
+
+# --- the publisher and subscriber processes --------------------------------------------------------------
+
+
+def _say(*parts: object) -> None:
+    print(*parts, flush=True)
+
+
+async def _stdin_line() -> bytes:
+    loop = asyncio.get_running_loop()
+    reader = asyncio.StreamReader()
+    await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
+    return await reader.readline()
+
+
+async def _pub(args: argparse.Namespace) -> None:
+    body = os.urandom(args.size)
+    subs = int(args.subs)
+    changed = asyncio.Event()
+    if args.transport == "shm":
+        from mrosd.shm import ShmPublisherEndpoint
+
+        ep = ShmPublisherEndpoint(TOPIC, queue_size=args.count, on_change=changed.set, max_ring_bytes=1 << 30)
+        await ep.start()
+        _say("addr", ep.address, ep.token)
+        while len(ep.links) < subs:
+            changed.clear()
+            await changed.wait()
+        ep.publish(body)  # warm-up: grows the ring once, outside the measurement
+        publish = ep.publish
+        closer: Any = ep.aclose
+    else:
+        from mrosd import Node
+        from mrosd.msg import get_message_class
+
+        node = Node("bench_pub", master_uri=args.master, argv=[], rosout=False, logger_services=False)
+        await node.start()
+        pub = await node.advertise(TOPIC, get_message_class("std_msgs/UInt8MultiArray"), queue_size=args.count + 1)
+        _say("ready")
+        await pub.wait_for_subscribers(subs, timeout=30)
+        pub.publish_serialized(body)
+        publish = pub.publish_serialized
+        closer = node.aclose
+    line = asyncio.ensure_future(_stdin_line())
+    _say("attached")
+    await asyncio.sleep(0.5)  # the warm-up message is taken by every subscriber
+    cpu0, t0 = time.process_time(), time.monotonic()
+    for _ in range(args.count):
+        publish(body)
+        await asyncio.sleep(0)
+    await line  # the bench says every subscriber is done
+    _say("pub", json.dumps({"t0": t0, "cpu": (time.process_time() - cpu0) / args.count}))
+    await closer()
+
+
+async def _sub(args: argparse.Namespace) -> None:
+    got = 0
+    last = 0.0
+    done = asyncio.Event()
+    total = args.count + 1  # the warm-up message, then the measured ones
+
+    def on_body(body: Any) -> None:
+        nonlocal got, last
+        got += 1
+        last = time.monotonic()
+        if got >= total:
+            done.set()
+
+    if args.transport == "shm":
+        from mrosd.shm import ShmSubscriberConnection, parse_answer
+        from mrosd.tcpros.header import ConnectionHeader
+
+        answer = parse_answer(["MROSSHM", 1, args.address, args.token])
+        assert answer is not None
+        header = ConnectionHeader(callerid=f"/bench_sub{os.getpid()}", topic=TOPIC, md5sum="*", type="*")
+        conn = await ShmSubscriberConnection.attach(answer, header, on_frame=on_body)
+        await asyncio.wait_for(done.wait(), 120)
+        dropped = conn.dropped
+        await conn.aclose()
+    else:
+        from mrosd import Node
+        from mrosd.tcpros.subscriber import AnyMsg
+
+        node = Node(f"bench_sub{os.getpid()}", master_uri=args.master, argv=[], rosout=False, logger_services=False)
+        await node.start()
+        await node.subscribe(TOPIC, AnyMsg, on_body, queue_size=args.count + 1)
+        await asyncio.wait_for(done.wait(), 120)
+        dropped = 0
+        await node.aclose()
+    _say("sub", json.dumps({"last": last, "got": got, "dropped": dropped}))
+
+
+# --- the coordinator -----------------------------------------------------------------------------------
+
+
+def _line(proc: subprocess.Popen[bytes], prefix: str, timeout: float = 120.0) -> str:
+    assert proc.stdout is not None
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([proc.stdout], [], [], deadline - time.monotonic())
+        if not ready:
+            break
+        line = proc.stdout.readline().decode()  # one line per select: our children print one at a time
+        if not line:
+            break
+        if line.startswith(prefix):
+            return line[len(prefix) :].strip()
+    raise RuntimeError(f"no {prefix!r} line from {proc.args!r}")
+
+
+def _spawn(*argv: str) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "bench.shm", *argv],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        start_new_session=True,
+    )
+
+
+def _one(transport: str, size_mb: int, subs: int, master: str) -> dict[str, float]:
+    count = COUNTS[size_mb]
+    common = ["--transport", transport, "--size", str(size_mb << 20), "--count", str(count), "--master", master]
+    procs: list[subprocess.Popen[bytes]] = []
+    try:
+        pub = _spawn("--role", "pub", "--subs", str(subs), *common)
+        procs.append(pub)
+        if transport == "shm":
+            address, token = _line(pub, "addr").split()
+            extra = ["--address", address, "--token", token]
+        else:
+            _line(pub, "ready")
+            extra = []
+        subs_p = [_spawn("--role", "sub", *common, *extra) for _ in range(subs)]
+        procs += subs_p
+        _line(pub, "attached")
+        results = [json.loads(_line(p, "sub")) for p in subs_p]
+        assert pub.stdin is not None
+        pub.stdin.write(b"done\n")
+        pub.stdin.flush()
+        info = json.loads(_line(pub, "pub"))
+        secs = max(r["last"] for r in results) - info["t0"]
+        return {
+            "MBps": count * (size_mb << 20) / 1e6 / secs,
+            "cpu_ms": info["cpu"] * 1e3,
+            "dropped": float(sum(r["dropped"] for r in results)),
+        }
+    finally:
+        for p in procs:
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _start_master() -> tuple[subprocess.Popen[bytes], str]:
+    port = _free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mrosd.master", "--host", "127.0.0.1", "--port", str(port)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            return proc, f"http://127.0.0.1:{port}/"
+        except OSError:
+            time.sleep(0.1)
+    proc.kill()
+    raise RuntimeError("the mrosd master did not start")
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.shm", description=__doc__.split("\n")[0])
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--sizes", default="1,8", help="message sizes in MB (1 and/or 8)")
+    parser.add_argument("--subs", default="1,4", help="subscriber counts")
+    parser.add_argument("--transports", default="shm,tcpros")
+    parser.add_argument("--role", choices=["pub", "sub"], help=argparse.SUPPRESS)
+    parser.add_argument("--transport", help=argparse.SUPPRESS)
+    parser.add_argument("--size", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--count", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--master", default="", help=argparse.SUPPRESS)
+    parser.add_argument("--address", help=argparse.SUPPRESS)
+    parser.add_argument("--token", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.role:
+        try:
+            import uvloop
+
+            uvloop.install()
+        except ImportError:
+            pass
+        asyncio.run(_pub(args) if args.role == "pub" else _sub(args))
+        return 0
+    sizes = [int(s) for s in args.sizes.split(",")]
+    counts = [int(s) for s in args.subs.split(",")]
+    transports = args.transports.split(",")
+    master, uri = _start_master()
+    runs: dict[tuple[int, int, str], list[dict[str, float]]] = {}
+    try:
+        for _ in range(args.rounds):
+            for size in sizes:
+                for subs in counts:
+                    for transport in transports:
+                        runs.setdefault((size, subs, transport), []).append(_one(transport, size, subs, uri))
+    finally:
+        master.terminate()
+        master.wait(10)
+    print(f"{'size':>5} {'subs':>4} {'transport':>9} {'MB/s per sub':>12} {'pub CPU/msg':>12} {'drops':>5}")
+    table: dict[tuple[int, int, str], dict[str, float]] = {}
+    for (size, subs, transport), results in sorted(runs.items()):
+        med = {k: statistics.median(r[k] for r in results) for k in results[0]}
+        table[(size, subs, transport)] = med
+        print(
+            f"{size:>4}M {subs:>4} {transport:>9} {med['MBps']:>12.0f} {med['cpu_ms']:>10.2f}ms {med['dropped']:>5.0f}"
+        )
+    for size in sizes:
+        for subs in counts:
+            shm, tcp = table.get((size, subs, "shm")), table.get((size, subs, "tcpros"))
+            if shm and tcp:
+                print(
+                    f"{size}M x{subs}: shared memory {shm['MBps'] / tcp['MBps']:.1f}x the TCPROS throughput, "
+                    f"publisher CPU/msg {shm['cpu_ms'] / tcp['cpu_ms']:.2f}x"
+                )
+        one, four = table.get((size, 1, "shm")), table.get((size, 4, "shm"))
+        if one and four:
+            ratio = four["cpu_ms"] / one["cpu_ms"]
+            print(f"{size}M shared memory: publisher CPU/msg with 4 subscribers = {ratio:.2f}x with 1")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
