@@ -4,6 +4,17 @@ Pure functions plus ``NodeNames``, the one place that reads ``__name:=``, ``__ns
 ``ROS_NAMESPACE``. Rules follow the ROS 1 wiki (Names): ``/a`` is global, ``a`` is relative to the node's
 namespace, ``~a`` is private to the node; remapping keys and values are resolved the same way, in the node's
 namespace, before they are compared with resolved names.
+
+Two rule sets live here, named apart:
+
+- **strict** (``is_valid_name``, ``resolve``, ``namespace_of``, ``NodeNames``): a node's own names; an
+  illegal name raises ``InvalidNameError``. ``script_resolve`` resolves a tool's command-line argument as
+  rostopic does (relative to ``ROS_NAMESPACE``; the argument may carry a field path, checked where used).
+- **lenient** (``lenient_resolve``, ``lenient_namespace_of``): rosgraph's resolution as rosmaster applies it
+  to the names callers send (no validation, a relative caller id lives in ``/``). Only the master uses them;
+  it checks characters itself, so its answers match rosmaster's.
+
+``canonicalize`` is shared by both.
 """
 
 from __future__ import annotations
@@ -29,13 +40,11 @@ def is_valid_name(name: str) -> bool:
 
 
 def canonicalize(name: str) -> str:
-    """Collapse repeated slashes and drop a trailing one (except for the root ``/``)."""
-    if not name or name == SEP:
-        return name
-    is_global = name.startswith(SEP)
-    parts = [p for p in name.split(SEP) if p]
-    out = SEP.join(parts)
-    return SEP + out if is_global else out
+    """Collapse repeated slashes and drop a trailing one (the root stays ``/``)."""
+    if not name or name == SEP or ("//" not in name and name[-1] != SEP):
+        return name  # already canonical: the common case, answered without splitting
+    parts = SEP.join(p for p in name.split(SEP) if p)
+    return SEP + parts if name[0] == SEP else parts
 
 
 def namespace_of(name: str) -> str:
@@ -73,6 +82,38 @@ def resolve(name: str, node_name: str, remappings: Mapping[str, str] | None = No
     if remappings:
         return remappings.get(resolved, resolved)
     return resolved
+
+
+# --- lenient rules: rosgraph's, as rosmaster applies them to callers' names ---------------------------
+
+
+def lenient_namespace_of(name: str) -> str:
+    """The namespace of a caller id as rosgraph computes it: ``/a/b`` -> ``/a/``; a relative or empty name
+    lives in ``/``. No canonicalization (``/a//b`` -> ``/a//``), unlike the strict ``namespace_of``."""
+    if not name:
+        return SEP
+    if name.endswith(SEP):
+        name = name[:-1]
+    return name[: name.rfind(SEP) + 1] or SEP
+
+
+def lenient_resolve(name: str, caller_id: str) -> str:
+    """Resolve ``name`` sent by the node ``caller_id`` as rosmaster does: global, ``~private`` or relative.
+
+    Never raises: the empty name is the caller's namespace, and nothing is validated (the master checks
+    characters before it resolves). The strict rule for a node's own names is ``resolve``.
+    """
+    if not name:
+        return lenient_namespace_of(caller_id)
+    name = canonicalize(name)
+    if name[0] == SEP:
+        return name
+    if name[0] == PRIV:
+        return canonicalize(caller_id + SEP + name[1:])
+    return lenient_namespace_of(caller_id) + name
+
+
+# --- strict rules for command-line tools --------------------------------------------------------------
 
 
 def script_resolve(name: str, script: str, environ: Mapping[str, str] | None = None) -> str:

@@ -4,7 +4,8 @@ Each handler takes the XML-RPC arguments exactly as received and returns rosmast
 ``(code, statusMessage, value)`` triple: 1 success, 0 failure, -1 error (bad arguments). Wrong
 arity or argument types answer -1 with a message, never a fault and never a crash, as rosmaster's
 ``apivalidate`` does. Handlers never await a node: notifications are handed to the ``Notifier``.
-``METHODS`` is the explicit camelCase -> handler table served by ``Master``.
+``METHODS`` is the explicit camelCase -> handler table served by ``Master``. Callers' names are
+resolved by ``mrosd.names.lenient_resolve`` (rosgraph's rules, as rosmaster applies them).
 """
 
 from __future__ import annotations
@@ -20,48 +21,16 @@ from mrosd.master.cleanup import DEFAULT_CLEANUP_INTERVAL, GraphCleaner
 from mrosd.master.notifier import Notifier
 from mrosd.master.params import ParamTree, param_updates, subscription_key
 from mrosd.master.registry import ANYTYPE, Notification, Registry
+from mrosd.names import SEP, lenient_resolve
 
 log = logging.getLogger(__name__)
 
-SEP = "/"
 Reply = tuple[int, str, Any]
 Validator = Callable[[Any, str], Any]
 
 
 #: An argument failed validation; the message is returned to the caller with code -1.
 Invalid = InvalidArgument
-
-
-# --- names (rosgraph's lenient resolution, as rosmaster applies it to callers' names) ---------
-
-
-def canonicalize(name: str) -> str:
-    """Collapse repeated slashes and drop a trailing one (the root stays ``/``)."""
-    if not name or name == SEP or ("//" not in name and name[-1] != SEP):
-        return name
-    parts = SEP.join(p for p in name.split(SEP) if p)
-    return SEP + parts if name[0] == SEP else parts
-
-
-def namespace_of(name: str) -> str:
-    """``/a/b`` -> ``/a/``; a relative or empty name lives in ``/``."""
-    if not name:
-        return SEP
-    if name.endswith(SEP):
-        name = name[:-1]
-    return name[: name.rfind(SEP) + 1] or SEP
-
-
-def resolve(name: str, caller_id: str) -> str:
-    """Resolve ``name`` as the node ``caller_id`` would: global, ``~private`` or relative."""
-    if not name:
-        return namespace_of(caller_id)
-    name = canonicalize(name)
-    if name[0] == SEP:
-        return name
-    if name[0] == "~":
-        return canonicalize(caller_id + SEP + name[1:])
-    return namespace_of(caller_id) + name
 
 
 # --- validators ---------------------------------------------------------------------------------
@@ -104,7 +73,7 @@ def valid_name(what: str) -> Validator:
             raise Invalid(f"ERROR: parameter [{what}] must be a non-empty string")
         if ":" in value or " " in value:
             raise Invalid(f"ERROR: parameter [{what}] contains illegal chars")
-        return resolve(value, caller_id)
+        return lenient_resolve(value, caller_id)
 
     return check
 
@@ -126,7 +95,7 @@ def empty_or_valid_name(what: str) -> Validator:
     def check(value: Any, caller_id: str) -> Any:
         if not isinstance(value, str):
             raise Invalid(f"ERROR: parameter [{what}] must be a string")
-        return resolve(value, caller_id) if value else ""
+        return lenient_resolve(value, caller_id) if value else ""
 
     return check
 
@@ -451,7 +420,7 @@ class MasterApi:
         return self.registry.param_subscribers
 
     def delete_param(self, caller_id: str, key: str) -> Reply:
-        key = resolve(key, caller_id)
+        key = lenient_resolve(key, caller_id)
         try:
             self.params.delete(key)
         except KeyError:
@@ -460,7 +429,7 @@ class MasterApi:
         return 1, f"parameter {key} deleted", 0
 
     def set_param(self, caller_id: str, key: str, value: Any) -> Reply:
-        key = resolve(key, caller_id)
+        key = lenient_resolve(key, caller_id)
         subs = self._param_subscribers()
         had_subtree = False
         if subs and not isinstance(value, dict):
@@ -477,7 +446,7 @@ class MasterApi:
         return 1, f"parameter {key} set", 0
 
     def get_param(self, caller_id: str, key: str) -> Reply:
-        key = resolve(key, caller_id)
+        key = lenient_resolve(key, caller_id)
         try:
             return 1, f"Parameter [{key}]", self.params.get(key)
         except KeyError:
@@ -494,7 +463,7 @@ class MasterApi:
 
     def subscribe_param(self, caller_id: str, caller_api: str, key: str) -> Reply:
         self._start_background()
-        key = resolve(key, caller_id)
+        key = lenient_resolve(key, caller_id)
         try:
             value = self.params.get(key)
         except KeyError:
@@ -503,12 +472,12 @@ class MasterApi:
         return 1, f"Subscribed to parameter [{key}]", value
 
     def unsubscribe_param(self, caller_id: str, caller_api: str, key: str) -> Reply:
-        key = resolve(key, caller_id)
+        key = lenient_resolve(key, caller_id)
         self.registry.unsubscribe_param(caller_id, subscription_key(key), caller_api)
         return 1, f"Unsubscribe to parameter [{key}]", 1
 
     def has_param(self, caller_id: str, key: str) -> Reply:
-        key = resolve(key, caller_id)
+        key = lenient_resolve(key, caller_id)
         return 1, key, self.params.has(key)
 
     def get_param_names(self, caller_id: str) -> Reply:

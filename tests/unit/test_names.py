@@ -1,4 +1,4 @@
-"""ROS name resolution and remapping, checked against the rules on the ROS wiki Names page."""
+"""ROS names (mrosd.names): the strict rules, checked against the ROS wiki Names page, and the lenient master rules."""
 
 from __future__ import annotations
 
@@ -7,7 +7,16 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from mrosd.errors import InvalidNameError
-from mrosd.names import NodeNames, canonicalize, is_valid_name, namespace_of, parse_argv, resolve
+from mrosd.names import (
+    NodeNames,
+    canonicalize,
+    is_valid_name,
+    lenient_namespace_of,
+    lenient_resolve,
+    namespace_of,
+    parse_argv,
+    resolve,
+)
 
 
 @pytest.mark.parametrize(
@@ -84,3 +93,31 @@ def test_resolved_names_are_global_canonical_and_valid(node_parts: list[str], na
         assert out.startswith("/")
         assert is_valid_name(out)
         assert canonicalize(out) == out
+
+
+@given(st.text(alphabet="/ab~_", max_size=14))
+def test_canonicalize_leaves_no_empty_part_and_keeps_the_parts(name: str) -> None:
+    out = canonicalize(name)
+    assert canonicalize(out) == out
+    assert "//" not in out
+    assert out == "/" or not out.endswith("/")
+    assert [p for p in out.split("/") if p] == [p for p in name.split("/") if p]
+    assert out.startswith("/") == name.startswith("/")
+
+
+def test_lenient_master_rules_differ_from_the_strict_node_rules_where_rosmaster_does() -> None:
+    # rosmaster resolves what callers send without validating it; a node's own names are checked.
+    assert lenient_resolve("", "/ns/node") == "/ns/"
+    assert lenient_resolve("x", "relative_caller") == "/x"
+    assert lenient_resolve("9bad", "/ns/node") == "/ns/9bad"
+    with pytest.raises(InvalidNameError):
+        resolve("9bad", "/ns/node")
+    assert lenient_namespace_of("/a//b") == "/a//"
+    assert namespace_of("/a//b") == "/a/"
+    assert lenient_namespace_of("relative") == "/"
+
+
+@given(st.text(alphabet="/ab~", max_size=10), st.sampled_from(["/ns/node", "/node", "/a/b/c"]))
+def test_lenient_and_strict_resolution_agree_on_legal_names(name: str, node: str) -> None:
+    if is_valid_name(name) and name not in ("/", "~"):
+        assert lenient_resolve(name, node) == resolve(name, node)

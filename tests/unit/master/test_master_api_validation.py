@@ -8,7 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mrosd.master.api import MasterApi, resolve
+from mrosd.master.api import MasterApi
+from mrosd.names import lenient_resolve
 
 API = "http://127.0.0.1:1001/"
 
@@ -18,10 +19,10 @@ async def call(m: MasterApi, method: str, *args: Any) -> Any:
 
 
 def test_names_resolve_as_rosgraph_does() -> None:
-    assert resolve("chatter", "/ns/node") == "/ns/chatter"
-    assert resolve("~x", "/ns/node") == "/ns/node/x"
-    assert resolve("/a//b/", "/ns/node") == "/a/b"
-    assert resolve("x", "relative_node") == "/x"
+    assert lenient_resolve("chatter", "/ns/node") == "/ns/chatter"
+    assert lenient_resolve("~x", "/ns/node") == "/ns/node/x"
+    assert lenient_resolve("/a//b/", "/ns/node") == "/a/b"
+    assert lenient_resolve("x", "relative_node") == "/x"
 
 
 async def test_wrong_arity_and_types_answer_error_code_minus_one() -> None:
