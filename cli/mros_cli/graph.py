@@ -1,5 +1,6 @@
 """``mros graph``: watch nodes, topics and services appear and vanish.
 
+``mros topic list --watch`` prints the topic lines of the same output (``print_changes``).
 The watching itself is ``mrosd.master.client.watch_graph``: pushed by an mrosd master (its
 ``waitSystemStateChange`` extension), polled from any other master (``getSystemState``).
 """
@@ -8,6 +9,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import click
@@ -49,9 +51,8 @@ def group() -> None:
     """
 
 
-@group.command(name="watch")
-@click.option("--json", "as_json", is_flag=True, help="One JSON object per line (time, event, kind, name, ...).")
-@click.option(
+#: ``--poll``, shared by ``mros graph watch`` and ``mros topic list --watch``.
+poll_option = click.option(
     "--poll",
     "poll",
     type=click.FloatRange(min=0.05),
@@ -60,22 +61,45 @@ def group() -> None:
     metavar="SECONDS",
     help="Polling period against masters that do not push changes (rosmaster).",
 )
+
+
+@group.command(name="watch")
+@click.option("--json", "as_json", is_flag=True, help="One JSON object per line (time, event, kind, name, ...).")
+@poll_option
 def watch(as_json: bool, poll: float) -> None:
     """Print nodes, topics and services as they appear (+) and vanish (-), starting with the current graph.
 
     Against an mrosd master changes are pushed as they happen; against rosmaster the graph is polled.
     Runs until interrupted (Ctrl-C).
     """
-    run(_watch(as_json, poll))
+    run(print_changes(as_json=as_json, poll=poll))
 
 
-async def _watch(as_json: bool, poll: float) -> None:
+async def print_changes(*, as_json: bool, poll: float, keep: Callable[[GraphChange], bool] | None = None) -> None:
+    """Print each change of the graph (those ``keep`` accepts), one line each, until cancelled."""
     from mrosd.master.client import GraphSnapshot, graph_changes, watch_graph
 
     async with master_client() as client:
         previous = GraphSnapshot()
         async for graph in watch_graph(client, poll_interval=poll):
-            for change in graph_changes(previous, graph):
-                click.echo(format_change(change, as_json=as_json))
+            lines = [
+                format_change(change, as_json=as_json)
+                for change in graph_changes(previous, graph)
+                if keep is None or keep(change)
+            ]
             previous = graph
-            click.get_text_stream("stdout").flush()
+            if lines:
+                click.echo("\n".join(lines))
+                click.get_text_stream("stdout").flush()
+
+
+def watch_topics(namespace: str | None, *, as_json: bool, poll: float) -> None:
+    """``mros topic list --watch [NAMESPACE]``: the topic lines of ``mros graph watch``, under a resolved namespace."""
+    prefix = namespace.rstrip("/") + "/" if namespace else "/"
+
+    def keep(change: GraphChange) -> bool:
+        return change.kind == "topic" and (
+            namespace is None or change.name == namespace or change.name.startswith(prefix)
+        )
+
+    run(print_changes(as_json=as_json, poll=poll, keep=keep))

@@ -11,7 +11,8 @@ Speed matters here (``mros topic echo`` must keep up with camera streams), so ea
 cached rendering plan, short ASCII strings skip PyYAML, and ``uint8[]`` is turned into decimal text with
 bytes.translate and slice assignment instead of one Python object per byte.
 
-``PlotRenderer`` prints ``rostopic echo -p``'s CSV. ``CoalescedWriter`` is the one piece that does I/O: it
+``PlotRenderer`` prints ``rostopic echo -p``'s CSV. ``Decoder`` turns received bytes into messages with the
+publisher's own definition. ``CoalescedWriter`` is the one piece that does I/O: it
 writes what one event-loop turn rendered in one ``writelines`` to a pipe it enlarged. The renderers know
 message instances only through their ``__struct_fields__`` and ``_field_types`` (the contract of ``mrosd.msg``).
 """
@@ -29,6 +30,7 @@ import yaml
 __all__ = [
     "SEPARATOR",
     "CoalescedWriter",
+    "Decoder",
     "JsonRenderer",
     "PlotRenderer",
     "TextRenderer",
@@ -328,10 +330,11 @@ class JsonRenderer:
 class PlotRenderer:
     """``rostopic echo -p``'s CSV: a ``%time,field.a,field.b`` heading, then ``<time>,a,b`` per message.
 
-    The time column is the message's ``header.stamp`` in nanoseconds when it has a Header, else the receive
-    time; numbers print as Python prints them, bools as 1/0, times as nanoseconds, strings unquoted; ``uint8[]``
-    and ``char[]`` (bytes) and empty arrays print nothing, as under rostopic on Python 3. ``noarr``/``nostr``
-    drop array and string fields (columns and values), as rostopic's field filter does.
+    The time column is a bag message's record time, else the message's ``header.stamp`` in nanoseconds
+    when it has a Header, else the receive time; numbers print as Python prints them, bools as 1/0, times as
+    nanoseconds, strings unquoted; ``uint8[]`` and ``char[]`` (bytes) and empty arrays print nothing, as under
+    rostopic on Python 3. ``noarr``/``nostr`` drop array and string fields (columns and values), as
+    rostopic's field filter does.
     """
 
     def __init__(self, *, noarr: bool = False, nostr: bool = False) -> None:
@@ -349,10 +352,16 @@ class PlotRenderer:
         """The first line rostopic -p prints (``%time,`` and the column names)."""
         return "%time," + (self._names(value, "field") or "")
 
-    def row(self, value: Any, now_ns: int, offset_ns: int | None = None) -> str:
-        """One message's line (no newline); ``offset_ns`` as ``--offset``: times relative to it."""
+    def row(self, value: Any, now_ns: int, offset_ns: int | None = None, *, recorded_ns: int | None = None) -> str:
+        """One message's line (no newline); ``offset_ns`` as ``--offset``: times relative to it.
+
+        ``recorded_ns`` (a bag message's record time) is the time column when given, before any
+        ``header.stamp``, as ``rostopic echo -p -b`` prints it.
+        """
         text = self._values(value, offset_ns) or ""
-        if _has_header(value):
+        if recorded_ns is not None:
+            stamp = recorded_ns
+        elif _has_header(value):
             stamp = int(value.header.stamp.secs) * 1_000_000_000 + int(value.header.stamp.nsecs)
         else:
             stamp = now_ns
@@ -487,3 +496,31 @@ class CoalescedWriter:
             self.broken = True
             if self._on_broken is not None:
                 self._on_broken()
+
+
+def _header_value(header: Any, key: str) -> str:
+    if isinstance(header, dict):
+        return str(header.get(key, ""))
+    value = getattr(header, key, None)
+    if value is None:
+        extra = getattr(header, "extra", None) or {}
+        value = extra.get(key, "")
+    return str(value)
+
+
+class Decoder:
+    """Message classes built from each publisher's connection header, cached by (type, md5)."""
+
+    def __init__(self) -> None:
+        self._classes: dict[tuple[str, str], Any] = {}
+
+    def decode(self, raw: Any) -> Any:
+        header = raw.header
+        key = (_header_value(header, "type"), _header_value(header, "md5sum"))
+        cls = self._classes.get(key)
+        if cls is None:
+            from mrosd.msg import load_type  # the message runtime: only when a message arrives
+
+            cls = load_type(key[0], _header_value(header, "message_definition"))
+            self._classes[key] = cls
+        return cls.deserialize(raw.data)

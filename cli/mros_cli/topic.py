@@ -1,10 +1,11 @@
 """``mros topic``: list, inspect, find, echo, publish and measure topics, with rostopic's output.
 
-``list``, ``info``, ``type`` and ``find`` only ask the master. ``echo``, ``hz``, ``bw`` and ``delay`` subscribe
-in raw mode (``AnyMsg``) so they need no local definition of the type: messages are decoded with a class
-built from the publisher's ``message_definition`` (``mrosd.msg.load_type``), the way a ROS user wishes
-rostopic did. ``pub`` lives in ``mros_cli.publish``; the YAML-to-message builder in ``mros_cli.values``;
-rendering and the coalesced stdout writer in ``mros_cli.output``; the statistics in ``mros_cli.stats``.
+``list`` (and ``list --watch``, through ``mros_cli.graph``), ``info``, ``type`` and ``find`` only ask the
+master. ``echo``, ``hz``, ``bw`` and ``delay`` subscribe in raw mode (``AnyMsg``) so they need no local
+definition of the type: messages are decoded with a class built from the publisher's ``message_definition``
+(``mrosd.msg.load_type``), the way a ROS user wishes rostopic did. ``pub`` lives in ``mros_cli.publish``; the
+YAML-to-message builder in ``mros_cli.values``; rendering and the coalesced stdout writer in
+``mros_cli.output``; the statistics in ``mros_cli.stats``.
 """
 
 from __future__ import annotations
@@ -17,13 +18,22 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from mros_cli.graph import poll_option, watch_topics
 from mros_cli.main import anonymous, master_client, resolve_name, run
-from mros_cli.output import SEPARATOR, CoalescedWriter, JsonRenderer, PlotRenderer, TextRenderer, extract_field
+from mros_cli.output import (
+    SEPARATOR,
+    CoalescedWriter,
+    Decoder,
+    JsonRenderer,
+    PlotRenderer,
+    TextRenderer,
+    extract_field,
+)
 from mros_cli.publish import pub
 from mros_cli.stats import BandwidthStats, DelayStats, RateStats
 from mros_cli.values import build_message, file_documents, parse_pub_args
 from mrosd.errors import MrosError
-from mrosd.msg import get_message_class, load_type
+from mrosd.msg import get_message_class
 
 if TYPE_CHECKING:
     from mrosd.master.client import MasterClient
@@ -41,8 +51,6 @@ BW_WINDOW = 100
 DELAY_WINDOW = 50000
 #: How often echo/hz/bw/delay look for a topic that is not published yet.
 TOPIC_POLL = 0.5
-
-resolve = resolve_name
 
 
 async def topic_types(master: MasterClient) -> dict[str, str]:
@@ -96,16 +104,6 @@ async def wait_for_topic(master: MasterClient, name: str) -> tuple[str, str, lis
         await asyncio.sleep(TOPIC_POLL)
 
 
-def _header_value(header: Any, key: str) -> str:
-    if isinstance(header, dict):
-        return str(header.get(key, ""))
-    value = getattr(header, key, None)
-    if value is None:
-        extra = getattr(header, "extra", None) or {}
-        value = extra.get(key, "")
-    return str(value)
-
-
 @click.group(name="topic")
 def group() -> None:
     """List, inspect, echo, publish and measure topics (like rostopic).
@@ -130,17 +128,43 @@ def group() -> None:
 @click.option("-v", "--verbose", is_flag=True, help="Print types and publisher/subscriber counts.")
 @click.option("-p", "publishers_only", is_flag=True, help="Only published topics.")
 @click.option("-s", "subscribers_only", is_flag=True, help="Only subscribed topics.")
+@click.option(
+    "--watch",
+    is_flag=True,
+    help="Print topics as they appear (+) and vanish (-), starting with the current ones, until Ctrl-C.",
+)
+@click.option("--json", "as_json", is_flag=True, help="With --watch: one JSON object per line (as mros graph watch).")
+@poll_option
 @click.argument("namespace", required=False)
-def list_(verbose: bool, publishers_only: bool, subscribers_only: bool, namespace: str | None) -> None:
+def list_(  # noqa: PLR0917  (one parameter per click option)
+    verbose: bool,
+    publishers_only: bool,
+    subscribers_only: bool,
+    watch: bool,
+    as_json: bool,
+    poll: float,
+    namespace: str | None,
+) -> None:
     """List the topics the master knows, sorted (``-v`` as ``rostopic list -v``).
+
+    With ``--watch``, the topic lines of ``mros graph watch``: pushed by an mrosd master, polled from
+    rosmaster every ``--poll`` seconds.
 
     \b
     Examples:
       mros topic list
       mros topic list -v
+      mros topic list --watch /camera
     """
     if publishers_only and subscribers_only:
         raise click.UsageError("give only one of -p and -s")
+    if watch:
+        if verbose or publishers_only or subscribers_only:
+            raise click.UsageError("--watch lists every topic: it takes no -v, -p or -s")
+        watch_topics(resolve_name(namespace) if namespace else None, as_json=as_json, poll=poll)
+        return
+    if as_json:
+        raise click.UsageError("--json applies to --watch")
 
     async def main() -> tuple[tuple[Any, ...], dict[str, str]]:
         async with master_client() as master:
@@ -151,7 +175,7 @@ def list_(verbose: bool, publishers_only: bool, subscribers_only: bool, namespac
     pubs = [(t, types.get(t, "unknown type"), n) for t, n in state[0]]
     subs = [(t, types.get(t, "unknown type"), n) for t, n in state[1]]
     if namespace:
-        ns = resolve(namespace)
+        ns = resolve_name(namespace)
         prefix = ns.rstrip("/") + "/"
         pubs = [p for p in pubs if p[0] == ns or p[0].startswith(prefix)]
         subs = [s for s in subs if s[0] == ns or s[0].startswith(prefix)]
@@ -190,7 +214,7 @@ def info(topic: str) -> None:
     Example:
       mros topic info /chatter
     """
-    name = resolve(topic)
+    name = resolve_name(topic)
 
     async def main() -> str:
         async with master_client() as master:
@@ -231,7 +255,7 @@ def type_(topic: str) -> None:
       mros topic type /chatter
       mros topic type /odom/pose/pose
     """
-    name = resolve(topic)
+    name = resolve_name(topic)
 
     async def main() -> tuple[str, str, list[str]] | None:
         async with master_client() as master:
@@ -306,22 +330,6 @@ class MessageFilter:
             return False
 
 
-class Decoder:
-    """Message classes built from each publisher's connection header, cached by (type, md5)."""
-
-    def __init__(self) -> None:
-        self._classes: dict[tuple[str, str], Any] = {}
-
-    def decode(self, raw: Any) -> Any:
-        header = raw.header
-        key = (_header_value(header, "type"), _header_value(header, "md5sum"))
-        cls = self._classes.get(key)
-        if cls is None:
-            cls = load_type(key[0], _header_value(header, "message_definition"))
-            self._classes[key] = cls
-        return cls.deserialize(raw.data)
-
-
 class Echo:
     """Decodes raw messages with the publisher's own definition and writes them, coalesced per loop turn."""
 
@@ -360,7 +368,7 @@ class Echo:
             if self.keep is not None and not self.keep(msg):
                 return
             value = extract_field(msg, self.fields) if self.fields else msg
-            self.writer.add(self._render(value, type(msg)))
+            self.writer.add(self._render(value, type(msg), getattr(raw, "stamp_ns", None)))
         except (MrosError, KeyError) as exc:
             self.error = exc
             self.done.set()
@@ -370,12 +378,12 @@ class Echo:
             self.writer.flush()
             self.done.set()
 
-    def _render(self, value: Any, cls: Any) -> list[bytes]:
+    def _render(self, value: Any, cls: Any, recorded_ns: int | None) -> list[bytes]:
         if self.json is not None:
             return [self.json.render(value) + b"\n"]
         now = time.time_ns()
         if self.plot is not None:
-            row = self.plot.row(value, now, now if self.offset else None) + "\n"
+            row = self.plot.row(value, now, now if self.offset else None, recorded_ns=recorded_ns) + "\n"
             return [(self.plot.heading(value) + "\n" + row).encode() if self.shown == 0 else row.encode()]
         if self.offset:
             self.text.offset_ns = now
@@ -442,7 +450,7 @@ def echo(  # noqa: PLR0917  (one parameter per click option)
     """
     if plot and as_json:
         raise click.UsageError("give only one of -p and --json")
-    name = resolve(topic)
+    name = resolve_name(topic)
     if bag is not None:
         if offset:
             raise click.UsageError("--offset does not apply to bag files (as in rostopic)")
@@ -480,7 +488,7 @@ def echo(  # noqa: PLR0917  (one parameter per click option)
 
 async def _measure(topic: str, on_raw: Any, tick: Any, duration: float | None) -> None:
     async with master_client() as master:
-        real, _type, _fields = await wait_for_topic(master, resolve(topic))
+        real, _type, _fields = await wait_for_topic(master, resolve_name(topic))
     from mrosd.tcpros import AnyMsg, Node  # aiohttp and the TCPROS stack: only when a node is needed
 
     async with Node(anonymous("measure"), master_uri=master.master_uri, argv=[]) as node:
@@ -509,7 +517,7 @@ def hz(topic: str, window: int, filter_expr: str | None, duration: float | None)
       mros topic hz /chatter --filter "m.data.startswith('hello')"
     """
     stats = RateStats(window)
-    keep = MessageFilter(filter_expr, resolve(topic)) if filter_expr is not None else None
+    keep = MessageFilter(filter_expr, resolve_name(topic)) if filter_expr is not None else None
     decoder = Decoder()
 
     def on_raw(raw: Any) -> None:
@@ -569,7 +577,7 @@ def delay(topic: str, window: int, duration: float | None) -> None:
         msg = decoder.decode(raw)
         stamp = getattr(getattr(msg, "header", None), "stamp", None)
         if stamp is None or not hasattr(stamp, "to_sec"):
-            failed.append(f"{resolve(topic)}: {getattr(msg, '_type', 'the message')} does not have a header")
+            failed.append(f"{resolve_name(topic)}: {getattr(msg, '_type', 'the message')} does not have a header")
             return
         stats.on_message(time.time(), stamp.to_sec())
 

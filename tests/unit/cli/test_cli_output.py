@@ -15,7 +15,7 @@ import pytest
 import yaml
 from hypothesis import given
 from hypothesis import strategies as st
-from mros_cli.output import JsonRenderer, TextRenderer, extract_field, quote_string, uint8_text
+from mros_cli.output import JsonRenderer, PlotRenderer, TextRenderer, extract_field, quote_string, uint8_text
 
 
 class Time(msgspec.Struct):
@@ -226,3 +226,15 @@ def test_render_bytes_equals_render_encoded_with_big_uint8_arrays_spliced_in() -
     renderer = TextRenderer()
     assert renderer.render_bytes(msg) == renderer.render(msg).encode()
     assert renderer.render_bytes(Text("é")) == TextRenderer().render(Text("é")).encode()
+
+
+def test_plot_time_column_is_the_record_time_then_the_header_stamp_then_now() -> None:
+    from mrosd.msg import get_message_class
+
+    point = get_message_class("geometry_msgs/PointStamped")()
+    point.header.stamp.secs, point.header.stamp.nsecs = 3, 4
+    plot = PlotRenderer()
+    assert plot.row(point, 99).startswith("3000000004,")
+    assert plot.row(point, 99, recorded_ns=7).startswith("7,")
+    assert plot.row(point.point, 99).startswith("99,")
+    assert plot.row(point.point, 99, recorded_ns=7).startswith("7,")
