@@ -1,17 +1,15 @@
-"""A lean HTTP/1.1 transport for the master's XML-RPC: an accept loop and an ``asyncio.Protocol``, no framework.
+"""The master's HTTP/1.1 server: an accept loop and an ``asyncio.Protocol``, no framework.
 
 Why hand-written: the master answers thousands of tiny calls per second and a generic server's per-request
 machinery costs more than the XML-RPC work itself; ``python -m bench master`` runs this server against the same
-master behind aiohttp's low-level server (llhttp) in one run (A/B). The XML-RPC codec, fast path included,
-is ``mrosd.xmlrpc``; this module only frames HTTP and guards resources.
+master behind aiohttp's low-level server (llhttp) in one run (A/B). What a request may look like and the bytes
+of every answer are ``mrosd.master.httpframing`` (sans IO); turning a body into a reply is
+``mrosd.master.dispatch``; this module moves bytes between them and the sockets and guards resources.
 
-Supported: POST with one Content-Length, keep-alive (HTTP/1.1 default, HTTP/1.0 with the header),
-pipelined requests answered in order, ``Expect: 100-continue``. Backpressure: a client that does not read
-its responses (transport write buffer full) is not read from until it does. Refused with a status and a
-closed connection: other methods (405), chunked bodies (411), a repeated Content-Length or Content-Length
-with Transfer-Encoding (400, request smuggling), bodies over ``MAX_BODY_SIZE`` (413), header blocks over
-``MAX_HEADER_SIZE`` (431), garbage (400), peers outside the allow-list (403), and connections beyond the
-global or per-address cap (503).
+Pipelined requests are answered in order. Backpressure: a client that does not read its responses (transport
+write buffer full) is not read from until it does. Refused with a status and a closed connection: what
+``httpframing.parse_head`` refuses, header blocks over ``MAX_HEADER_SIZE`` (431), peers outside the
+allow-list (403), and connections beyond the global or per-address cap (503).
 
 Resources: idle keep-alive connections are closed after ``idle_timeout`` (to 1.5x that); a started request
 must complete within ``REQUEST_TIMEOUT``; the accept loop backs off (50 ms doubling to 2 s) when the process
@@ -27,32 +25,29 @@ import errno
 import functools
 import ipaddress
 import logging
-import re
 import resource
 import socket
-from collections.abc import Callable, Coroutine
-from typing import Any, cast
+from collections.abc import Coroutine
+from typing import TYPE_CHECKING, Any, cast
 
-from mrosd.errors import HttpRefused, LocalProtocolError, RemoteProtocolError
+from mrosd.errors import HttpRefused
 from mrosd.lograte import RateLimitedLog
-from mrosd.xmlrpc import (
-    FAULT_INTERNAL_ERROR,
-    FAULT_PARSE_ERROR,
-    INCREMENTAL_DECODE_SIZE,
-    MAX_BODY_SIZE,
-    Fault,
-    XmlRpcServer,
-    decode_call,
-    decode_call_async,
-    encode_fault,
-    encode_response,
+from mrosd.master.httpframing import (
+    CACHED_HEAD_SIZE,
+    CONTINUE_RESPONSE,
+    MAX_HEADER_SIZE,
+    OK_RESPONSE,
+    parse_head,
+    parse_short_head,
+    status_response,
 )
+from mrosd.xmlrpc import FAULT_INTERNAL_ERROR, encode_fault
+
+if TYPE_CHECKING:
+    from mrosd.master.dispatch import XmlRpcHttpHandler
 
 log = logging.getLogger(__name__)
 _ratelog = RateLimitedLog(log)
-
-#: Largest request line + headers accepted.
-MAX_HEADER_SIZE = 64 * 1024
 
 #: Largest body a client outside the allow-list may send before its 403 (it is read, never handled).
 MAX_REFUSED_BYTES = 64 * 1024
@@ -74,34 +69,7 @@ ACCEPT_BACKOFF = (0.05, 2.0)
 _ACCEPT_BATCH = 64
 _OUT_OF_RESOURCES = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM})
 
-# Header fields, matched on the lower-cased header block (which starts with the line break).
-_CONTENT_LENGTH = re.compile(rb"\r\ncontent-length:[ \t]*(?:([0-9]{1,12})[ \t]*(?=\r\n|$)|.*)")
-_BAD_FIELD_NAME = re.compile(rb"\r\n[^:\r\n]*[ \t]:")  # whitespace in a name or before its colon, obs-fold
-_CONNECTION = re.compile(rb"\r\nconnection:[ \t]*(close|keep-alive)[ \t]*(?=\r\n|$)")
-
 Network = ipaddress.IPv4Network | ipaddress.IPv6Network
-SyncHandler = Callable[..., Any]
-
-_REASONS = {
-    400: b"Bad Request",
-    403: b"Forbidden",
-    405: b"Method Not Allowed",
-    408: b"Request Timeout",
-    411: b"Length Required",
-    413: b"Payload Too Large",
-    431: b"Request Header Fields Too Large",
-    503: b"Service Unavailable",
-}
-
-
-def status_response(status: int, text: bytes) -> bytes:
-    """A complete ``Connection: close`` response carrying a short plain-text reason."""
-    return b"HTTP/1.1 %d %s\r\nContent-Type: text/plain\r\nContent-Length: %d\r\nConnection: close\r\n\r\n%s" % (
-        status,
-        _REASONS.get(status, b"Error"),
-        len(text),
-        text,
-    )
 
 
 def allowed(networks: list[Network] | None, host: str | None) -> bool:
@@ -119,99 +87,6 @@ def allowed(networks: list[Network] | None, host: str | None) -> bool:
     return any(addr in net for net in networks)
 
 
-#: Bounds of ``XmlRpcHttpHandler``'s reply cache: entries, total reply bytes, largest request body kept.
-#: When full, new replies are simply not kept until the next change of state empties the cache.
-REPLY_CACHE_SIZE = 1024
-REPLY_CACHE_BYTES = 16 * 1024 * 1024
-REPLY_CACHE_MAX_BODY = 4096
-
-
-class XmlRpcHttpHandler:
-    """Turns one request body into one response body: sync fast path, else the shared XmlRpcServer.
-
-    Replies of read-only methods (``cacheable``) are kept, keyed by the exact request body, for as
-    long as ``state_version()`` returns the same value: a repeated getSystemState/lookupNode/getParam
-    is answered without decoding, running or encoding anything. Any change of state empties the cache.
-    """
-
-    def __init__(
-        self,
-        sync_methods: dict[str, SyncHandler],
-        fallback: XmlRpcServer,
-        *,
-        cacheable: frozenset[str] = frozenset(),
-        state_version: Callable[[], object] | None = None,
-    ) -> None:
-        self.sync_methods = sync_methods
-        self.fallback = fallback
-        self._cacheable = cacheable if state_version is not None else frozenset()
-        self._state_version = state_version
-        self._cache: dict[bytes, bytes] = {}
-        self._cache_bytes = 0
-        self._cache_version: object = None
-
-    def handle(self, body: bytes) -> bytes | Coroutine[Any, Any, bytes]:
-        """The response body, or a coroutine producing it for calls that need the event loop."""
-        if self._state_version is not None:
-            version = self._state_version()
-            if version != self._cache_version:
-                self._cache.clear()
-                self._cache_bytes = 0
-                self._cache_version = version
-            else:
-                hit = self._cache.get(body)
-                if hit is not None:
-                    return hit
-        if len(body) > INCREMENTAL_DECODE_SIZE:
-            return self._large(body)
-        try:
-            method, params = decode_call(body)
-        except RemoteProtocolError as exc:
-            _ratelog.log(logging.INFO, "parse", "master: %s", exc)
-            return encode_fault(FAULT_PARSE_ERROR, str(exc))
-        return self._run(body, method, params)
-
-    def _run(self, body: bytes, method: str, params: tuple[Any, ...]) -> bytes | Coroutine[Any, Any, bytes]:
-        handler = self.sync_methods.get(method)
-        if handler is None:
-            return self._slow(method, params)
-        try:
-            reply = handler(*params)
-            out = encode_response(reply)
-        except LocalProtocolError as exc:
-            return encode_fault(FAULT_INTERNAL_ERROR, str(exc))
-        except Exception as exc:  # the handlers catch their own errors; this is the last guard
-            log.exception("master: %s failed", method)
-            return encode_fault(FAULT_INTERNAL_ERROR, f"{method}: internal error: {exc!r}")
-        if (
-            method in self._cacheable
-            and len(body) <= REPLY_CACHE_MAX_BODY
-            and len(self._cache) < REPLY_CACHE_SIZE
-            and self._cache_bytes + len(out) <= REPLY_CACHE_BYTES
-        ):
-            self._cache[body] = out
-            self._cache_bytes += len(out)
-        return out
-
-    async def _large(self, body: bytes) -> bytes:
-        """A big body: decoded in slices (the loop keeps running, a close cancels it), then run as usual."""
-        try:
-            method, params = await decode_call_async(body)
-        except RemoteProtocolError as exc:
-            _ratelog.log(logging.INFO, "parse", "master: %s", exc)
-            return encode_fault(FAULT_PARSE_ERROR, str(exc))
-        out = self._run(body, method, params)
-        return out if type(out) is bytes else await cast(Coroutine[Any, Any, bytes], out)
-
-    async def _slow(self, method: str, params: tuple[Any, ...]) -> bytes:
-        try:
-            return encode_response(await self.fallback.call(method, params))
-        except Fault as exc:
-            return encode_fault(exc.code, exc.message)
-        except LocalProtocolError as exc:
-            return encode_fault(FAULT_INTERNAL_ERROR, str(exc))
-
-
 class _Request:
     """A parsed header block; ``body_start`` counts from the first byte of the request."""
 
@@ -221,55 +96,6 @@ class _Request:
         self.body_start = body_start
         self.length = length
         self.keep_alive = keep_alive
-
-
-def parse_head(head: bytes) -> tuple[int, bool, bool]:
-    """``(content_length, keep_alive, expect_continue)`` of a header block (without the blank line).
-
-    A pure function of the bytes, so short header blocks are cached (``_parse_short_head``):
-    clients repeat the same headers call after call.
-
-    Raises:
-        HttpRefused: the status and text to answer with before closing.
-    """
-    line_end = head.find(b"\r\n")
-    parts = (head if line_end < 0 else head[:line_end]).split()
-    if len(parts) != 3 or not parts[2].startswith(b"HTTP/1."):
-        raise HttpRefused(400, b"malformed request line\n")
-    if parts[0] != b"POST":
-        raise HttpRefused(405, b"only POST is supported\n")
-    keep_alive = parts[2] != b"HTTP/1.0"
-    length: int | None = None
-    expect_continue = False
-    fields = head[line_end:].lower() if line_end >= 0 else b""
-    if fields:
-        if _BAD_FIELD_NAME.search(fields):
-            raise HttpRefused(400, b"malformed header field\n")
-        lengths = _CONTENT_LENGTH.findall(fields)
-        if b"\r\ntransfer-encoding" in fields:
-            if lengths:  # which one frames the body is what request smuggling plays on
-                raise HttpRefused(400, b"Content-Length with Transfer-Encoding\n")
-            raise HttpRefused(411, b"chunked bodies are not supported; send Content-Length\n")
-        if len(lengths) > 1:
-            raise HttpRefused(400, b"more than one Content-Length\n")
-        if lengths:
-            if not lengths[0]:
-                raise HttpRefused(400, b"bad Content-Length\n")
-            length = int(lengths[0])
-        m = _CONNECTION.search(fields)
-        if m is not None:
-            keep_alive = m.group(1) == b"keep-alive"
-        expect_continue = b"\r\nexpect:" in fields and b"100-continue" in fields
-    if length is None:
-        raise HttpRefused(411, b"Content-Length required\n")
-    if length > MAX_BODY_SIZE:
-        raise HttpRefused(413, b"request body too large\n")
-    return length, keep_alive, expect_continue
-
-
-#: Header blocks up to this size are looked up in ``_parse_short_head``'s cache (256 entries).
-_CACHED_HEAD_SIZE = 1024
-_parse_short_head = functools.lru_cache(maxsize=256)(parse_head)
 
 
 class HttpProtocol(asyncio.Protocol):
@@ -394,7 +220,7 @@ class HttpProtocol(asyncio.Protocol):
             return None
         try:
             head = bytes(buf[pos:end])
-            parse = _parse_short_head if len(head) <= _CACHED_HEAD_SIZE else parse_head
+            parse = parse_short_head if len(head) <= CACHED_HEAD_SIZE else parse_head
             length, keep_alive, expect_continue = parse(head)
         except HttpRefused as exc:
             _ratelog.log(
@@ -403,7 +229,7 @@ class HttpProtocol(asyncio.Protocol):
             self._fail(exc.status, exc.text)
             return None
         if expect_continue and self._transport is not None:
-            self._transport.write(b"HTTP/1.1 100 Continue\r\n\r\n")
+            self._transport.write(CONTINUE_RESPONSE)
         return _Request(end + 4 - pos, length, keep_alive)
 
     def _process(self) -> None:
@@ -473,10 +299,7 @@ class HttpProtocol(asyncio.Protocol):
         if self._transport is None or self._closed:
             return
         conn = b"keep-alive" if keep_alive else b"close"
-        self._transport.write(
-            b"HTTP/1.1 200 OK\r\nContent-Type: text/xml\r\nContent-Length: %d\r\nConnection: %s\r\n\r\n%s"
-            % (len(body), conn, body)
-        )
+        self._transport.write(OK_RESPONSE % (len(body), conn, body))
         if not keep_alive:
             self._transport.close()
             self._closed = True

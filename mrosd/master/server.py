@@ -3,8 +3,8 @@
 Owns the listening socket, the outgoing XML-RPC client used for callbacks, and the optional
 allow-list of client networks (connections from other addresses get HTTP 403 once their bounded request is
 in; it is never decoded or handled).
-HTTP framing and connection limits are ``httpserver`` (lean asyncio protocol); the XML-RPC codec and dispatch
-are ``mrosd.xmlrpc``.
+HTTP framing is ``httpframing`` (sans IO), connections and their limits ``httpserver``, body-to-reply
+dispatch ``dispatch``; the XML-RPC codec is ``mrosd.xmlrpc``.
 """
 
 from __future__ import annotations
@@ -18,13 +18,8 @@ from urllib.parse import urlsplit
 
 from mrosd.master.api import READ_ONLY_METHODS, MasterApi
 from mrosd.master.cleanup import DEFAULT_CLEANUP_INTERVAL
-from mrosd.master.httpserver import (
-    IDLE_TIMEOUT,
-    MAX_CONNECTIONS,
-    MAX_CONNECTIONS_PER_HOST,
-    HttpServer,
-    XmlRpcHttpHandler,
-)
+from mrosd.master.dispatch import XmlRpcHttpHandler
+from mrosd.master.httpserver import IDLE_TIMEOUT, MAX_CONNECTIONS, MAX_CONNECTIONS_PER_HOST, HttpServer
 from mrosd.master.notifier import Notifier
 from mrosd.xmlrpc import XmlRpcClient, XmlRpcServer
 

@@ -555,7 +555,8 @@ def check_master_http(case: HttpCase) -> None:
     import asyncio
 
     from mrosd.master import Master
-    from mrosd.master.httpserver import MAX_HEADER_SIZE, HttpProtocol, HttpServer
+    from mrosd.master.httpframing import MAX_HEADER_SIZE
+    from mrosd.master.httpserver import HttpProtocol, HttpServer
 
     async def run() -> tuple[_RecordingTransport, HttpProtocol]:
         master = Master("127.0.0.1", 0)

@@ -9,8 +9,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from mrosd.errors import HttpRefused
-from mrosd.master import httpserver
-from mrosd.master.httpserver import XmlRpcHttpHandler, parse_head
+from mrosd.master import dispatch
+from mrosd.master.dispatch import XmlRpcHttpHandler
+from mrosd.master.httpframing import parse_head
 from mrosd.xmlrpc import MAX_BODY_SIZE, XmlRpcServer, decode_response, encode_call
 
 header_lines = st.lists(
@@ -65,7 +66,7 @@ def test_cached_replies_are_dropped_when_the_state_changes() -> None:
 
 
 def test_the_reply_cache_keeps_no_more_than_its_byte_budget(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(httpserver, "REPLY_CACHE_BYTES", 1000)
+    monkeypatch.setattr(dispatch, "REPLY_CACHE_BYTES", 1000)
     handler = _handler([], "x" * 600)
     get = encode_call("getThing", ("/c",))
     other = encode_call("getThing", ("/d",))
