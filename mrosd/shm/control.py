@@ -16,17 +16,15 @@ The socket closing is the end of the connection, for either side: after a crash 
 
 from __future__ import annotations
 
-import struct
-
 import msgspec
 
 from mrosd.errors import RemoteProtocolError
+from mrosd.tcpros.framing import encode_frame
 
 __all__ = ["MAX_CONTROL_FRAME", "Attach", "Attached", "Message", "Progress", "Refused", "Ring", "decode", "encode"]
 
 #: A connection header with a long message_definition fits easily; anything bigger is refused.
 MAX_CONTROL_FRAME = 1 << 20
-_LEN = struct.Struct("<I")
 
 
 class Attach(msgspec.Struct, tag="attach", gc=False):
@@ -58,8 +56,7 @@ _decoder = msgspec.msgpack.Decoder(Message)
 
 
 def encode(msg: Message) -> bytes:
-    body = _encoder.encode(msg)
-    return _LEN.pack(len(body)) + body
+    return encode_frame(_encoder.encode(msg))
 
 
 def decode(body: bytes | bytearray) -> Message:

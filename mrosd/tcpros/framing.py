@@ -362,9 +362,6 @@ class FrameDecoder:
         self._first_out()
         return body
 
-    #: Transitional name used by ``mrosd/shm/endpoint.py``; remove once it calls ``maybe_next_frame``.
-    maybe_next = maybe_next_frame
-
     def _first_out(self) -> None:
         """A frame was returned: from now on ``max_size`` is the message limit (the header is done)."""
         if self._then_max is not None:

@@ -28,6 +28,7 @@ from mrosd.tcpros.header import ConnectionHeader, encode_header
 from mrosd.tcpros.protocol import TcprosProtocol
 
 if TYPE_CHECKING:
+    from mrosd.shm.topic import ShmTopicPublisher
     from mrosd.tcpros.node import Node
 
 log = logging.getLogger(__name__)
@@ -174,6 +175,8 @@ class Publisher:
         self.closed = False
         self._subscriber_change = asyncio.Event()
         self._poke = loop_spinner().poke
+        #: the shared-memory side, made at the first requestTopic that offers it (mrosd.shm.topic)
+        self.shm: ShmTopicPublisher | None = None
 
     # --- publishing ------------------------------------------------------------------------------
 
@@ -217,6 +220,8 @@ class Publisher:
             raise LocalProtocolError(f"publisher of {self.topic} is closed")
         self.messages_published += 1
         self._poke()
+        if self.shm is not None:
+            self.shm.publish_parts(parts, size)
         # A piece the caller could still change (a bytearray, a writable view) is copied once, as the join
         # in serialize() would: the transport may hold the pieces after this call returns.
         frame = (frame_prefix(size), *(p if is_immutable(p) else bytes(p) for p in parts))
@@ -233,6 +238,8 @@ class Publisher:
             raise LocalProtocolError(f"publisher of {self.topic} is closed")
         self.messages_published += 1
         self._poke()
+        if self.shm is not None:
+            self.shm.publish(body)
         prefix = frame_prefix(len(body))
         if len(body) > LARGE_FRAME and not self.latch:
             # Large bodies are not concatenated with their prefix: both go to the socket in one vectored write.
@@ -283,7 +290,17 @@ class Publisher:
 
     def get_num_connections(self) -> int:
         """How many subscribers are connected now."""
-        return len(self.links)
+        return len(self.links) + (self.shm.count() if self.shm is not None else 0)
+
+    async def shm_answer(self, protocols: list[Any]) -> list[Any] | None:
+        """requestTopic: the shared-memory answer for a same-host mrosd subscriber, else None (TCPROS)."""
+        if not any(isinstance(p, list) and p[:1] == ["MROSSHM"] for p in protocols):
+            return None
+        if self.shm is None:
+            from mrosd.shm.topic import ShmTopicPublisher  # lazy: loaded only when a mrosd peer offers it
+
+            self.shm = ShmTopicPublisher(self, on_change=self._subscriber_change.set)
+        return await self.shm.answer(protocols)
 
     async def wait_for_subscribers(self, count: int = 1, timeout: float = 10.0) -> None:
         """Wait until at least ``count`` subscribers are connected.
@@ -292,17 +309,20 @@ class Publisher:
             TimeoutError: they did not connect within ``timeout`` seconds.
         """
         async with asyncio.timeout(timeout):
-            while len(self.links) < count:
+            while self.get_num_connections() < count:
                 self._subscriber_change.clear()
                 await self._subscriber_change.wait()
 
     def stats(self) -> list[Any]:
         """getBusStats publishStats entry: [topic, bytes, [[id, bytes, msgs, connected, dropped], ...]]."""
         conns = [[lk.id, lk.bytes_sent, lk.messages_sent, lk.connected, lk.dropped] for lk in self.links]
-        return [self.topic, sum(lk.bytes_sent for lk in self.links), conns]
+        if self.shm is not None:
+            conns += self.shm.stats_rows()
+        return [self.topic, sum(c[1] for c in conns), conns]
 
     def bus_info(self) -> list[list[Any]]:
-        return [[lk.id, lk.callerid, "o", "TCPROS", self.topic, lk.connected, lk.proto.peer] for lk in self.links]
+        rows = [[lk.id, lk.callerid, "o", "TCPROS", self.topic, lk.connected, lk.proto.peer] for lk in self.links]
+        return rows + (self.shm.bus_info_rows() if self.shm is not None else [])
 
     # --- lifecycle -------------------------------------------------------------------------------
 
@@ -314,6 +334,8 @@ class Publisher:
         for link in list(self.links):
             link.close()
         self.links.clear()
+        if self.shm is not None:
+            await self.shm.aclose()
         await self.node.endpoint_closed(self)
 
     async def __aenter__(self) -> Publisher:

@@ -179,8 +179,12 @@ class SlaveApi:
 
         @_api([], ("topic", _topic), ("protocols", _protocols))
         async def request_topic(caller_id: str, topic: str, protocols: list[Any]) -> list[Any]:
-            if topic not in owner.publishers:
+            pub = owner.publishers.get(topic)
+            if pub is None:
                 return [ERROR, f"Not a publisher of [{topic}]", []]
+            params = await pub.shm_answer(protocols)
+            if params is not None:
+                return [SUCCESS, f"ready on shared memory {params[2]}", params]
             for proto in protocols:
                 if isinstance(proto, list) and proto and proto[0] == "TCPROS":
                     return [

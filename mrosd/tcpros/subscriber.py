@@ -34,6 +34,7 @@ from mrosd.tcpros.sockopts import enable_keepalive
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    from mrosd.shm.subscriber import ShmSubscriberConnection
     from mrosd.tcpros.owner import EndpointOwner
 
 log = logging.getLogger(__name__)
@@ -132,10 +133,29 @@ class PublisherLink:
         self.proto: SubscriberProtocol | None = None
         self.bytes_received = 0
         self.messages_received = 0
+        #: the shared-memory connection when the publisher is a mrosd node on this host (else None)
+        self.shm: ShmSubscriberConnection | None = None
+        #: shared memory failed once with this publisher: TCPROS only from now on
+        self.shm_failed = False
         self.task = asyncio.get_running_loop().create_task(self._run(), name=f"sub {subscriber.topic} <- {uri}")
 
     @property
+    def shm_dropped(self) -> int:
+        return self.shm.dropped if self.shm is not None else 0
+
+    @property
+    def transport_name(self) -> str:
+        return "SHMROS" if self.shm is not None else "TCPROS"
+
+    def _shm_frame(self, body: bytes) -> None:
+        self.bytes_received += len(body) + 4
+        self.messages_received += 1
+        self.subscriber._deliver(body, self)
+
+    @property
     def connected(self) -> bool:
+        if self.shm is not None:
+            return self.shm.connected and self.header is not None
         return self.proto is not None and self.proto.transport is not None and self.header is not None
 
     async def _run(self) -> None:
@@ -147,13 +167,16 @@ class PublisherLink:
             try:
                 await self._connect_once()
                 last_reason = ""
-                proto = self.proto
-                assert proto is not None
                 since, received = loop.time(), self.messages_received
-                await proto.closed
-                healthy = loop.time() - since >= HEALTHY_AFTER or (
-                    not proto.error and self.messages_received > received
-                )
+                if self.shm is not None:
+                    await self.shm.wait_closed()
+                    error = self.shm.error
+                else:
+                    proto = self.proto
+                    assert proto is not None
+                    await proto.closed
+                    error = proto.error
+                healthy = loop.time() - since >= HEALTHY_AFTER or (not error and self.messages_received > received)
                 if healthy:
                     delay = BACKOFF_MIN
                     log.info("%s: publisher %s closed the connection", sub.topic, self.uri)
@@ -177,6 +200,9 @@ class PublisherLink:
                     log.debug("%s: retry to %s failed again: %s", sub.topic, self.uri, reason)
                 last_reason = reason
             finally:
+                if self.shm is not None:
+                    await self.shm.aclose()
+                    self.shm = None
                 if self.proto is not None:
                     self.proto.close()
                 self.proto = None
@@ -195,11 +221,34 @@ class PublisherLink:
     async def _connect_once(self) -> None:
         sub = self.subscriber
         node = sub.node
+        from mrosd.shm import topic as shm_topic  # lazy: only subscribers load the shared-memory transport
+
         async with asyncio.timeout(CONNECT_TIMEOUT):
-            reply = await node.xmlrpc.call(self.uri, "requestTopic", node.name, sub.topic, [["TCPROS"]])
+            protocols = shm_topic.request_protocols(allow_shm=not self.shm_failed)
+            reply = await node.xmlrpc.call(self.uri, "requestTopic", node.name, sub.topic, protocols)
             if not isinstance(reply, list) or len(reply) != 3 or reply[0] != 1:
                 raise MrosError(f"requestTopic refused by {self.uri}: {reply!r}")
             params = reply[2]
+            if isinstance(params, list) and params[:1] == ["MROSSHM"]:
+                try:
+                    attached = await shm_topic.attach_subscriber(
+                        sub, self.uri, params, self._shm_frame, timeout=CONNECT_TIMEOUT
+                    )
+                except HandshakeError:
+                    raise
+                except (MrosError, OSError, TimeoutError) as exc:
+                    self.shm_failed = True
+                    log.warning("%s: shared memory with %s failed (%s); using TCPROS", sub.topic, self.uri, exc)
+                    reply = await node.xmlrpc.call(self.uri, "requestTopic", node.name, sub.topic, [["TCPROS"]])
+                    if not isinstance(reply, list) or len(reply) != 3 or reply[0] != 1:
+                        raise MrosError(f"requestTopic refused by {self.uri}: {reply!r}") from None
+                    params = reply[2]
+                else:
+                    if attached is not None:
+                        self.shm, self.header = attached
+                        self.dials += 1
+                        sub._changed.set()
+                        return
             if not isinstance(params, list) or len(params) < 3 or params[0] != "TCPROS":
                 raise MrosError(f"{self.uri} offers no TCPROS endpoint: {params!r}")
             host, port = str(params[1]), int(params[2])
@@ -228,6 +277,8 @@ class PublisherLink:
 
     async def aclose(self) -> None:
         self.task.cancel()
+        if self.shm is not None:
+            await self.shm.aclose()
         if self.proto is not None:
             self.proto.close()
         try:
@@ -385,14 +436,14 @@ class Subscriber:
         return [
             self.topic,
             [
-                [lk.id, lk.bytes_received, lk.messages_received, self.dropped, lk.connected]
+                [lk.id, lk.bytes_received, lk.messages_received, self.dropped + lk.shm_dropped, lk.connected]
                 for lk in self.links.values()
             ],
         ]
 
     def bus_info(self) -> list[list[Any]]:
         return [
-            [lk.id, lk.uri, "i", "TCPROS", self.topic, lk.connected, lk.proto.peer if lk.proto else ""]
+            [lk.id, lk.uri, "i", lk.transport_name, self.topic, lk.connected, lk.proto.peer if lk.proto else ""]
             for lk in self.links.values()
         ]
 

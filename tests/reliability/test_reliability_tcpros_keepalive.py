@@ -10,6 +10,8 @@ from __future__ import annotations
 import socket
 from typing import Any
 
+import pytest
+
 import mrosd
 from mrosd.msg import get_message_class, get_service_class
 from mrosd.tcpros.sockopts import KEEPALIVE_COUNT, KEEPALIVE_IDLE, KEEPALIVE_INTERVAL
@@ -34,7 +36,11 @@ def keepalive(transport: Any) -> tuple[int, int, int, int]:
 EXPECTED = (1, KEEPALIVE_IDLE, KEEPALIVE_INTERVAL, KEEPALIVE_COUNT)
 
 
-async def test_topic_and_service_sockets_have_keepalive_on_both_ends(rosmaster: str) -> None:
+async def test_topic_and_service_sockets_have_keepalive_on_both_ends(
+    rosmaster: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("MROSD_SHM", "0")  # TCP sockets are under test: same-host mrosd nodes would share memory
+
     def n(name: str) -> mrosd.Node:
         return mrosd.Node(name, master_uri=rosmaster, host="127.0.0.1", argv=[], rosout=False, logger_services=False)
 

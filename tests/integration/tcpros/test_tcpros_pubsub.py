@@ -315,7 +315,10 @@ async def test_large_messages_arrive_intact_in_both_framing_paths(rosmaster: str
             assert bytes(msg.data) == bytes([i + 1]) * size
 
 
-def test_large_messages_queued_behind_a_full_socket_arrive_whole_and_in_order_under_uvloop(rosmaster: str) -> None:
+def test_large_messages_queued_behind_a_full_socket_arrive_whole_and_in_order_under_uvloop(
+    rosmaster: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("MROSD_SHM", "0")  # the TCPROS write path is under test, not the same-host shared memory
     uvloop = pytest.importorskip("uvloop")
     Image = get_message_class("sensor_msgs/Image")
 
