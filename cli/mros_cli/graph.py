@@ -14,10 +14,11 @@ from typing import TYPE_CHECKING
 
 import click
 
-from mros_cli.main import master_client, run
+from mros_cli.main import CALL_TIMEOUT, master_client, run, slave_call
+from mrosd.errors import MrosError
 
 if TYPE_CHECKING:
-    from mrosd.master.client import GraphChange
+    from mrosd.master.client import GraphChange, MasterClient
 
 
 def format_change(change: GraphChange, *, as_json: bool) -> str:
@@ -103,3 +104,24 @@ def watch_topics(namespace: str | None, *, as_json: bool, poll: float) -> None:
         )
 
     run(print_changes(as_json=as_json, poll=poll, keep=keep))
+
+
+async def shared_memory_section(master: MasterClient, topic: str, publishers: list[str]) -> str:
+    """``topic info``'s section listing the connections of ``topic`` that use shared memory.
+
+    Asks each publisher's ``getBusInfo`` for ``SHMROS`` rows (mrosd nodes on one host). Empty when there are
+    none, so the output stays rostopic's for every graph of rospy and roscpp nodes.
+    """
+    from mrosd.xmlrpc import XmlRpcClient
+
+    lines: list[str] = []
+    async with XmlRpcClient(timeout=CALL_TIMEOUT) as xmlrpc:
+        for node in publishers:
+            try:
+                rows = await slave_call(xmlrpc, await master.lookup_node(node), "getBusInfo")
+            except MrosError:
+                continue  # gone or unreachable: topic info already listed it as it could
+            for row in rows if isinstance(rows, list) else []:
+                if isinstance(row, list) and len(row) >= 5 and row[2:5] == ["o", "SHMROS", topic]:
+                    lines.append(f" * {node} -> {row[1]}\n")
+    return "Shared memory: \n" + "".join(lines) + "\n" if lines else ""

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from mros_cli.graph import poll_option, watch_topics
+from mros_cli.graph import poll_option, shared_memory_section, watch_topics
 from mros_cli.main import anonymous, master_client, resolve_name, run
 from mros_cli.output import (
     SEPARATOR,
@@ -208,7 +208,7 @@ def list_(  # noqa: PLR0917  (one parameter per click option)
 @group.command()
 @click.argument("topic")
 def info(topic: str) -> None:
-    """Print a topic's type, publishers and subscribers.
+    """Print a topic's type, publishers, subscribers and the connections that use shared memory.
 
     \b
     Example:
@@ -240,7 +240,7 @@ def info(topic: str) -> None:
             text += "Subscribers: \n" if subs else "Subscribers: None\n"
             for n in subs:
                 text += f" * {n} ({await api(n)})\n"
-            return text + "\n"
+            return text + "\n" + await shared_memory_section(master, name, pubs)
 
     click.echo(run(main()))
 

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from tests.rosenv import Processes, free_port, wait_for_xmlrpc
+from tests.rosenv import Processes, free_port, iter_lines_until, ros_env, wait_for_xmlrpc
 
 
 @pytest.fixture
@@ -63,3 +64,23 @@ def test_graph_queries_on_an_empty_master_print_nothing_and_succeed(mrosd_master
         out = mros(mrosd_master, *argv)
         assert out.returncode == 0, (argv, out.stderr)
         assert out.stdout.strip() == "" or argv == ["node", "list"]
+
+
+@pytest.mark.parametrize("shm", ["1", "0"])
+def test_topic_info_lists_the_connections_that_use_shared_memory(
+    mrosd_master: str, procs: Processes, tmp_path: Path, shm: str
+) -> None:
+    """Two mrosd processes on one host share memory (unless MROSD_SHM=0); `topic info` says which connections do."""
+    env = ros_env(mrosd_master, tmp_path, MROSD_SHM=shm)
+    base = ["-m", "mros_cli.main", "--master-uri", mrosd_master, "topic"]
+    procs.our_python([*base, "pub", "/shm_info", "std_msgs/String", "data: x", "-r", "20"], env)
+    echo = procs.our_python([*base, "echo", "/shm_info"], env)
+    assert next(iter_lines_until(echo, 1, 20.0)) == 'data: "x"'
+    shown = subprocess.run(
+        [sys.executable, *base, "info", "/shm_info"], env=env, capture_output=True, text=True, timeout=60, check=True
+    ).stdout
+    talker, listener = re.findall(r"^ \* (\S+) \(http", shown, re.MULTILINE)
+    if shm == "1":
+        assert shown.endswith(f"/)\n\nShared memory: \n * {talker} -> {listener}\n\n\n"), shown
+    else:
+        assert "Shared memory" not in shown, shown
