@@ -7,11 +7,12 @@ Every implementation is measured against itself and, as the paper measured one i
 another, in mixed pairings (an mrosd sender with a roscpp or rospy echo node and the reverse). Mean, SD,
 median, p99 and max are printed, the means in the layout of the paper's Tables 1-3, and box plots like its
 Figs. 16/17 go to bench/out/. Then throughput: bursts of small Strings (msgs/s) and echoed 1 MB / 8 MB
-sensor_msgs/Image and 1 MB / 4 MB PointCloud2 (MB/s). Finally the RTT and image rows again beside a
-CPU-bound neighbour (one busy-loop process), for every implementation in the same run. All against one
-Debian rosmaster.
+sensor_msgs/Image and 1 MB / 4 MB PointCloud2 (MB/s), over TCPROS for every implementation and, as the
+``same-host`` row, between two mrosd processes on the shared-memory transport they negotiate. Finally the RTT
+and image rows again beside a CPU-bound neighbour (one busy-loop process), for every implementation in the
+same run. All against one Debian rosmaster.
 
-Usage: ``python -m bench.tcpros [--count 200] [--quick] [--images-only] [--rounds 3] [--no-neighbour]``; the
+Usage: ``python -m bench.tcpros [--count 200] [--quick] [--images-only] [--rounds 3] [--no-shm] [--no-neighbour]``; the
 same module is the mrosd echo/sender process (``--role echo|ping|burst``). uvloop is used in the mrosd
 processes when installed.
 """
@@ -254,10 +255,12 @@ class Runner:
         )
         return env
 
-    def start(self, argv: list[str], out: Any = subprocess.PIPE) -> subprocess.Popen[bytes]:
+    def start(
+        self, argv: list[str], out: Any = subprocess.PIPE, extra_env: dict[str, str] | None = None
+    ) -> subprocess.Popen[bytes]:
+        env = {**self.env(), **(extra_env or {})} if hasattr(self, "master") else None
         proc = subprocess.Popen(
-            argv, env=self.env() if hasattr(self, "master") else None, stdout=out, stderr=subprocess.DEVNULL,
-            cwd=ROOT, start_new_session=True,
+            argv, env=env, stdout=out, stderr=subprocess.DEVNULL, cwd=ROOT, start_new_session=True,
         )  # fmt: skip
         self.procs.append(proc)
         return proc
@@ -281,8 +284,13 @@ class Runner:
             self.stop(proc)
 
 
+#: "mrosd" is our nodes over TCPROS (shared memory off); "same-host" is the same nodes left to negotiate the
+#: shared-memory transport they use by default between mrosd processes on one host (docs/shm.md).
+IMPL_ENV = {"mrosd": {"MROSD_SHM": "0"}, "same-host": {"MROSD_SHM": "1"}}
+
+
 def _commands(impl: str, cpp: str | None) -> tuple[list[str], list[str]] | None:
-    if impl == "mrosd":
+    if impl in IMPL_ENV:
         base = [sys.executable, "-m", "bench.tcpros", "--role"]
         return [*base, "echo"], [*base]
     if impl == "rospy":
@@ -301,15 +309,17 @@ def _run_pair(
     if echo_cmds is None or send_cmds is None:
         return []
     echo_cmd, send_cmd = echo_cmds[0], send_cmds[1]
-    echo = runner.start([*echo_cmd, "--kind", kind] if echo_impl == "mrosd" else [*echo_cmd, kind])
-    if sender_impl == "mrosd":
+    echo = runner.start(
+        [*echo_cmd, "--kind", kind] if echo_impl in IMPL_ENV else [*echo_cmd, kind], extra_env=IMPL_ENV.get(echo_impl)
+    )
+    if sender_impl in IMPL_ENV:
         sender_argv = [*send_cmd, mode, "--kind", kind, "--sizes", ",".join(map(str, sizes)), "--n", str(n)]
     else:
         sender_argv = [*send_cmd, mode, kind, ",".join(map(str, sizes)), str(n)]
     if echo_impl != "roscpp":
         assert echo.stdout is not None
         echo.stdout.readline()  # "up"
-    sender = runner.start(sender_argv)
+    sender = runner.start(sender_argv, extra_env=IMPL_ENV.get(sender_impl))
     try:
         out, _ = sender.communicate(timeout=600)
     finally:
@@ -410,6 +420,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--impl", default="mrosd,rospy,roscpp", help="comma-separated implementations")
     parser.add_argument("--images-only", action="store_true", help="only the image and point cloud throughput")
     parser.add_argument("--no-mixed", action="store_true", help="only each implementation against itself")
+    parser.add_argument("--no-shm", action="store_true", help="skip the same-host (shared memory) image rows")
     parser.add_argument("--no-neighbour", action="store_true", help="skip the runs beside a busy-loop process")
     parser.add_argument(
         "--rounds", type=int, default=3, help="image bursts per implementation, interleaved; the median is reported"
@@ -449,7 +460,9 @@ def main(argv: list[str]) -> int:
                     lines = _run_pair(runner, pair, cpp, "burst", "string", [SMALL], burst_small)
                     for _, count, secs in _bursts(lines):
                         res.small[pair[0]] = count / secs if secs > 0 else 0.0
-            _throughput(runner, selves, cpp, max(1, args.rounds), res.large)
+            # images and point clouds also between two mrosd processes on shared memory (the same-host row)
+            large = selves + ([("same-host", "same-host")] if "mrosd" in impls and not args.no_shm else [])
+            _throughput(runner, large, cpp, max(1, args.rounds), res.large)
             if not args.no_neighbour:
                 busy = _busy_loop(runner)
                 try:
@@ -462,7 +475,7 @@ def main(argv: list[str]) -> int:
                     runner.stop(busy)
         finally:
             runner.close()
-    _report(impls, res)
+    _report(impls + ([] if args.no_shm or "mrosd" not in impls else ["same-host"]), res)
     if not args.images_only:
         written = _box_plots(res.rtt, res.coord)
         print(f"\nplots: {', '.join(map(str, written))} (bench/out/ is git-ignored: never committed)")
@@ -566,7 +579,9 @@ def _report(impls: list[str], res: Results) -> None:
             print(f"{name} throughput {size // (1024 * 1024)} MB (echoed, MB/s, median of rounds): " + " | ".join(
                 f"{impl} {vals[impl]:.1f}" if vals.get(impl) else f"{impl} n/a" for impl in impls
             ) + f" | mrosd/rospy {_ratio(vals.get('mrosd'), vals.get('rospy'))}"
-              + f" mrosd/roscpp {_ratio(vals.get('mrosd'), vals.get('roscpp'))}")  # fmt: skip
+              + f" mrosd/roscpp {_ratio(vals.get('mrosd'), vals.get('roscpp'))}"
+              + (f" same-host/roscpp {_ratio(vals.get('same-host'), vals.get('roscpp'))}"
+                 if "same-host" in vals else ""))  # fmt: skip
     if res.busy_rtt:
         print("beside a busy-loop process: RTT median (µs), and idle -> busy")
         for x in NEIGHBOUR_SIZES:
