@@ -145,20 +145,41 @@ def start_rosmaster(procs: Processes) -> str:
 
 
 def iter_lines_until(proc: subprocess.Popen[bytes], count: int, timeout: float) -> Iterator[str]:
-    """Yield up to ``count`` stdout lines of ``proc``, failing the test if they do not come in time."""
+    """Yield up to ``count`` stdout lines of ``proc``, failing the test if they do not come in time.
+
+    Reads the pipe's fd directly and keeps what follows the last yielded line on ``proc`` for the next call:
+    a buffered ``readline`` after ``select`` would strand lines that arrived in one write inside Python's
+    buffer, where ``select`` cannot see them. Do not mix with ``proc.stdout.readline()`` on the same process.
+    """
     import selectors
 
     assert proc.stdout is not None
+    fd = proc.stdout.fileno()
+    pending: bytearray = proc.__dict__.setdefault("_pending_stdout", bytearray())
     sel = selectors.DefaultSelector()
-    sel.register(proc.stdout, selectors.EVENT_READ)
+    sel.register(fd, selectors.EVENT_READ)
     deadline = time.monotonic() + timeout
     got = 0
-    while got < count:
-        remaining = deadline - time.monotonic()
-        if remaining <= 0 or not sel.select(remaining):
-            raise TimeoutError(f"only {got} of {count} lines within {timeout} s")
-        line = proc.stdout.readline()
-        if not line:
-            raise EOFError(f"process ended after {got} of {count} lines")
-        got += 1
-        yield line.decode(errors="replace").rstrip("\n")
+    try:
+        while got < count:
+            end = pending.find(b"\n")
+            if end < 0:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or not sel.select(remaining):
+                    raise TimeoutError(f"only {got} of {count} lines within {timeout} s")
+                chunk = os.read(fd, 65536)
+                if not chunk:
+                    if pending:  # a last line without its newline
+                        line, pending[:] = bytes(pending), b""
+                        got += 1
+                        yield line.decode(errors="replace")
+                        continue
+                    raise EOFError(f"process ended after {got} of {count} lines")
+                pending += chunk
+                continue
+            line = bytes(pending[:end])
+            del pending[: end + 1]
+            got += 1
+            yield line.decode(errors="replace")
+    finally:
+        sel.close()
