@@ -162,24 +162,10 @@ def fd_count(pid: int) -> int:
 
 
 def shm_entries(prefix: str) -> set[str]:
-    """Names of the IXM segments (nameless memfds) with ``prefix`` that any process holds open.
+    """Names of the IXM segments (nameless memfds) with ``prefix`` that any process holds open."""
+    from mrosd.ixm.resources import held_memfds
 
-    ``prefix`` is the soak daemon's own segment prefix, so other runs on the machine don't count.
-    """
-    held: set[str] = set()
-    for pid in filter(str.isdigit, os.listdir("/proc")):
-        try:
-            fds = os.listdir(f"/proc/{pid}/fd")
-        except OSError:
-            continue
-        for fd in fds:
-            try:
-                link = os.readlink(f"/proc/{pid}/fd/{fd}")
-            except OSError:
-                continue
-            if link.startswith("/memfd:" + prefix):
-                held.add(link.removeprefix("/memfd:").removesuffix(" (deleted)"))
-    return held
+    return held_memfds(prefix)
 
 
 def free_port() -> int:

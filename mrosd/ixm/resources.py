@@ -22,7 +22,7 @@ import msgspec
 from mrosd.ixm.layout import SegmentLayout
 from mrosd.ixm.registry import SegmentInfo
 
-__all__ = ["Limits", "NoticePage", "Segment", "reopen", "sealed_memfd"]
+__all__ = ["Limits", "NoticePage", "Segment", "held_memfds", "reopen", "sealed_memfd"]
 
 _SEALS = fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW | fcntl.F_SEAL_SEAL
 
@@ -124,3 +124,25 @@ class NoticePage:
     def close(self) -> None:
         self.count.release()
         self.map.close()
+
+
+def held_memfds(prefix: str) -> set[str]:
+    """Names of the memfds starting with ``prefix`` that some process on the machine holds open.
+
+    Segments have no name in /dev/shm, so this is how leak checks (tests, the soak) see them: through
+    ``/proc/<pid>/fd`` links (``/memfd:<name> (deleted)``); processes we may not inspect are skipped.
+    """
+    names: set[str] = set()
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            fds = os.listdir(f"/proc/{pid}/fd")
+        except OSError:
+            continue
+        for fd in fds:
+            try:
+                link = os.readlink(f"/proc/{pid}/fd/{fd}")
+            except OSError:
+                continue
+            if link.startswith("/memfd:" + prefix):
+                names.add(link.removeprefix("/memfd:").removesuffix(" (deleted)"))
+    return names

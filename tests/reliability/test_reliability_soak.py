@@ -1,4 +1,4 @@
-"""Load: the short soak (daemon + many real nodes, bounded RSS/fds, no IXM segment left held) and a stalled subscriber."""
+"""Load: the short soak (daemon + many real nodes, bounded RSS/fds, no IXM segment left held), a stalled subscriber."""
 
 from __future__ import annotations
 

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from mrosd.ixm.server import segment_prefix
+from mrosd.ixm.resources import held_memfds
+from mrosd.ixm.server import SHM_PREFIX, segment_prefix
 from tests.rosenv import Processes
 
 SHM = Path("/dev/shm")
@@ -24,22 +25,7 @@ SHM = Path("/dev/shm")
 
 def ixm_segments() -> set[str]:
     """Names of the IXM segments some process on the machine holds open."""
-    names: set[str] = set()
-    for pid in os.listdir("/proc"):
-        if not pid.isdigit():
-            continue
-        try:
-            fds = os.listdir(f"/proc/{pid}/fd")
-        except OSError:
-            continue
-        for fd in fds:
-            try:
-                link = os.readlink(f"/proc/{pid}/fd/{fd}")
-            except OSError:
-                continue
-            if link.startswith("/memfd:mrosd-ixm-"):
-                names.add(link.removeprefix("/memfd:").removesuffix(" (deleted)"))
-    return names
+    return held_memfds(SHM_PREFIX)
 
 
 def own_segments(socket_path: str) -> set[str]:
