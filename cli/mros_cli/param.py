@@ -28,11 +28,6 @@ NS_KEY = "_ns"
 MAX_XMLRPC_INT = 2**31 - 1
 
 
-def resolve(name: str) -> str:
-    """A parameter name resolved as rosparam's script_resolve_name does (relative to $ROS_NAMESPACE)."""
-    return resolve_name(name)
-
-
 def yaml_text(value: Any) -> str:
     """rosparam's output for a value: ``yaml.dump`` without the ``...`` document end marker."""
     dump = yaml.dump(_plain(value))
@@ -132,7 +127,7 @@ def get(name: str, pretty: bool) -> None:
 
     async def main() -> Any:
         async with master_client() as master:
-            return await master.get_param(resolve(name))
+            return await master.get_param(resolve_name(name))
 
     value = run(main())
     if pretty and type(value) is dict:
@@ -199,7 +194,7 @@ def set_(name: str, value: str | None, textfile: Any, binfile: Any) -> None:
             parsed = yaml.safe_load(value) if value != "" else ""
         except yaml.YAMLError as exc:
             raise MrosError(f"value is not valid YAML: {' '.join(str(exc).split())}") from exc
-    resolved = resolve(name)
+    resolved = resolve_name(name)
     if not isinstance(parsed, xmlrpc.client.Binary):
         _check(parsed, resolved)
 
@@ -219,7 +214,7 @@ def list_(namespace: str) -> None:
     Example:
       mros param list /robot
     """
-    ns = resolve(namespace)
+    ns = resolve_name(namespace)
     prefix = ns if ns.endswith("/") else ns + "/"
 
     async def main() -> list[str]:
@@ -240,7 +235,7 @@ def delete(name: str) -> None:
     Example:
       mros param delete /pid
     """
-    resolved = resolve(name)
+    resolved = resolve_name(name)
 
     async def main() -> None:
         async with master_client() as master:
@@ -265,7 +260,7 @@ def dump(file: str, namespace: str) -> None:
 
     async def main() -> Any:
         async with master_client() as master:
-            return await master.get_param(resolve(namespace))
+            return await master.get_param(resolve_name(namespace))
 
     tree = _plain(run(main()))
     if file == "-":
@@ -302,7 +297,7 @@ def load(file: str, namespace: str | None) -> None:
         docs = [d for d in yaml.safe_load_all(text) if d is not None]
     except yaml.YAMLError as exc:
         raise MrosError(f"{file} is not valid YAML: {' '.join(str(exc).split())}") from exc
-    default_ns = resolve(namespace) if namespace else resolve("")
+    default_ns = resolve_name(namespace) if namespace else resolve_name("")
     plan: list[tuple[str, Any]] = []
     for raw in docs:
         ns = default_ns

@@ -213,7 +213,8 @@ import mrosd.daemon as d
 started = d.Daemon.start
 async def start(self):
     await started(self)
-    asyncio.get_running_loop().call_later(0.5, time.sleep, 120)  # a part that wedges the event loop
+    # a part that wedges the event loop, late enough that READY (sent after start) is out first on a loaded machine
+    asyncio.get_running_loop().call_later(2.0, time.sleep, 120)
 d.Daemon.start = start
 sys.exit(d.main(sys.argv[1:]))
 """
