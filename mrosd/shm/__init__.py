@@ -5,7 +5,6 @@
 
 from __future__ import annotations
 
-from mrosd.shm.endpoint import ShmPublisherEndpoint, ShmSubscriberConnection, ShmView
 from mrosd.shm.negotiate import (
     PROTOCOL,
     TRANSPORT,
@@ -17,6 +16,8 @@ from mrosd.shm.negotiate import (
     publisher_answer,
     subscriber_offer,
 )
+from mrosd.shm.publisher import ShmPublisherEndpoint
+from mrosd.shm.subscriber import ShmSubscriberConnection, ShmView
 
 __all__ = [
     "PROTOCOL",

@@ -16,7 +16,6 @@ from collections.abc import Callable, Iterable
 from typing import Any, Protocol
 
 from mrosd.errors import MrosError, RemoteProtocolError
-from mrosd.shm.endpoint import ShmPublisherEndpoint, ShmRefused, ShmSubscriberConnection
 from mrosd.shm.negotiate import (
     PROTOCOL,
     TRANSPORT,
@@ -28,6 +27,8 @@ from mrosd.shm.negotiate import (
     subscriber_offer,
     trusted_uids,
 )
+from mrosd.shm.publisher import ShmPublisherEndpoint
+from mrosd.shm.subscriber import ShmRefused, ShmSubscriberConnection
 from mrosd.tcpros.handshake import check_publisher_reply, publisher_reply
 from mrosd.tcpros.header import ConnectionHeader
 

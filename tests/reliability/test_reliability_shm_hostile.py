@@ -23,7 +23,8 @@ import pytest
 
 from mrosd.errors import RemoteProtocolError
 from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection, control
-from mrosd.shm import endpoint as endpoint_mod
+from mrosd.shm import publisher as shm_publisher
+from mrosd.shm import subscriber as shm_subscriber
 from mrosd.shm.negotiate import ShmAnswer
 from mrosd.shm.ring import RingLayout, ring_size
 from mrosd.shm.segment import MappedRing, RingSegment
@@ -217,7 +218,7 @@ async def closed_by_peer(sock: socket.socket) -> bytes:
 
 
 async def test_hostile_subscribers_are_closed_and_the_others_served(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(endpoint_mod, "ATTACH_TIMEOUT", 0.3)
+    monkeypatch.setattr(shm_publisher, "ATTACH_TIMEOUT", 0.3)
     ep = ShmPublisherEndpoint("/t", queue_size=4)
     await ep.start()
     good = await ShmSubscriberConnection.attach(ShmAnswer(version=1, address=ep.address, token=ep.token), HEADER)
@@ -261,7 +262,7 @@ async def test_hostile_subscribers_are_closed_and_the_others_served(monkeypatch:
 async def test_a_publisher_that_floods_replacement_rings_is_cut_off() -> None:
     def flood(c: socket.socket) -> None:
         send(c, ATTACHED, [sealed(lying_ring(lambda r: None))])
-        for _ in range(endpoint_mod.MAX_NEXT_RINGS + 1):
+        for _ in range(shm_subscriber.MAX_NEXT_RINGS + 1):
             send(c, control.Ring(slots=2), [sealed(lying_ring(lambda r: None))])
 
     answer, task = await fake_publisher(flood)

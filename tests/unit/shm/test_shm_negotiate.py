@@ -10,7 +10,6 @@ from hypothesis import strategies as st
 
 from mrosd.errors import RemoteProtocolError
 from mrosd.shm import control
-from mrosd.shm.endpoint import _grown, slots_for
 from mrosd.shm.negotiate import (
     PROTOCOL,
     HostIdentity,
@@ -22,6 +21,7 @@ from mrosd.shm.negotiate import (
     subscriber_offer,
     trusted_uids,
 )
+from mrosd.shm.publisher import _grown, slots_for
 
 HERE = HostIdentity(boot_id="b0", netns="4026531833", uid=1000)
 TRUSTED = frozenset({0, 1000})

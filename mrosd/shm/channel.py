@@ -1,0 +1,113 @@
+"""The control socket of a shared-memory connection, as both ends use it.
+
+A publisher listens on an abstract Unix socket (no file to leave behind, scoped to the network namespace);
+each subscriber connects to it and the two exchange ``mrosd.shm.control`` messages, descriptors attached
+(the subscriber's eventfd, the publisher's rings). ``ControlChannel`` frames and unframes those messages;
+the functions here are the socket chores both ends share: the abstract name, connecting without blocking,
+the peer's credentials from the kernel, closing descriptors received.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import errno
+import os
+import socket
+import struct
+from collections.abc import Iterable
+
+from mrosd.ixm.channel import FdReader, send_frame
+from mrosd.shm import control
+
+__all__ = ["ATTACH_TIMEOUT", "ControlChannel", "abstract_name", "close_fds", "connect_unix", "peer_credentials"]
+
+#: Seconds a subscriber has to attach once connected (and, by default, to finish attaching on its side).
+ATTACH_TIMEOUT = 10.0
+
+_PEERCRED = struct.Struct("3i")
+
+
+def abstract_name(address: str) -> str:
+    """The socket address of ``@name``: the abstract namespace's leading NUL instead of the ``@``."""
+    return "\0" + address[1:]
+
+
+def peer_credentials(sock: socket.socket) -> tuple[int, int]:
+    """The pid and uid of the process at the other end of a Unix socket, as the kernel saw them."""
+    pid, uid, _gid = _PEERCRED.unpack(sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, _PEERCRED.size))
+    return pid, uid
+
+
+def _settle(future: asyncio.Future[None]) -> None:
+    if not future.done():
+        future.set_result(None)
+
+
+async def connect_unix(sock: socket.socket, address: str) -> None:
+    """Connect a non-blocking Unix socket (by hand: uvloop's sock_connect does not take abstract names)."""
+    try:
+        sock.connect(address)
+        return
+    except (BlockingIOError, InterruptedError):
+        pass  # the listener's backlog is full: wait until it takes us
+    loop = asyncio.get_running_loop()
+    ready: asyncio.Future[None] = loop.create_future()
+    loop.add_writer(sock.fileno(), _settle, ready)
+    try:
+        await ready
+    finally:
+        loop.remove_writer(sock.fileno())
+    err = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
+    if err:
+        raise OSError(err, os.strerror(err))
+
+
+def close_fds(fds: Iterable[int]) -> None:
+    """Close each descriptor, ignoring any already closed."""
+    for fd in fds:
+        with contextlib.suppress(OSError):
+            os.close(fd)
+
+
+class ControlChannel:
+    """A non-blocking Unix stream socket with the ``FdReader`` of what arrives on it."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        sock.setblocking(False)
+        self.sock = sock
+        self.reader = FdReader(sock, control.MAX_CONTROL_FRAME)
+
+    def receive(self) -> list[tuple[control.Message, list[int]]] | None:
+        """Every complete message with the descriptors it announced; None at end of stream.
+
+        Raises:
+            RemoteProtocolError: a bad frame, or descriptors missing or in excess.
+        """
+        try:
+            if not self.reader.recv(socket.MSG_CMSG_CLOEXEC):
+                return None
+        except (BlockingIOError, InterruptedError):
+            return []
+        except ConnectionError:
+            return None
+        out: list[tuple[control.Message, list[int]]] = []
+        while (body := self.reader.next_frame()) is not None:
+            msg = control.decode(body)
+            wants = 1 if isinstance(msg, (control.Attach, control.Attached, control.Ring)) else 0
+            out.append((msg, self.reader.take_fds(wants)))
+        return out
+
+    def send(self, msg: control.Message, fds: tuple[int, ...] = ()) -> None:
+        """Send one whole message now.
+
+        Raises:
+            OSError: the peer's socket is full (it does not read its control messages) or gone.
+        """
+        frame = control.encode(msg)
+        if send_frame(self.sock, frame, fds) != len(frame):
+            raise BlockingIOError(errno.EAGAIN, "control message sent in part")
+
+    def close(self) -> None:
+        self.reader.close()
+        self.sock.close()

@@ -1,0 +1,386 @@
+"""A topic's publishing end of the shared-memory transport: its ring, its listener, its subscribers.
+
+``ShmPublisherEndpoint`` owns one topic's ring (a sealed memfd, ``mrosd.shm.segment``), an abstract Unix
+socket (``mrosd.shm.channel``) on which same-host subscribers attach, and one eventfd per subscriber.
+``publish`` copies the serialized message once into the ring and writes 8 bytes to each subscriber's
+eventfd: its cost does not grow with the message size per subscriber, and it never waits for anyone. A
+message bigger than the slots makes the publisher retire the ring and continue in a bigger one, announced
+with its descriptor over each subscriber's socket. A subscriber's end (exit, crash) is its socket closing;
+every problem with a subscriber closes only that subscriber's connection, with one log line.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hmac
+import itertools
+import logging
+import os
+import secrets
+import socket
+import sys
+from collections.abc import Callable, Iterable
+from typing import Any
+
+from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
+from mrosd.shm import control
+from mrosd.shm.channel import ATTACH_TIMEOUT, ControlChannel, abstract_name, close_fds, peer_credentials
+from mrosd.shm.negotiate import TRANSPORT, publisher_answer, trusted_uids
+from mrosd.shm.ring import MAX_SLOTS, slot_stride
+from mrosd.shm.segment import RingSegment
+from mrosd.spin import loop_spinner
+from mrosd.tcpros.header import ConnectionHeader, decode_connection_header, encode_header
+
+__all__ = [
+    "DEFAULT_MAX_RING_BYTES",
+    "INITIAL_CAPACITY",
+    "MAX_PENDING",
+    "ShmPublisherEndpoint",
+    "ShmSubscriberLink",
+    "slots_for",
+]
+
+log = logging.getLogger(__name__)
+
+#: A publisher's ring is at most this big (more slots than fit are not made; at least 2 always are).
+DEFAULT_MAX_RING_BYTES = 128 << 20
+#: First slot size; the ring grows (by replacement) when a bigger message comes.
+INITIAL_CAPACITY = 64 << 10
+#: Subscribers that connected but have not attached yet (each has ``ATTACH_TIMEOUT`` seconds).
+MAX_PENDING = 64
+
+_ONE = (1).to_bytes(8, sys.byteorder)
+_ids = itertools.count(1)
+
+
+def slots_for(queue_size: int, capacity: int, max_ring_bytes: int) -> int:
+    """Ring slots for a publisher's ``queue_size``: one more than the queue (the one being written), at least
+    3, and no more than ``max_ring_bytes`` holds (but never fewer than 2)."""
+    wanted = min(MAX_SLOTS, max(3, queue_size + 1))
+    fit = max_ring_bytes // slot_stride(capacity)
+    return max(2, min(wanted, fit))
+
+
+def _grown(capacity: int, needed: int) -> int:
+    """The slot size of a replacement ring: room for ``needed`` plus an eighth, page-rounded, at least double
+    the old one while that stays under twice ``needed``."""
+    size = max(needed + needed // 8, min(capacity * 2, needed * 2))
+    return (size + 4095) // 4096 * 4096
+
+
+def _is_eventfd(fd: int) -> bool:
+    try:
+        return os.readlink(f"/proc/self/fd/{fd}") == "anon_inode:[eventfd]"
+    except OSError:
+        return False
+
+
+class ShmSubscriberLink:
+    """One attached subscriber, seen from the publisher."""
+
+    def __init__(self, endpoint: ShmPublisherEndpoint, channel: ControlChannel, wake_fd: int, callerid: str, pid: int):
+        self.endpoint = endpoint
+        self.channel = channel
+        self.wake_fd = wake_fd
+        self.callerid = callerid
+        self.pid = pid
+        self.id = next(_ids)
+        self.messages_sent = 0
+        self.bytes_sent = 0
+        #: as last reported by the subscriber
+        self.dropped = 0
+        self.connected = True
+
+    def close(self) -> None:
+        if not self.connected:
+            return
+        self.connected = False
+        loop = self.endpoint._loop
+        with contextlib.suppress(Exception):
+            loop.remove_reader(self.channel.sock.fileno())
+        self.channel.close()
+        close_fds([self.wake_fd])
+
+
+class ShmPublisherEndpoint:
+    """One topic's shared-memory side: ``await start()``, answer requestTopic with ``answer()``, ``publish``.
+
+    Args:
+        topic: for names and log lines.
+        queue_size: the ring keeps this many messages for a slow subscriber (see ``slots_for``).
+        latch: a subscriber that attaches gets the last message first.
+        handshake: checks a subscriber's TCPROS connection header and returns the publisher's (as
+            ``mrosd.tcpros.handshake.publisher_reply`` does); raise ``HandshakeError`` to refuse.
+        on_change: called when a subscriber attaches or goes.
+        trusted: uids whose processes may attach (default root, ours, ``$MROSD_SHM_TRUSTED_UIDS``).
+    """
+
+    def __init__(
+        self,
+        topic: str,
+        *,
+        queue_size: int = 100,
+        latch: bool = False,
+        handshake: Callable[[ConnectionHeader], ConnectionHeader] | None = None,
+        on_change: Callable[[], None] | None = None,
+        trusted: frozenset[int] | None = None,
+        max_ring_bytes: int = DEFAULT_MAX_RING_BYTES,
+        initial_capacity: int = INITIAL_CAPACITY,
+    ) -> None:
+        self.topic = topic
+        self.queue_size = queue_size
+        self.latch = latch
+        self.handshake = handshake or (lambda header: ConnectionHeader(callerid="", latching="1" if latch else "0"))
+        self.on_change = on_change or (lambda: None)
+        self.trusted = trusted_uids() if trusted is None else trusted
+        self.max_ring_bytes = max_ring_bytes
+        self.capacity = max(64, initial_capacity)
+        self.token = secrets.token_hex(16)
+        self.address = "@mrosd-shm-" + secrets.token_hex(12)
+        self.links: list[ShmSubscriberLink] = []
+        self.ring: RingSegment | None = None
+        #: rings made so far (the first and each replacement)
+        self.rings_made = 0
+        self.closed = False
+        self._loop = asyncio.get_running_loop()
+        self._sock: socket.socket | None = None
+        self._pending: dict[int, tuple[ControlChannel, asyncio.TimerHandle]] = {}
+        self._poke = loop_spinner(self._loop).poke
+
+    async def start(self) -> None:
+        """Listen on the abstract Unix socket ``address``."""
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC | socket.SOCK_NONBLOCK)
+        try:
+            sock.bind(abstract_name(self.address))
+            sock.listen(64)
+        except BaseException:
+            sock.close()
+            raise
+        self._sock = sock
+        self._loop.add_reader(sock.fileno(), self._accept)
+
+    def answer(self) -> list[Any]:
+        """requestTopic's protocol parameters that send a subscriber here."""
+        return publisher_answer(self.address, self.token)
+
+    # publishing ------------------------------------------------------------------------------------------
+
+    def publish(self, body: bytes | bytearray | memoryview) -> None:
+        """Copy one serialized message (no length prefix) into the ring once and wake every subscriber."""
+        self.publish_parts((body,), len(body))
+
+    def publish_parts(self, parts: Iterable[bytes | bytearray | memoryview], size: int) -> None:
+        """``publish(b"".join(parts))`` without the join (``size`` bytes in all)."""
+        if self.closed:
+            raise LocalProtocolError(f"shared-memory publisher of {self.topic} is closed")
+        if not self.links and not self.latch:
+            return  # nobody reads it, and nobody will read this one later
+        ring = self._ring_for(size)
+        ring.layout.write_parts(parts, size)
+        for link in self.links:
+            link.messages_sent += 1
+            link.bytes_sent += size
+            try:
+                os.write(link.wake_fd, _ONE)
+            except BlockingIOError:
+                pass  # the counter is saturated: the subscriber is woken anyway
+            except OSError as exc:
+                self._drop(link, f"cannot wake it: {exc}")
+        self._poke()
+
+    def _ring_for(self, size: int) -> RingSegment:
+        ring = self.ring
+        if ring is not None and size <= ring.layout.capacity:
+            return ring
+        if ring is None:
+            capacity = max(self.capacity, _grown(0, size) if size > self.capacity else self.capacity)
+        else:
+            capacity = _grown(ring.layout.capacity, size)
+        head = ring.layout.head if ring is not None else 0
+        slots = slots_for(self.queue_size, capacity, self.max_ring_bytes)
+        new = RingSegment(self.topic.strip("/").replace("/", "-"), slots, capacity, head)
+        self.rings_made += 1
+        self.capacity = capacity
+        self.ring = new
+        if ring is not None:
+            ring.layout.retire()
+            for link in list(self.links):
+                self._send_ring(link, control.Ring(slots=new.layout.slots))
+            ring.close()
+        return new
+
+    def _send_ring(self, link: ShmSubscriberLink, msg: control.Message) -> bool:
+        assert self.ring is not None
+        fd = self.ring.reader_fd()
+        try:
+            link.channel.send(msg, (fd,))
+        except OSError as exc:
+            self._drop(link, f"cannot send it the ring: {exc}")
+            return False
+        finally:
+            os.close(fd)
+        return True
+
+    # subscribers ------------------------------------------------------------------------------------------
+
+    def _accept(self) -> None:
+        assert self._sock is not None
+        while True:
+            try:
+                conn, _ = self._sock.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:
+                log.warning("%s: shared-memory accept failed: %s", self.topic, exc)
+                return
+            pid, uid = peer_credentials(conn)
+            if uid not in self.trusted or len(self._pending) >= MAX_PENDING:
+                why = "uid not trusted" if uid not in self.trusted else "too many pending attachments"
+                log.warning("%s: refusing shared-memory subscriber pid %d uid %d: %s", self.topic, pid, uid, why)
+                conn.close()
+                continue
+            channel = ControlChannel(conn)
+            fd = conn.fileno()
+            timer = self._loop.call_later(ATTACH_TIMEOUT, self._abandon, fd, "did not attach in time")
+            self._pending[fd] = (channel, timer)
+            self._loop.add_reader(fd, self._on_pending, fd, pid)
+
+    def _abandon(self, fd: int, why: str) -> None:
+        entry = self._pending.pop(fd, None)
+        if entry is None:
+            return
+        channel, timer = entry
+        timer.cancel()
+        with contextlib.suppress(Exception):
+            self._loop.remove_reader(fd)
+        log.warning("%s: closing a shared-memory subscriber connection: %s", self.topic, why)
+        channel.close()
+
+    def _on_pending(self, fd: int, pid: int) -> None:
+        channel = self._pending[fd][0]
+        try:
+            got = channel.receive()
+        except RemoteProtocolError as exc:
+            self._abandon(fd, str(exc))
+            return
+        if got is None:
+            self._abandon(fd, "it closed before attaching")
+            return
+        if not got:
+            return
+        msg, fds = got[0]
+        if not isinstance(msg, control.Attach) or len(got) > 1:
+            close_fds(f for _, more in got for f in more)
+            self._abandon(fd, f"expected one attach, got {type(msg).__name__}")
+            return
+        wake_fd = fds[0]
+        entry = self._pending.pop(fd)
+        entry[1].cancel()
+        self._loop.remove_reader(fd)
+        self._attach(channel, msg, wake_fd, pid)
+
+    def _attach(self, channel: ControlChannel, msg: control.Attach, wake_fd: int, pid: int) -> None:
+        def refuse(why: str) -> None:
+            log.warning("%s: refusing shared-memory subscriber (pid %d): %s", self.topic, pid, why)
+            with contextlib.suppress(OSError):
+                channel.send(control.Refused(reason=why))
+            channel.close()
+            close_fds([wake_fd])
+
+        if not hmac.compare_digest(msg.token.encode(), self.token.encode()):
+            refuse("wrong token")
+            return
+        if not _is_eventfd(wake_fd):
+            refuse("the wake-up descriptor is not an eventfd")
+            return
+        os.set_blocking(wake_fd, False)
+        try:
+            header = decode_connection_header(msg.header)
+            reply = self.handshake(header)
+        except (HandshakeError, RemoteProtocolError) as exc:
+            refuse(str(exc))
+            return
+        if self.closed:
+            refuse("the publisher is closing")
+            return
+        ring = self._ring_for(0)
+        head = ring.layout.head
+        first = head if self.latch and head > 0 else head + 1
+        link = ShmSubscriberLink(self, channel, wake_fd, header.callerid or "?", pid)
+        if not self._send_ring(link, control.Attached(header=encode_header(reply)[4:], first=first)):
+            return
+        if first <= head:  # the latched message
+            link.messages_sent += 1
+            link.bytes_sent += int(ring.layout.words[(head - 1) % ring.layout.slots][1])
+        self.links.append(link)
+        self._loop.add_reader(channel.sock.fileno(), self._on_link, link)
+        self.on_change()
+
+    def _on_link(self, link: ShmSubscriberLink) -> None:
+        try:
+            got = link.channel.receive()
+        except RemoteProtocolError as exc:
+            self._drop(link, str(exc))
+            return
+        if got is None:
+            self._drop(link, "")
+            return
+        for msg, fds in got:
+            close_fds(fds)
+            if isinstance(msg, control.Progress):
+                link.dropped = max(0, min(msg.dropped, 1 << 62))
+            else:
+                self._drop(link, f"unexpected {type(msg).__name__}")
+                return
+
+    def _drop(self, link: ShmSubscriberLink, why: str) -> None:
+        if why:
+            log.warning("%s: closing shared-memory subscriber %s: %s", self.topic, link.callerid, why)
+        else:
+            log.info("%s: shared-memory subscriber %s went away", self.topic, link.callerid)
+        link.close()
+        if link in self.links:
+            self.links.remove(link)
+            self.on_change()
+
+    # introspection ---------------------------------------------------------------------------------------
+
+    def stats(self) -> list[dict[str, Any]]:
+        """Per subscriber: id, callerid, messages and bytes written for it, drops it reported, connected."""
+        return [
+            {
+                "id": lk.id,
+                "callerid": lk.callerid,
+                "messages": lk.messages_sent,
+                "bytes": lk.bytes_sent,
+                "dropped": lk.dropped,
+                "connected": lk.connected,
+            }
+            for lk in self.links
+        ]
+
+    def bus_info(self) -> list[list[Any]]:
+        """getBusInfo rows of the shared-memory subscribers (transport ``SHMROS``)."""
+        return [[lk.id, lk.callerid, "o", TRANSPORT, self.topic, lk.connected, f"pid {lk.pid}"] for lk in self.links]
+
+    # lifecycle ------------------------------------------------------------------------------------------
+
+    async def aclose(self) -> None:
+        """Close every subscriber connection (they see their socket close), the listener and the ring."""
+        if self.closed:
+            return
+        self.closed = True
+        if self._sock is not None:
+            with contextlib.suppress(Exception):
+                self._loop.remove_reader(self._sock.fileno())
+            self._sock.close()
+            self._sock = None
+        for fd in list(self._pending):
+            self._abandon(fd, "the publisher is closing")
+        for link in list(self.links):
+            link.close()
+        self.links.clear()
+        if self.ring is not None:
+            self.ring.close()
+            self.ring = None

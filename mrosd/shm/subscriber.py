@@ -1,0 +1,393 @@
+"""A subscriber's end of the shared-memory transport: its connection to one publisher's ring.
+
+``ShmSubscriberConnection`` attaches (token, connection header, eventfd out; header, read-only ring in, over
+the socket of ``mrosd.shm.channel``), then is woken by the loop (``add_reader`` on the eventfd,
+spin-then-block through ``mrosd.spin``) and reads the ring: copies by default, or zero-copy ``ShmView``s on
+request. A subscriber that falls behind loses the oldest messages and counts them; it reports the count to
+the publisher for its statistics. The publisher's end (exit, crash) is its socket closing; ``closed`` is
+then done and ``error`` says why. A publisher breaking the protocol closes this connection, with one log line.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import contextlib
+import logging
+import os
+import socket
+from collections.abc import Callable
+from typing import Any
+
+from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
+from mrosd.shm import control
+from mrosd.shm.channel import ATTACH_TIMEOUT, ControlChannel, abstract_name, close_fds, connect_unix, peer_credentials
+from mrosd.shm.negotiate import ShmAnswer, trusted_uids
+from mrosd.shm.ring import RingCursor
+from mrosd.shm.segment import MappedRing
+from mrosd.spin import loop_spinner
+from mrosd.tcpros.header import ConnectionHeader, decode_connection_header, encode_header
+
+__all__ = [
+    "DEFAULT_MAX_MAP_BYTES",
+    "DRAIN_BATCH",
+    "MAX_NEXT_RINGS",
+    "Frame",
+    "ShmRefused",
+    "ShmSubscriberConnection",
+    "ShmView",
+]
+
+log = logging.getLogger(__name__)
+
+#: A subscriber maps a ring of at most this many bytes.
+DEFAULT_MAX_MAP_BYTES = 2 << 30
+#: Replacement rings announced and not yet reached; more is a publisher misbehaving.
+MAX_NEXT_RINGS = 8
+#: Messages delivered per wake-up before the loop gets a turn (the rest follow at once).
+DRAIN_BATCH = 64
+
+
+class ShmRefused(HandshakeError):
+    """The publisher refused this subscriber (``reason``: its words, as a TCPROS error header carries them)."""
+
+    def __init__(self, reason: str) -> None:
+        self.reason = reason
+        super().__init__(f"publisher refused the shared-memory connection: {reason}")
+
+
+class ShmView:
+    """A zero-copy, read-only view of one message in the publisher's ring.
+
+    Lifetime: in a callback, the view is released when the callback returns; from ``async for``, when the
+    next message is asked for. Independently, the publisher overwrites the slot ``slots - 1`` messages later:
+    the bytes read through ``data`` were those of this message if ``intact()`` is still True after reading
+    them (copy what you keep, then check).
+    """
+
+    __slots__ = ("_cursor", "data", "number")
+
+    def __init__(self, cursor: RingCursor, number: int, data: memoryview) -> None:
+        self._cursor = cursor
+        self.number = number
+        self.data = data
+
+    def intact(self) -> bool:
+        return self._cursor.intact(self.number)
+
+    def release(self) -> None:
+        self.data.release()
+
+
+Frame = bytes | ShmView
+
+
+class ShmSubscriberConnection:
+    """A subscriber's shared-memory connection to one publisher: ``await ShmSubscriberConnection.attach(...)``.
+
+    With ``on_frame``, each message is passed to it as it arrives (bytes, or an ``ShmView`` with
+    ``zero_copy``); without, iterate the connection with ``async for``. The ring is the queue: a subscriber
+    that reads too slowly loses the oldest messages (``dropped``).
+    """
+
+    def __init__(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        self.reply_header: ConnectionHeader | None = None
+        self.messages_received = 0
+        self.bytes_received = 0
+        #: done when the connection ends; await ``wait_closed()`` rather than this future itself
+        self.closed: asyncio.Future[None] = self._loop.create_future()
+        self._ended = False
+        #: why the connection ended ("" when we closed it or the publisher went away cleanly)
+        self.error = ""
+        self.publisher_pid = 0
+        self._channel: ControlChannel | None = None
+        self._wake_fd: int | None = None
+        self._ring: MappedRing | None = None
+        self._cursor: RingCursor | None = None
+        self._dropped_before = 0
+        self._reported = 0
+        self._on_frame: Callable[[Any], None] | None = None
+        self._zero_copy = False
+        self._event = asyncio.Event()
+        self._last_view: ShmView | None = None
+        #: rings the publisher moved on to, not yet switched to (the current one still has messages)
+        self._next_rings: collections.deque[MappedRing] = collections.deque()
+        self._scheduled = False
+        self._max_map = DEFAULT_MAX_MAP_BYTES
+        self._poke = loop_spinner(self._loop).poke
+
+    @classmethod
+    async def attach(
+        cls,
+        answer: ShmAnswer,
+        header: ConnectionHeader,
+        *,
+        on_frame: Callable[[Any], None] | None = None,
+        zero_copy: bool = False,
+        timeout: float = ATTACH_TIMEOUT,
+        trusted: frozenset[int] | None = None,
+        max_map_bytes: int = DEFAULT_MAX_MAP_BYTES,
+    ) -> ShmSubscriberConnection:
+        """Connect to ``answer.address``, show the token and ``header``, map the ring.
+
+        Raises:
+            HandshakeError: the publisher refused us (its reason).
+            RemoteProtocolError: the publisher is not of a trusted uid or broke the protocol.
+            OSError, TimeoutError: it could not be reached in ``timeout`` seconds.
+        """
+        self = cls()
+        self._on_frame = on_frame
+        self._zero_copy = zero_copy
+        self._max_map = max_map_bytes
+        try:
+            async with asyncio.timeout(timeout):
+                await self._handshake(answer, header, trusted_uids() if trusted is None else trusted)
+        except BaseException:
+            self._release()
+            raise
+        return self
+
+    async def _handshake(self, answer: ShmAnswer, header: ConnectionHeader, trusted: frozenset[int]) -> None:
+        loop = self._loop
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC | socket.SOCK_NONBLOCK)
+        self._channel = channel = ControlChannel(sock)
+        await connect_unix(sock, abstract_name(answer.address))
+        pid, uid = peer_credentials(sock)
+        if uid not in trusted:
+            raise RemoteProtocolError(f"the shared-memory publisher (pid {pid}) runs as untrusted uid {uid}")
+        self.publisher_pid = pid
+        self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        channel.send(control.Attach(token=answer.token, header=encode_header(header)[4:]), (self._wake_fd,))
+        got: list[tuple[control.Message, list[int]]] = []
+        while not got:
+            ready = loop.create_future()
+            loop.add_reader(sock.fileno(), ready.set_result, None)
+            try:
+                await ready
+            finally:
+                loop.remove_reader(sock.fileno())
+            received = channel.receive()
+            if received is None:
+                raise RemoteProtocolError("the shared-memory publisher closed the connection while attaching")
+            got = received
+        (msg, fds), rest = got[0], got[1:]
+        close_fds(f for _, more in rest for f in more)
+        if isinstance(msg, control.Refused):
+            raise ShmRefused(msg.reason)
+        if not isinstance(msg, control.Attached):
+            close_fds(fds)
+            raise RemoteProtocolError(f"expected Attached from the shared-memory publisher, got {type(msg).__name__}")
+        if rest:
+            raise RemoteProtocolError("the shared-memory publisher sent messages before we were attached")
+        self.reply_header = decode_connection_header(msg.header)
+        self._ring = MappedRing(fds[0], self._max_map)
+        self._cursor = RingCursor(self._ring.layout, max(1, msg.first))
+        loop.add_reader(self._wake_fd, self._on_wake)
+        loop.add_reader(sock.fileno(), self._on_control)
+        if self._on_frame is not None:
+            self._schedule()
+        elif self._cursor.available():
+            self._event.set()
+
+    # stats -------------------------------------------------------------------------------------------------
+
+    @property
+    def dropped(self) -> int:
+        """Messages lost: overwritten in the ring before this subscriber read them."""
+        return self._dropped_before + (self._cursor.dropped if self._cursor is not None else 0)
+
+    @property
+    def connected(self) -> bool:
+        return not self._ended
+
+    # wake-ups ----------------------------------------------------------------------------------------------
+
+    def _on_wake(self) -> None:
+        if self._wake_fd is not None:
+            with contextlib.suppress(OSError):
+                os.read(self._wake_fd, 8)
+        self._poke()
+        if self._on_frame is not None:
+            self._drain()
+        else:
+            self._event.set()
+
+    def _schedule(self) -> None:
+        if not self._scheduled:
+            self._scheduled = True
+            self._loop.call_soon(self._drain_soon)
+
+    def _drain_soon(self) -> None:
+        self._scheduled = False
+        if not self._ended:
+            self._drain()
+
+    def _drain(self) -> None:
+        cursor = self._cursor
+        callback = self._on_frame
+        if cursor is None or callback is None:
+            return
+        try:
+            for _ in range(DRAIN_BATCH):
+                frame = self._read_one()
+                if frame is None:
+                    break
+                try:
+                    callback(frame)
+                except Exception:
+                    log.exception("shared-memory subscriber callback failed")
+                finally:
+                    if isinstance(frame, ShmView):
+                        frame.release()
+            else:
+                self._schedule()
+        except RemoteProtocolError as exc:
+            self._end(str(exc))
+            return
+        self._report()
+
+    def _read_one(self) -> Frame | None:
+        """The next message, moving on to the next ring when ours is exhausted and replaced."""
+        cursor = self._cursor
+        if cursor is None:
+            return None
+        while True:
+            if self._zero_copy:
+                got = cursor.view()
+                if got is not None:
+                    m, view = got
+                    frame: Frame = ShmView(cursor, m, view)
+                    n = len(view)
+                    break
+            else:
+                data = cursor.read()
+                if data is not None:
+                    frame, n = data, len(data)
+                    break
+            if not self._next_rings:
+                return None
+            cursor = self._switch()
+        self.messages_received += 1
+        self.bytes_received += n
+        return frame
+
+    def _report(self) -> None:
+        dropped = self.dropped
+        if dropped != self._reported and self._channel is not None:
+            self._reported = dropped
+            with contextlib.suppress(OSError):
+                self._channel.send(control.Progress(dropped=dropped, received=self.messages_received))
+
+    def _on_control(self) -> None:
+        channel = self._channel
+        if channel is None:
+            return
+        try:
+            got = channel.receive()
+            if got is None:
+                self._end("")
+                return
+            for msg, fds in got:
+                if isinstance(msg, control.Ring):
+                    self._next_rings.append(MappedRing(fds[0], self._max_map))
+                    if len(self._next_rings) > MAX_NEXT_RINGS:
+                        raise RemoteProtocolError("the shared-memory publisher replaced its ring too often")
+                else:
+                    close_fds(fds)
+                    raise RemoteProtocolError(f"unexpected {type(msg).__name__} from the shared-memory publisher")
+        except RemoteProtocolError as exc:
+            self._end(str(exc))
+            return
+        if self._on_frame is not None:
+            self._schedule()
+        else:
+            self._event.set()
+
+    def _switch(self) -> RingCursor:
+        """Our ring is exhausted and retired (the publisher retires a ring before announcing the next one):
+        continue in the next, where the message numbers go on."""
+        old, cursor = self._ring, self._cursor
+        assert old is not None and cursor is not None
+        new = self._next_rings.popleft()
+        self._dropped_before += cursor.dropped
+        self._ring = new
+        self._cursor = RingCursor(new.layout, cursor.next)
+        self._release_view()
+        old.close()
+        return self._cursor
+
+    # iteration --------------------------------------------------------------------------------------------
+
+    def __aiter__(self) -> ShmSubscriberConnection:
+        return self
+
+    async def __anext__(self) -> Frame:
+        """The next message (bytes, or an ``ShmView`` valid until the next call); stops when the connection ends."""
+        if self._on_frame is not None:
+            raise LocalProtocolError("this connection delivers to a callback; it cannot be iterated")
+        self._release_view()
+        while True:
+            if self._ended or self._cursor is None:
+                raise StopAsyncIteration
+            self._event.clear()
+            try:
+                frame = self._read_one()
+            except RemoteProtocolError as exc:
+                self._end(str(exc))
+                raise StopAsyncIteration from None
+            if frame is not None:
+                self._report()
+                if isinstance(frame, ShmView):
+                    self._last_view = frame
+                return frame
+            await self._event.wait()  # set by a wake-up, a new ring, or the end of the connection
+
+    def _release_view(self) -> None:
+        if self._last_view is not None:
+            self._last_view.release()
+            self._last_view = None
+
+    # lifecycle --------------------------------------------------------------------------------------------
+
+    def _end(self, error: str) -> None:
+        if self._ended:
+            return
+        self._ended = True
+        if error:
+            self.error = error
+            log.warning("closing the shared-memory connection to publisher pid %d: %s", self.publisher_pid, error)
+        self._release()
+        if not self.closed.done():  # a caller that awaited ``closed`` itself and was cancelled cancels it
+            self.closed.set_result(None)
+        self._event.set()
+
+    async def wait_closed(self) -> None:
+        """Until the connection ends (cancelling the caller leaves ``closed`` alone)."""
+        await asyncio.shield(self.closed)
+
+    def _release(self) -> None:
+        loop = self._loop
+        if self._wake_fd is not None:
+            with contextlib.suppress(Exception):
+                loop.remove_reader(self._wake_fd)
+            close_fds([self._wake_fd])
+            self._wake_fd = None
+        if self._channel is not None:
+            with contextlib.suppress(Exception):
+                loop.remove_reader(self._channel.sock.fileno())
+            self._channel.close()
+            self._channel = None
+        self._release_view()
+        if self._cursor is not None:
+            self._dropped_before += self._cursor.dropped
+            self._cursor = None
+        if self._ring is not None:
+            self._ring.close()
+            self._ring = None
+        while self._next_rings:
+            self._next_rings.popleft().close()
+
+    async def aclose(self) -> None:
+        """Detach: the publisher sees our socket close; the mapping is released."""
+        self._end("")
