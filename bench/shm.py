@@ -224,6 +224,9 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--address", help=argparse.SUPPRESS)
     parser.add_argument("--token", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    # the tcpros rows go through mrosd.Node: keep them on TCPROS whatever the caller's environment says (the
+    # shared-memory rows drive the endpoints directly)
+    os.environ["MROSD_SHM"] = "0"
     if args.role:
         try:
             import uvloop

@@ -104,9 +104,14 @@ def permitted_uid(uid: int, trusted: frozenset[int]) -> bool:
 
 
 def enabled(environ: dict[str, str] | None = None) -> bool:
-    """False when ``MROSD_SHM=0``: this process offers and answers TCPROS only."""
+    """True when ``MROSD_SHM=1``: this process offers and answers shared memory to same-host mrosd peers.
+
+    Off by default: the ring drops the oldest messages once a burst outruns its subscriber (it holds at most
+    ``queue_size + 1`` slots and 128 MiB), where TCPROS would queue them, and a fresh connection pays for
+    mapping the ring, so short bursts of large messages are slower than over loopback TCP (docs/shm.md).
+    """
     env = os.environ if environ is None else environ
-    return env.get(ENABLE_ENV, "1").strip() not in ("0", "false", "no", "off")
+    return env.get(ENABLE_ENV, "0").strip().lower() in ("1", "true", "yes", "on")
 
 
 def subscriber_offer(identity: HostIdentity) -> list[Any]:

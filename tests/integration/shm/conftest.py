@@ -11,9 +11,17 @@ import time
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from tests.rosenv import Processes
 
 NODE = str(Path(__file__).with_name("shmnode.py"))
+
+
+@pytest.fixture(autouse=True)
+def shared_memory_on(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The transport is opt-in (``MROSD_SHM=1``); these tests, and the processes they start, turn it on."""
+    monkeypatch.setenv("MROSD_SHM", "1")
 
 
 def held_rings(pids: set[int] | None = None) -> dict[int, int]:

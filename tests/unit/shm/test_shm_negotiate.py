@@ -118,7 +118,8 @@ def test_any_answer_parses_or_is_a_protocol_error(params: list[Any]) -> None:
 
 
 def test_environment_switches() -> None:
-    assert enabled({}) and not enabled({"MROSD_SHM": "0"})
+    assert not enabled({}) and not enabled({"MROSD_SHM": "0"})  # opt-in
+    assert enabled({"MROSD_SHM": "1"}) and enabled({"MROSD_SHM": " on "})
     assert 1234 in trusted_uids({"MROSD_SHM_TRUSTED_UIDS": "1234, x"})
 
 
