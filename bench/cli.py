@@ -208,6 +208,12 @@ def main(argv: list[str]) -> int:
         action="append",
         help="String messages per second (repeatable; 0 = flat out; default 10000, then flat out for capacity)",
     )
+    parser.add_argument(
+        "--image-rate",
+        type=float,
+        action="append",
+        help="1 MB images per second (repeatable; 0 = flat out; default 30, then flat out for capacity)",
+    )
     args = parser.parse_args(argv)
     if not ros_available():
         print("cli: skipped, Debian ROS (rostopic, rospy) is not installed")
@@ -217,7 +223,7 @@ def main(argv: list[str]) -> int:
         print(f"publisher: {'roscpp' if cpp else 'rospy (g++ or roscpp headers missing)'}", flush=True)
         for kind in args.scenario or ["string", "image"]:
             # 0 = flat out: the publisher offers more than either tool shows, so the ratio is capacity
-            rates = (args.string_rate or [10000.0, 0.0]) if kind == "string" else [30.0, 0.0]
+            rates = (args.string_rate or [10000.0, 0.0]) if kind == "string" else (args.image_rate or [30.0, 0.0])
             if cpp is None:
                 rates = [r for r in rates if r > 0]  # the rospy fallback publisher paces itself
             for rate in rates:
