@@ -100,7 +100,7 @@ async def _sub(args: argparse.Namespace) -> None:
 
     if args.transport == "shm":
         from mrosd.shm import ShmSubscriberConnection, parse_answer
-        from mrosd.tcpros.header import ConnectionHeader
+        from mrosd.wire.header import ConnectionHeader
 
         answer = parse_answer(["MROSSHM", 1, args.address, args.token])
         assert answer is not None

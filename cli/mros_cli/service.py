@@ -106,7 +106,7 @@ async def probe_type(master: MasterClient, service: str) -> str:
 
     from mros_cli.main import CALLER_ID
     from mrosd.errors import ServiceError
-    from mrosd.tcpros.header import MAX_HEADER_SIZE, decode_header, encode_header
+    from mrosd.wire.header import MAX_HEADER_SIZE, decode_header, encode_header
 
     uri: str = await master.lookup_service(service)
     parsed = urllib.parse.urlsplit(uri)

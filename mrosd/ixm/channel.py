@@ -16,7 +16,7 @@ from collections import deque
 from collections.abc import Sequence
 
 from mrosd.errors import RemoteProtocolError
-from mrosd.tcpros.framing import FrameDecoder
+from mrosd.wire.framing import FrameDecoder
 
 __all__ = ["MAX_FDS_PER_MESSAGE", "MAX_PENDING_FDS", "FdReader", "recv_with_fds", "send_frame"]
 

@@ -31,7 +31,7 @@ from mrosd.ixm.protocol import (
     decode_reply,
     encode,
 )
-from mrosd.tcpros.framing import FrameDecoder
+from mrosd.wire.framing import FrameDecoder
 
 __all__ = ["TRUSTED_UIDS_ENV", "ClientConnection", "check_daemon", "error_from", "trusted_uids"]
 

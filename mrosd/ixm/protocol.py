@@ -2,7 +2,7 @@
 
 This module owns the message types and their encoding (``encode``, ``decode_request``, ``decode_reply``) in
 the style of msgspec's asyncio key-value example; it has no socket. Frames are TCPROS frames, cut by the one
-``FrameDecoder`` of ``mrosd.tcpros.framing`` with the limits below. File descriptors
+``FrameDecoder`` of ``mrosd.wire.framing`` with the limits below. File descriptors
 travel beside the bytes (SCM_RIGHTS): a message states how many it carries (``Open.wake``: one eventfd;
 ``Opened``: one segment fd; ``WakeList.count``) and the receiver takes them, in order, from the fds that
 arrived with the stream. Data never flows through this protocol: it is only for opening, closing and
@@ -21,7 +21,7 @@ from typing import Literal
 import msgspec
 
 from mrosd.errors import RemoteProtocolError
-from mrosd.tcpros.framing import encode_frame
+from mrosd.wire.framing import encode_frame
 
 __all__ = [
     "MAX_REPLY_SIZE",

@@ -19,7 +19,7 @@ from __future__ import annotations
 import msgspec
 
 from mrosd.errors import RemoteProtocolError
-from mrosd.tcpros.framing import encode_frame
+from mrosd.wire.framing import encode_frame
 
 __all__ = ["MAX_CONTROL_FRAME", "Attach", "Attached", "Message", "Progress", "Refused", "Ring", "decode", "encode"]
 

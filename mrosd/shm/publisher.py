@@ -30,7 +30,7 @@ from mrosd.shm.negotiate import TRANSPORT, publisher_answer, trusted_uids
 from mrosd.shm.ring import MAX_SLOTS, slot_stride
 from mrosd.shm.segment import RingSegment
 from mrosd.spin import loop_spinner
-from mrosd.tcpros.header import ConnectionHeader, decode_connection_header, encode_header
+from mrosd.wire.header import ConnectionHeader, decode_connection_header, encode_header
 
 __all__ = [
     "DEFAULT_MAX_RING_BYTES",
@@ -111,7 +111,7 @@ class ShmPublisherEndpoint:
         queue_size: the ring keeps this many messages for a slow subscriber (see ``slots_for``).
         latch: a subscriber that attaches gets the last message first.
         handshake: checks a subscriber's TCPROS connection header and returns the publisher's (as
-            ``mrosd.tcpros.handshake.publisher_reply`` does); raise ``HandshakeError`` to refuse.
+            ``mrosd.wire.handshake.publisher_reply`` does); raise ``HandshakeError`` to refuse.
         on_change: called when a subscriber attaches or goes.
         trusted: uids whose processes may attach (default root, ours, ``$MROSD_SHM_TRUSTED_UIDS``).
     """

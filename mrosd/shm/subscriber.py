@@ -26,7 +26,7 @@ from mrosd.shm.negotiate import ShmAnswer, trusted_uids
 from mrosd.shm.ring import RingCursor
 from mrosd.shm.segment import MappedRing
 from mrosd.spin import loop_spinner
-from mrosd.tcpros.header import ConnectionHeader, decode_connection_header, encode_header
+from mrosd.wire.header import ConnectionHeader, decode_connection_header, encode_header
 
 __all__ = [
     "DEFAULT_MAX_MAP_BYTES",

@@ -29,8 +29,8 @@ from mrosd.shm.negotiate import (
 )
 from mrosd.shm.publisher import ShmPublisherEndpoint
 from mrosd.shm.subscriber import ShmRefused, ShmSubscriberConnection
-from mrosd.tcpros.handshake import check_publisher_reply, publisher_reply
-from mrosd.tcpros.header import ConnectionHeader
+from mrosd.wire.handshake import check_publisher_reply, publisher_reply
+from mrosd.wire.header import ConnectionHeader
 
 __all__ = ["ShmTopicPublisher", "attach_subscriber", "request_protocols"]
 

@@ -21,8 +21,6 @@ from mrosd.errors import LocalProtocolError, MasterError, MasterUnreachableError
 from mrosd.master.client import MasterClient
 from mrosd.msg import get_message_class
 from mrosd.names import NodeNames, parse_argv
-from mrosd.tcpros.handshake import error_header
-from mrosd.tcpros.header import ConnectionHeader, encode_header
 from mrosd.tcpros.publisher import DEFAULT_QUEUE_SIZE, Publisher, PublisherProtocol
 from mrosd.tcpros.rosout import QUEUE_SIZE as ROSOUT_QUEUE_SIZE
 from mrosd.tcpros.rosout import ROSOUT_LOGGER, RosoutHandler, logger_service_handlers, node_logger
@@ -30,6 +28,8 @@ from mrosd.tcpros.service import Service, ServiceProtocol, ServiceProxy
 from mrosd.tcpros.slave import SlaveApi
 from mrosd.tcpros.sockopts import enable_keepalive
 from mrosd.tcpros.subscriber import Subscriber
+from mrosd.wire.handshake import error_header
+from mrosd.wire.header import ConnectionHeader, encode_header
 from mrosd.xmlrpc import XmlRpcClient, XmlRpcServer
 
 log = logging.getLogger(__name__)

@@ -21,8 +21,8 @@ from typing import Any, cast
 
 from mrosd.errors import RemoteProtocolError
 from mrosd.spin import loop_spinner
-from mrosd.tcpros.framing import MAX_FRAME_SIZE, FrameDecoder
-from mrosd.tcpros.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header
+from mrosd.wire.framing import MAX_FRAME_SIZE, FrameDecoder
+from mrosd.wire.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header
 
 log = logging.getLogger(__name__)
 

@@ -22,10 +22,10 @@ from typing import TYPE_CHECKING, Any
 from mrosd.errors import HandshakeError, LocalProtocolError
 from mrosd.msg.runtime import is_immutable
 from mrosd.spin import loop_spinner
-from mrosd.tcpros.framing import LARGE_FRAME, frame_prefix
-from mrosd.tcpros.handshake import error_header, publisher_reply
-from mrosd.tcpros.header import ConnectionHeader, encode_header
 from mrosd.tcpros.protocol import TcprosProtocol
+from mrosd.wire.framing import LARGE_FRAME, frame_prefix
+from mrosd.wire.handshake import error_header, publisher_reply
+from mrosd.wire.header import ConnectionHeader, encode_header
 
 if TYPE_CHECKING:
     from mrosd.shm.topic import ShmTopicPublisher

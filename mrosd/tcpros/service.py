@@ -23,11 +23,11 @@ from mrosd.errors import (
     ServiceError,
 )
 from mrosd.spin import loop_spinner
-from mrosd.tcpros.framing import MAX_FRAME_SIZE, FrameDecoder, Response, encode_frame
-from mrosd.tcpros.handshake import check_service_reply, error_header, service_reply
-from mrosd.tcpros.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header, encode_header
 from mrosd.tcpros.protocol import TcprosProtocol
 from mrosd.tcpros.sockopts import enable_keepalive
+from mrosd.wire.framing import MAX_FRAME_SIZE, FrameDecoder, Response, encode_frame
+from mrosd.wire.handshake import check_service_reply, error_header, service_reply
+from mrosd.wire.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header, encode_header
 
 if TYPE_CHECKING:
     from collections.abc import Callable

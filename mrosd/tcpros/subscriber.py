@@ -26,10 +26,10 @@ import msgspec
 
 from mrosd.errors import HandshakeError, LocalProtocolError, MrosError, XmlRpcError
 from mrosd.lograte import RateLimitedLog
-from mrosd.tcpros.handshake import check_publisher_reply
-from mrosd.tcpros.header import ConnectionHeader, encode_header
 from mrosd.tcpros.protocol import TcprosProtocol
 from mrosd.tcpros.sockopts import enable_keepalive
+from mrosd.wire.handshake import check_publisher_reply
+from mrosd.wire.header import ConnectionHeader, encode_header
 
 if TYPE_CHECKING:
     from collections.abc import Callable

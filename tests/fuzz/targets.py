@@ -145,7 +145,7 @@ tcpros_headers = st.one_of(st.binary(max_size=256), header_fields.map(_raw_heade
 
 
 def check_tcpros_header(body: bytes) -> None:
-    from mrosd.tcpros.header import decode_connection_header, decode_header, encode_header
+    from mrosd.wire.header import decode_connection_header, decode_header, encode_header
 
     try:
         fields = decode_header(body)
@@ -178,7 +178,7 @@ frame_cases = st.builds(
 
 def check_tcpros_frames(case: FrameCase) -> None:
     """However the stream is cut, the decoder yields exactly the frames sent, then refuses oversize claims."""
-    from mrosd.tcpros.framing import FrameDecoder, encode_frame
+    from mrosd.wire.framing import FrameDecoder, encode_frame
 
     stream = b"".join(encode_frame(b) for b in case.bodies) + case.junk
     dec = FrameDecoder(case.limit)
@@ -208,7 +208,7 @@ def check_tcpros_frames(case: FrameCase) -> None:
 def check_tcpros_responses(case: FrameCase) -> None:
     """Service responses (an ok byte before each frame): however cut, the same (ok, body) pairs, then only
     oversize claims refused. The ok bytes are taken from the bodies' first bytes so every value occurs."""
-    from mrosd.tcpros.framing import FrameDecoder, Response
+    from mrosd.wire.framing import FrameDecoder, Response
 
     flags = [b[0] if b else 1 for b in case.bodies]
     stream = b"".join(bytes([f]) + _U32.pack(len(b)) + b for f, b in zip(flags, case.bodies, strict=True)) + case.junk
@@ -359,7 +359,7 @@ KNOWN_IXM_ESCAPES: tuple[type[BaseException], ...] = ()
 
 def check_ixm_request(body: bytes) -> None:
     from mrosd.ixm.protocol import MAX_REQUEST_SIZE, decode_request, encode
-    from mrosd.tcpros.framing import FrameDecoder
+    from mrosd.wire.framing import FrameDecoder
 
     try:
         request = decode_request(body)
@@ -605,8 +605,8 @@ class Target:
 TARGETS: dict[str, Target] = {
     "xmlrpc-call": Target(xmlrpc_bodies, check_xmlrpc_call, "mrosd.xmlrpc.decode_call on request bodies"),
     "xmlrpc-response": Target(xmlrpc_bodies, check_xmlrpc_response, "mrosd.xmlrpc.decode_response"),
-    "tcpros-header": Target(tcpros_headers, check_tcpros_header, "mrosd.tcpros.header.decode_header"),
-    "tcpros-frames": Target(frame_cases, check_tcpros_frames, "mrosd.tcpros.framing.FrameDecoder"),
+    "tcpros-header": Target(tcpros_headers, check_tcpros_header, "mrosd.wire.header.decode_header"),
+    "tcpros-frames": Target(frame_cases, check_tcpros_frames, "mrosd.wire.framing.FrameDecoder"),
     "tcpros-responses": Target(frame_cases, check_tcpros_responses, "FrameDecoder(ok_byte=True).feed_responses"),
     "msg-text": Target(msg_texts, check_msg_text, "mrosd.msg parser + load_type of message_definition"),
     "msg-body": Target(msg_bodies, check_msg_body, "generated deserializers of mrosd.msg classes"),

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import mrosd
 from mrosd.msg import get_message_class
-from mrosd.tcpros.header import decode_header, encode_header
+from mrosd.wire.header import decode_header, encode_header
 from mrosd.xmlrpc import XmlRpcClient, XmlRpcServer
 from tests.reliability.relnodes import (
     LISTENER,

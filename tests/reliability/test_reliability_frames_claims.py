@@ -21,7 +21,7 @@ from xmlrpc.server import SimpleXMLRPCRequestHandler, SimpleXMLRPCServer
 import pytest
 
 from mrosd.msg import get_message_class
-from mrosd.tcpros.header import ConnectionHeader, encode_header
+from mrosd.wire.header import ConnectionHeader, encode_header
 from tests.reliability.relnodes import node_env, start_master
 from tests.rosenv import Processes, iter_lines_until
 

@@ -28,7 +28,7 @@ from mrosd.shm import subscriber as shm_subscriber
 from mrosd.shm.negotiate import ShmAnswer
 from mrosd.shm.ring import RingLayout, ring_size
 from mrosd.shm.segment import MappedRing, RingSegment
-from mrosd.tcpros.header import ConnectionHeader, encode_header
+from mrosd.wire.header import ConnectionHeader, encode_header
 
 HEADER = ConnectionHeader(callerid="/victim", topic="/t", md5sum="*", type="*")
 

@@ -16,7 +16,7 @@ import pytest
 
 import mrosd
 from mrosd.msg import get_message_class
-from mrosd.tcpros.header import ConnectionHeader, encode_header
+from mrosd.wire.header import ConnectionHeader, encode_header
 from mrosd.xmlrpc import XmlRpcClient, XmlRpcServer
 from tests.rosenv import needs_ros
 

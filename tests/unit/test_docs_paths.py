@@ -1,6 +1,6 @@
 """Every file or folder the docs point to exists: README.md and docs/*.md are checked against the tree.
 
-A path is a token with a slash that ends in a file name with an extension (`mrosd/tcpros/framing.py`) or in a
+A path is a token with a slash that ends in a file name with an extension (`mrosd/wire/framing.py`) or in a
 slash (`mrosd/bag/`). It is looked up from the repository root; a Markdown link target (`[x](embedding.md)`)
 from the folder of the page that holds it. Absolute paths (`/run/mrosd/ixm.sock`), URLs, `~`/`$` paths and
 ROS names (`std_msgs/String`: no extension, no trailing slash) are not repository paths and are skipped.
@@ -37,11 +37,11 @@ def links_in(text: str) -> set[str]:
 
 def test_the_extractor_finds_paths_and_skips_what_is_not_one() -> None:
     text = (
-        "`mrosd/tcpros/framing.py` and mrosd/bag/ but not /run/mrosd/ixm.sock, std_msgs/String, "
+        "`mrosd/wire/framing.py` and mrosd/bag/ but not /run/mrosd/ixm.sock, std_msgs/String, "
         "http://localhost:11311/, ~/.ros/log/, OUT/<pkg>/msg/ or $XDG_RUNTIME_DIR/mrosd/x.sock; "
         "see [the map](architecture.md)"
     )
-    assert paths_in(text) == {"mrosd/tcpros/framing.py", "mrosd/bag/"}
+    assert paths_in(text) == {"mrosd/wire/framing.py", "mrosd/bag/"}
     assert links_in(text) == {"architecture.md"}
 
 

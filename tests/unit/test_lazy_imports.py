@@ -1,4 +1,4 @@
-"""The package re-exports are lazy: the message layer and the sans-IO cores load without aiohttp or asyncio I/O."""
+"""Top-level re-exports are lazy: the message layer and the wire cores load without aiohttp or the node stack."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ def _loaded_after(statement: str, modules: list[str]) -> list[str]:
 HEAVY = ["aiohttp", "mrosd.xmlrpc", "mrosd.tcpros.node", "mrosd.master.client"]
 
 
-@pytest.mark.parametrize("statement", ["import mrosd.msg", "import mrosd.tcpros.framing", "import mrosd"])
+@pytest.mark.parametrize("statement", ["import mrosd.msg", "import mrosd.wire.framing", "import mrosd"])
 def test_importing_the_light_parts_loads_neither_aiohttp_nor_the_node_stack(statement: str) -> None:
     assert _loaded_after(statement, HEAVY) == []
 

@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from mrosd.bag.files import BagFileWriter, open_bag, open_writer
 from mrosd.bag.model import BagError, ConnectionInfo, SplitPolicy
 from mrosd.bag.recorder import RecordSink
-from mrosd.tcpros.header import ConnectionHeader
+from mrosd.wire.header import ConnectionHeader
 
 STRING_MD5 = "992ce8a1687cec8c8bd883ec73ca41d1"
 STRING = ConnectionInfo("/chatter", "std_msgs/String", STRING_MD5, "string data\n", "/talker", latching=True)

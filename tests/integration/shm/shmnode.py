@@ -21,7 +21,7 @@ import stat
 import sys
 
 from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection, ShmView, parse_answer
-from mrosd.tcpros.header import ConnectionHeader
+from mrosd.wire.header import ConnectionHeader
 
 
 def body(m: int, size: int) -> bytes:

@@ -10,8 +10,8 @@ import pytest
 from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
 from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection, ShmView, parse_answer
 from mrosd.shm.negotiate import ShmAnswer
-from mrosd.tcpros.handshake import publisher_reply
-from mrosd.tcpros.header import ConnectionHeader
+from mrosd.wire.handshake import publisher_reply
+from mrosd.wire.header import ConnectionHeader
 
 HEADER = ConnectionHeader(callerid="/listener", topic="/chatter", md5sum="*", type="*")
 

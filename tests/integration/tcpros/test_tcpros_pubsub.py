@@ -14,7 +14,7 @@ import pytest
 import mrosd
 from mrosd.errors import HandshakeError, LocalProtocolError, ServiceError
 from mrosd.msg import get_message_class, get_service_class
-from mrosd.tcpros.header import ConnectionHeader, decode_connection_header, encode_header
+from mrosd.wire.header import ConnectionHeader, decode_connection_header, encode_header
 from mrosd.xmlrpc import XmlRpcClient
 from tests.rosenv import Processes, free_port, needs_ros, ros_env, wait_for_xmlrpc
 

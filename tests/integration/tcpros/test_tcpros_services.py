@@ -12,8 +12,8 @@ import pytest
 import mrosd
 from mrosd.errors import ServiceError
 from mrosd.msg import get_service_class
-from mrosd.tcpros.framing import FrameDecoder, encode_frame
-from mrosd.tcpros.header import ConnectionHeader, encode_header
+from mrosd.wire.framing import FrameDecoder, encode_frame
+from mrosd.wire.header import ConnectionHeader, encode_header
 from mrosd.xmlrpc import XmlRpcClient
 from tests.rosenv import needs_ros
 

@@ -17,7 +17,7 @@ from mrosd.ixm.protocol import (
     decode_request,
     encode,
 )
-from mrosd.tcpros.framing import FrameDecoder
+from mrosd.wire.framing import FrameDecoder
 
 
 def test_a_close_request_has_these_exact_bytes() -> None:

@@ -8,7 +8,7 @@ md5 and type ``*`` are wildcards, as rospy/roscpp's AnyMsg and ``rostopic echo``
 from __future__ import annotations
 
 from mrosd.errors import HandshakeError
-from mrosd.tcpros.header import ConnectionHeader
+from mrosd.wire.header import ConnectionHeader
 
 WILDCARD = "*"
 

@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from mrosd.errors import LocalProtocolError, RemoteProtocolError
-from mrosd.tcpros.header import (
+from mrosd.wire.header import (
     MAX_HEADER_SIZE,
     ConnectionHeader,
     decode_connection_header,

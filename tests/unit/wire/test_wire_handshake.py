@@ -5,14 +5,14 @@ from __future__ import annotations
 import pytest
 
 from mrosd.errors import HandshakeError
-from mrosd.tcpros.handshake import (
+from mrosd.wire.handshake import (
     check_publisher_reply,
     check_service_reply,
     error_header,
     publisher_reply,
     service_reply,
 )
-from mrosd.tcpros.header import ConnectionHeader
+from mrosd.wire.header import ConnectionHeader
 
 MD5 = "992ce8a1687cec8c8bd883ec73ca41d1"
 PUB = {

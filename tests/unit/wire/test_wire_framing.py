@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mrosd.errors import RemoteProtocolError
-from mrosd.tcpros.framing import (
+from mrosd.wire.framing import (
     GROWTH,
     LARGE_FRAME,
     MAX_FRAME_SIZE,
