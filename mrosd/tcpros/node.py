@@ -70,6 +70,9 @@ class InboundProtocol(ServiceProtocol, PublisherProtocol):
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         super().connection_made(transport)
+        # Tracked until it ends, whatever becomes of it: a peer that never sends a header (or one accepted
+        # while the node closes) belongs to no publisher or service, and the node must still close it.
+        self.node._inbound.add(self)
         sock = transport.get_extra_info("socket")
         if sock is not None:
             try:
@@ -99,6 +102,7 @@ class InboundProtocol(ServiceProtocol, PublisherProtocol):
             self._refuse("connection header has neither 'topic' nor 'service'")
 
     def connection_closed(self, exc: BaseException | None) -> None:
+        self.node._inbound.discard(self)
         ServiceProtocol.connection_closed(self, exc)
         PublisherProtocol.connection_closed(self, exc)
 
@@ -164,6 +168,8 @@ class Node:
         self.uri = ""
         self.tcpros_port = 0
         self._server: asyncio.Server | None = None
+        #: every accepted TCPROS connection still open (closed by aclose(): asyncio's Server.close() does not)
+        self._inbound: set[InboundProtocol] = set()
         self._slave: XmlRpcServer | None = None
         self._watchdog: asyncio.Task[None] | None = None
         self._started = False
@@ -244,6 +250,14 @@ class Node:
         if self._server is not None:
             self._server.close()
             self._server = None
+        if self._inbound:
+            for proto in list(self._inbound):
+                transport = proto.transport
+                # those the publishers and services closed are flushing their last frames: leave them be
+                if transport is not None and not transport.is_closing():
+                    transport.abort()
+            self._inbound.clear()
+            await asyncio.sleep(0)  # let the aborted transports finish before the loop may stop
         if self._slave is not None:
             await self._slave.aclose()
             self._slave = None

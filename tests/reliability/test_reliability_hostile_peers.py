@@ -50,3 +50,24 @@ async def test_hostile_connections_are_closed_and_the_publisher_keeps_serving(pr
         assert got and got[0] == "ok"
         for _, w in idle:
             w.close()
+
+
+async def test_connections_that_never_send_a_header_are_closed_with_the_node(procs: Processes) -> None:
+    """asyncio's Server.close() leaves accepted connections open: the node closes those it owns no endpoint for."""
+    _, uri = start_master(procs)
+    node = mrosd.Node("silent_target", master_uri=uri, host="127.0.0.1", argv=[], rosout=False)
+    await node.start()
+    try:
+        idle = [await asyncio.open_connection("127.0.0.1", node.tcpros_port) for _ in range(5)]
+        async with asyncio.timeout(5.0):
+            while len(node._inbound) < len(idle):  # accepted by the node (private: this is the state under test)
+                await asyncio.sleep(0.01)
+    finally:
+        await node.aclose()
+    for reader, writer in idle:
+        try:
+            assert await asyncio.wait_for(reader.read(), 5.0) == b""  # EOF: the node closed its end
+        except ConnectionResetError:
+            pass  # or a reset: closed all the same
+        finally:
+            writer.close()
