@@ -137,11 +137,19 @@ class Processes:
 def start_rosmaster(procs: Processes) -> str:
     """Start Debian's ``rosmaster --core`` on a free port; return its URI once it answers."""
     port = free_port()
+    start_rosmaster_on(procs, port)
+    return f"http://127.0.0.1:{port}/"
+
+
+def start_rosmaster_on(procs: Processes, port: int) -> subprocess.Popen[bytes]:
+    """Start Debian's ``rosmaster --core`` on ``port`` (tests that restart it on the same port); once it answers."""
     uri = f"http://127.0.0.1:{port}/"
     env = ros_env(uri, procs.tmp)
-    procs.start(["rosmaster", "--core", "-p", str(port)], env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = procs.start(
+        ["rosmaster", "--core", "-p", str(port)], env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
     wait_for_xmlrpc(uri)
-    return uri
+    return proc
 
 
 def iter_lines_until(proc: subprocess.Popen[bytes], count: int, timeout: float) -> Iterator[str]:

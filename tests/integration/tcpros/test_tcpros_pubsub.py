@@ -7,7 +7,6 @@ import logging
 import os
 import socket
 import struct
-import subprocess
 
 import pytest
 
@@ -16,7 +15,7 @@ from mrosd.errors import HandshakeError, LocalProtocolError, ServiceError
 from mrosd.msg import get_message_class, get_service_class
 from mrosd.wire.header import ConnectionHeader, decode_connection_header, encode_header
 from mrosd.xmlrpc import XmlRpcClient
-from tests.rosenv import Processes, free_port, needs_ros, ros_env, wait_for_xmlrpc
+from tests.rosenv import Processes, free_port, needs_ros, start_rosmaster_on
 
 pytestmark = needs_ros
 
@@ -262,17 +261,7 @@ async def test_nodes_register_again_after_the_master_restarts(procs: Processes) 
     port = free_port()
     uri = f"http://127.0.0.1:{port}/"
 
-    def start_master() -> subprocess.Popen[bytes]:
-        proc = procs.start(
-            ["rosmaster", "--core", "-p", str(port)],
-            ros_env(uri, procs.tmp),
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        wait_for_xmlrpc(uri)
-        return proc
-
-    master = start_master()
+    master = start_rosmaster_on(procs, port)
     async with node("talker", uri, watchdog_interval=0.1) as a, node("listener", uri, watchdog_interval=0.1) as b:
         pub = await a.advertise("/survivor", String)
         sub = await b.subscribe("/survivor", String)
@@ -281,7 +270,7 @@ async def test_nodes_register_again_after_the_master_restarts(procs: Processes) 
         # Connections between nodes do not need the master: traffic continues while it is down.
         await pub.publish(String(data="during"))
         assert (await sub.next(timeout=5)).data == "during"
-        await asyncio.to_thread(start_master)
+        await asyncio.to_thread(start_rosmaster_on, procs, port)
         client = XmlRpcClient()
         try:
             async with asyncio.timeout(20):

@@ -18,24 +18,12 @@ import pytest
 
 import mrosd
 from mrosd.msg import get_message_class
-from tests.rosenv import ROS_PYTHON, Processes, free_port, needs_ros, ros_env, wait_for_xmlrpc
+from tests.rosenv import ROS_PYTHON, Processes, free_port, needs_ros, ros_env, start_rosmaster_on
 
 pytestmark = [needs_ros, pytest.mark.interop]
 
 ROSPY_NODE = str(Path(__file__).resolve().parents[2] / "data" / "tcpros" / "rospy_node.py")
 String = get_message_class("std_msgs/String")
-
-
-def start_master(procs: Processes, port: int) -> subprocess.Popen[bytes]:
-    uri = f"http://127.0.0.1:{port}/"
-    proc = procs.start(
-        ["rosmaster", "--core", "-p", str(port)],
-        ros_env(uri, procs.tmp),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    wait_for_xmlrpc(uri)
-    return proc
 
 
 def subscribers_of(master: str, topic: str) -> list[str]:
@@ -47,7 +35,7 @@ def subscribers_of(master: str, topic: str) -> list[str]:
 async def test_a_master_restart_keeps_a_rospy_publishers_data_flowing(procs: Processes) -> None:
     port = free_port()
     master = f"http://127.0.0.1:{port}/"
-    first = start_master(procs, port)
+    first = start_rosmaster_on(procs, port)
     talker = procs.start(
         [ROS_PYTHON, ROSPY_NODE, "talk", "string", "/flow", "0"], ros_env(master, procs.tmp), stderr=subprocess.DEVNULL
     )
@@ -59,7 +47,7 @@ async def test_a_master_restart_keeps_a_rospy_publishers_data_flowing(procs: Pro
         await sub.wait_for_publishers(1, timeout=20)
 
         procs.stop(first)
-        start_master(procs, port)
+        start_rosmaster_on(procs, port)
         # The watchdog notices the new master and registers again; its publisher list is empty.
         deadline = time.monotonic() + 20
         while "/listener" not in await asyncio.to_thread(subscribers_of, master, "/flow"):
