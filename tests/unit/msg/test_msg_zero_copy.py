@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mrosd.msg import get_message_class
-from mrosd.msg.runtime import ZERO_COPY_MIN, FrameBuffer, is_immutable
+from mrosd.msg.runtime import ZERO_COPY_MIN, FrameBuffer, FramePool, is_immutable
 
 Image = get_message_class("sensor_msgs/Image")
 PointCloud2 = get_message_class("sensor_msgs/PointCloud2")
@@ -92,3 +92,25 @@ def test_frame_buffers_and_bytes_decode_to_equal_messages(data: bytes, encoding:
     assert bytes(from_frame.data) == bytes(from_bytes.data) == data
     assert from_frame.encoding == from_bytes.encoding == encoding
     assert b"".join(from_frame.serialize_parts()) == body
+
+
+def test_a_frame_pool_refills_a_buffer_only_when_nothing_holds_it() -> None:
+    pool = FramePool(keep=2)
+    first = pool.copy(memoryview(b"a" * 100_000))
+    assert type(first) is FrameBuffer and first == b"a" * 100_000
+    first_id = id(first)
+    del first
+    again = pool.copy(memoryview(b"b" * 100_000))  # free and of the right size: refilled in place
+    assert id(again) == first_id and again == b"b" * 100_000
+    # a message decoded from it holds a view: the buffer is not touched while that view lives
+    msg = Image.deserialize(Image(height=1, width=100_000, step=100_000, data=b"c" * 100_000).serialize())
+    held = pool.copy(memoryview(msg.serialize()))
+    decoded = Image.deserialize(held)
+    view = decoded.data
+    del held, decoded
+    other = pool.copy(memoryview(msg.serialize()))
+    assert other is not view.obj and bytes(view) == b"c" * 100_000
+    assert len(pool.bufs) == 2  # no more than ``keep`` are kept
+    held_id = id(view.obj)
+    del view  # the last holder of that buffer lets go: it is refilled next
+    assert id(pool.copy(memoryview(msg.serialize()))) == held_id
