@@ -15,17 +15,29 @@ import errno
 import os
 import socket
 import struct
+import sys
 from collections.abc import Iterable
 
 from mrosd.ixm.channel import FdReader, send_frame
 from mrosd.shm import control
 
-__all__ = ["ATTACH_TIMEOUT", "ControlChannel", "abstract_name", "close_fds", "connect_unix", "peer_credentials"]
+__all__ = [
+    "ATTACH_TIMEOUT",
+    "ONE",
+    "ControlChannel",
+    "abstract_name",
+    "close_fds",
+    "connect_unix",
+    "is_eventfd",
+    "peer_credentials",
+]
 
 #: Seconds a subscriber has to attach once connected (and, by default, to finish attaching on its side).
 ATTACH_TIMEOUT = 10.0
 
 _PEERCRED = struct.Struct("3i")
+#: what a wake-up writes to an eventfd
+ONE = (1).to_bytes(8, sys.byteorder)
 
 
 def abstract_name(address: str) -> str:
@@ -63,6 +75,14 @@ async def connect_unix(sock: socket.socket, address: str) -> None:
         raise OSError(err, os.strerror(err))
 
 
+def is_eventfd(fd: int) -> bool:
+    """Is ``fd`` an eventfd (what a peer sent as its wake-up descriptor must be, not a pipe or a socket)?"""
+    try:
+        return os.readlink(f"/proc/self/fd/{fd}") == "anon_inode:[eventfd]"
+    except OSError:
+        return False
+
+
 def close_fds(fds: Iterable[int]) -> None:
     """Close each descriptor, ignoring any already closed."""
     for fd in fds:
@@ -94,8 +114,7 @@ class ControlChannel:
         out: list[tuple[control.Message, list[int]]] = []
         while (body := self.reader.next_frame()) is not None:
             msg = control.decode(body)
-            wants = 1 if isinstance(msg, (control.Attach, control.Attached, control.Ring)) else 0
-            out.append((msg, self.reader.take_fds(wants)))
+            out.append((msg, self.reader.take_fds(control.FDS.get(type(msg), 0))))
         return out
 
     def send(self, msg: control.Message, fds: tuple[int, ...] = ()) -> None:

@@ -1,11 +1,13 @@
 """The control messages of a shared-memory topic connection (Unix stream socket), sans I/O.
 
 Frames are length-prefixed msgpack, read by ``mrosd.ixm.channel.FdReader`` as IXM's control frames are;
-descriptors travel beside them with SCM_RIGHTS, one per message that says so. Data never goes through this socket:
+descriptors travel beside them with SCM_RIGHTS (``FDS`` says how many each kind carries). Data never
+goes through this socket:
 
 - ``Attach`` (subscriber -> publisher, + its eventfd): the token from requestTopic and the TCPROS
   connection header the subscriber would have sent over TCP.
-- ``Attached`` (publisher -> subscriber, + the ring, read-only): the publisher's connection header and the
+- ``Attached`` (publisher -> subscriber, + three descriptors: the ring, read-only; the subscriber's own
+  acknowledgement page, writable; the publisher's eventfd): the publisher's connection header and the
   number of the first message to read (the latched one when there is one).
 - ``Refused``: why the publisher will not serve this subscriber (md5 mismatch, bad token); then it closes.
 - ``Ring`` (publisher -> subscriber, + the new ring): a message did not fit, the old ring is retired.
@@ -51,6 +53,8 @@ class Progress(msgspec.Struct, tag="progress", gc=False):
 
 
 Message = Attach | Attached | Refused | Ring | Progress
+#: descriptors that come with each kind of message
+FDS: dict[type, int] = {Attach: 1, Attached: 3, Ring: 1}
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder(Message)
 

@@ -1,10 +1,21 @@
 """A topic's publishing end of the shared-memory transport: its ring, its listener, its subscribers.
 
 ``ShmPublisherEndpoint`` owns one topic's ring (a sealed memfd, ``mrosd.shm.segment``), an abstract Unix
-socket (``mrosd.shm.channel``) on which same-host subscribers attach, and one eventfd per subscriber.
-``publish`` copies the serialized message once into the ring and writes 8 bytes to each subscriber's
-eventfd: its cost does not grow with the message size per subscriber, and it never waits for anyone. A
-message bigger than the slots makes the publisher retire the ring and continue in a bigger one, announced
+socket (``mrosd.shm.channel``) on which same-host subscribers attach, one eventfd per subscriber and one of
+its own. ``publish`` copies the serialized message once into the ring and writes 8 bytes to each
+subscriber's eventfd: its cost does not grow with the number of subscribers, and it never waits for anyone.
+
+The ring is small (``RING_BYTES``, at least ``MIN_SLOTS`` slots): it is there to pipeline, and fresh shared
+memory is expensive to touch. The publisher's queue is kept beside it, as a TCPROS publisher keeps one per
+connection: each subscriber writes the number of the next message it wants into its own acknowledgement
+page, and a message whose slot still holds one that a subscriber has not read waits in the backlog (as
+references, never copied twice) until that subscriber moves on and, seeing the ring's ``waiting`` word,
+wakes the publisher through its eventfd. A subscriber that holds the ring back too long stops being waited
+for ("lagging": it is overwritten and counts drops, drop-oldest) once the backlog holds more than
+``queue_size`` messages, or when it has delayed a subscriber that keeps up for ``STALL`` seconds; it is
+waited for again once it has caught up. Memory is bounded by the ring plus ``queue_size`` messages.
+
+A message bigger than the slots makes the publisher retire the ring and continue in a bigger one, announced
 with its descriptor over each subscriber's socket. A subscriber's end (exit, crash) is its socket closing;
 every problem with a subscriber closes only that subscriber's connection, with one log line.
 """
@@ -12,6 +23,7 @@ every problem with a subscriber closes only that subscriber's connection, with o
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import hmac
 import itertools
@@ -19,16 +31,25 @@ import logging
 import os
 import secrets
 import socket
-import sys
+import time
 from collections.abc import Callable, Iterable
 from typing import Any
 
 from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
+from mrosd.msg.runtime import is_immutable
 from mrosd.shm import control
-from mrosd.shm.channel import ATTACH_TIMEOUT, ControlChannel, abstract_name, close_fds, peer_credentials
+from mrosd.shm.channel import (
+    ATTACH_TIMEOUT,
+    ONE,
+    ControlChannel,
+    abstract_name,
+    close_fds,
+    is_eventfd,
+    peer_credentials,
+)
 from mrosd.shm.negotiate import TRANSPORT, publisher_answer, trusted_uids
 from mrosd.shm.ring import MAX_SLOTS, slot_stride
-from mrosd.shm.segment import RingSegment
+from mrosd.shm.segment import AckPage, RingSegment
 from mrosd.spin import loop_spinner
 from mrosd.wire.header import ConnectionHeader, decode_connection_header, encode_header
 
@@ -36,6 +57,9 @@ __all__ = [
     "DEFAULT_MAX_RING_BYTES",
     "INITIAL_CAPACITY",
     "MAX_PENDING",
+    "MIN_SLOTS",
+    "RING_BYTES",
+    "STALL",
     "ShmPublisherEndpoint",
     "ShmSubscriberLink",
     "slots_for",
@@ -45,21 +69,27 @@ log = logging.getLogger(__name__)
 
 #: A publisher's ring is at most this big (more slots than fit are not made; at least 2 always are).
 DEFAULT_MAX_RING_BYTES = 128 << 20
+#: A ring has as many slots as fit in this many bytes (at least ``MIN_SLOTS``, at most ``queue_size + 1``).
+RING_BYTES = 4 << 20
+MIN_SLOTS = 2
+#: Seconds a subscriber may hold the ring back while another one waits for messages, before it is overwritten.
+STALL = 0.05
+#: Longest pause between two looks at the acknowledgements while messages wait (a lost wake-up's bound).
+_RECHECK_MAX = 0.1
 #: First slot size; the ring grows (by replacement) when a bigger message comes.
 INITIAL_CAPACITY = 64 << 10
 #: Subscribers that connected but have not attached yet (each has ``ATTACH_TIMEOUT`` seconds).
 MAX_PENDING = 64
 
-_ONE = (1).to_bytes(8, sys.byteorder)
 _ids = itertools.count(1)
 
 
 def slots_for(queue_size: int, capacity: int, max_ring_bytes: int) -> int:
-    """Ring slots for a publisher's ``queue_size``: one more than the queue (the one being written), at least
-    3, and no more than ``max_ring_bytes`` holds (but never fewer than 2)."""
-    wanted = min(MAX_SLOTS, max(3, queue_size + 1))
-    fit = max_ring_bytes // slot_stride(capacity)
-    return max(2, min(wanted, fit))
+    """Ring slots for slots of ``capacity`` bytes: as many as fit in ``RING_BYTES`` (and in
+    ``max_ring_bytes``), no more than ``queue_size + 1``, never fewer than ``MIN_SLOTS``."""
+    wanted = min(MAX_SLOTS, max(MIN_SLOTS, queue_size + 1))
+    fit = min(RING_BYTES, max_ring_bytes) // slot_stride(capacity)
+    return max(MIN_SLOTS, min(wanted, fit))
 
 
 def _grown(capacity: int, needed: int) -> int:
@@ -69,17 +99,19 @@ def _grown(capacity: int, needed: int) -> int:
     return (size + 4095) // 4096 * 4096
 
 
-def _is_eventfd(fd: int) -> bool:
-    try:
-        return os.readlink(f"/proc/self/fd/{fd}") == "anon_inode:[eventfd]"
-    except OSError:
-        return False
-
-
 class ShmSubscriberLink:
     """One attached subscriber, seen from the publisher."""
 
-    def __init__(self, endpoint: ShmPublisherEndpoint, channel: ControlChannel, wake_fd: int, callerid: str, pid: int):
+    def __init__(
+        self,
+        endpoint: ShmPublisherEndpoint,
+        channel: ControlChannel,
+        wake_fd: int,
+        *,
+        callerid: str,
+        pid: int,
+        first: int,
+    ) -> None:
         self.endpoint = endpoint
         self.channel = channel
         self.wake_fd = wake_fd
@@ -91,6 +123,15 @@ class ShmSubscriberLink:
         #: as last reported by the subscriber
         self.dropped = 0
         self.connected = True
+        #: the subscriber's acknowledgement page: the number of the next message it wants
+        self.ack = AckPage(endpoint.label)
+        self.ack.word[0] = first
+        #: no longer waited for (it fell too far behind) until it catches up
+        self.lagging = False
+
+    def acked(self, head: int) -> int:
+        """The next message the subscriber wants, as it says, kept within 0..head + 1."""
+        return min(self.ack.read(), head + 1)
 
     def close(self) -> None:
         if not self.connected:
@@ -101,6 +142,7 @@ class ShmSubscriberLink:
             loop.remove_reader(self.channel.sock.fileno())
         self.channel.close()
         close_fds([self.wake_fd])
+        self.ack.close()
 
 
 class ShmPublisherEndpoint:
@@ -138,8 +180,17 @@ class ShmPublisherEndpoint:
         self.capacity = max(64, initial_capacity)
         self.token = secrets.token_hex(16)
         self.address = "@mrosd-shm-" + secrets.token_hex(12)
+        self.label = topic.strip("/").replace("/", "-")
         self.links: list[ShmSubscriberLink] = []
         self.ring: RingSegment | None = None
+        #: number of the first message written into the current ring
+        self._ring_first = 1
+        #: messages waiting for a free slot: (parts, size, monotonic time queued)
+        self.backlog: collections.deque[tuple[tuple[Any, ...], int, float]] = collections.deque()
+        #: subscribers wake us here when they move on while ``waiting`` is set
+        self._wake_fd = -1
+        self._recheck: asyncio.TimerHandle | None = None
+        self._recheck_delay = 0.0
         #: rings made so far (the first and each replacement)
         self.rings_made = 0
         self.closed = False
@@ -159,6 +210,8 @@ class ShmPublisherEndpoint:
             raise
         self._sock = sock
         self._loop.add_reader(sock.fileno(), self._accept)
+        self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        self._loop.add_reader(self._wake_fd, self._on_progress)
 
     def answer(self) -> list[Any]:
         """requestTopic's protocol parameters that send a subscriber here."""
@@ -176,18 +229,107 @@ class ShmPublisherEndpoint:
             raise LocalProtocolError(f"shared-memory publisher of {self.topic} is closed")
         if not self.links and not self.latch:
             return  # nobody reads it, and nobody will read this one later
-        ring = self._ring_for(size)
-        ring.layout.write_parts(parts, size)
-        for link in self.links:
-            link.messages_sent += 1
+        if not self.backlog:
+            ring = self._ring_for(size)
+            if self._free(ring.layout.head + 1):
+                ring.layout.write_parts(parts, size)
+                self._wake(size, 1)
+                return
+        # the slot is not free: queue the message (a piece the caller could change is copied, as over TCPROS)
+        kept = tuple(p if is_immutable(p) else bytes(p) for p in parts)
+        self.backlog.append((kept, size, time.monotonic()))
+        self._flush()
+
+    def _wake(self, size: int, count: int) -> None:
+        """Count ``count`` messages of ``size`` bytes in all for every subscriber, and wake them."""
+        for link in list(self.links):
+            link.messages_sent += count
             link.bytes_sent += size
             try:
-                os.write(link.wake_fd, _ONE)
+                os.write(link.wake_fd, ONE)
             except BlockingIOError:
                 pass  # the counter is saturated: the subscriber is woken anyway
             except OSError as exc:
                 self._drop(link, f"cannot wake it: {exc}")
         self._poke()
+
+    def _free(self, m: int) -> bool:
+        """May message ``m`` go into its slot: has every subscriber still waited for read the one it holds?"""
+        assert self.ring is not None
+        layout = self.ring.layout
+        old = m - layout.slots
+        if old < self._ring_first:
+            return True  # the slot has held nothing in this ring
+        for link in self.links:
+            if link.acked(m - 1) > old:
+                link.lagging = False
+            elif not link.lagging:
+                return False
+        return True
+
+    def _flush(self) -> None:
+        """Write what the backlog holds while slots are free; leave the ring's ``waiting`` word saying whether
+        messages still wait, and look again later in case a wake-up is lost."""
+        backlog = self.backlog
+        written = total = 0
+        while backlog:
+            parts, size, _queued = backlog[0]
+            ring = self._ring_for(size)
+            m = ring.layout.head + 1
+            if not self._free(m) and not self._give_up_waiting(m):
+                break
+            backlog.popleft()
+            ring.layout.write_parts(parts, size)
+            written += 1
+            total += size
+        if written:
+            self._wake(total, written)
+        if self.ring is None:
+            return
+        if not backlog:
+            self.ring.layout.waiting = False
+            if self._recheck is not None:
+                self._recheck.cancel()
+                self._recheck = None
+            self._recheck_delay = 0.0
+            return
+        # Set, then look once more: a subscriber that moved on before it could see the word is caught here.
+        self.ring.layout.waiting = True
+        if self._free(self.ring.layout.head + 1):
+            self._loop.call_soon(self._flush)
+            return
+        if self._recheck is None:
+            self._recheck_delay = 0.001 if written else min(_RECHECK_MAX, max(0.001, self._recheck_delay * 2))
+            self._recheck = self._loop.call_later(self._recheck_delay, self._recheck_now)
+
+    def _recheck_now(self) -> None:
+        self._recheck = None
+        if not self.closed:
+            self._flush()
+
+    def _give_up_waiting(self, m: int) -> bool:
+        """Message ``m`` waits for slow subscribers: stop waiting for them (they become ``lagging``) when the
+        backlog is over ``queue_size`` or they have held back a subscriber that keeps up for ``STALL`` s."""
+        assert self.ring is not None
+        old = m - self.ring.layout.slots
+        slow = [lk for lk in self.links if not lk.lagging and lk.acked(m - 1) <= old]
+        over = len(self.backlog) > max(1, self.queue_size)
+        if not over:
+            if len(slow) == len([lk for lk in self.links if not lk.lagging]):
+                return False  # everyone is behind: a burst, not one slow subscriber
+            if time.monotonic() - self.backlog[0][2] < STALL:
+                return False
+        for link in slow:
+            link.lagging = True
+            log.debug("%s: shared-memory subscriber %s is behind: its oldest messages go", self.topic, link.callerid)
+        return True
+
+    def _on_progress(self) -> None:
+        with contextlib.suppress(OSError):
+            os.read(self._wake_fd, 8)
+        if self.backlog and not self.closed:
+            self._recheck_delay = 0.0
+            self._flush()
 
     def _ring_for(self, size: int) -> RingSegment:
         ring = self.ring
@@ -199,10 +341,12 @@ class ShmPublisherEndpoint:
             capacity = _grown(ring.layout.capacity, size)
         head = ring.layout.head if ring is not None else 0
         slots = slots_for(self.queue_size, capacity, self.max_ring_bytes)
-        new = RingSegment(self.topic.strip("/").replace("/", "-"), slots, capacity, head)
+        new = RingSegment(self.label, slots, capacity, head)
+        new.layout.waiting = bool(self.backlog)
         self.rings_made += 1
         self.capacity = capacity
         self.ring = new
+        self._ring_first = head + 1
         if ring is not None:
             ring.layout.retire()
             for link in list(self.links):
@@ -210,11 +354,12 @@ class ShmPublisherEndpoint:
             ring.close()
         return new
 
-    def _send_ring(self, link: ShmSubscriberLink, msg: control.Message) -> bool:
+    def _send_ring(self, link: ShmSubscriberLink, msg: control.Message, *more: int) -> bool:
+        """Send ``msg`` with a read-only descriptor of the current ring (and ``more`` descriptors after it)."""
         assert self.ring is not None
         fd = self.ring.reader_fd()
         try:
-            link.channel.send(msg, (fd,))
+            link.channel.send(msg, (fd, *more))
         except OSError as exc:
             self._drop(link, f"cannot send it the ring: {exc}")
             return False
@@ -291,7 +436,7 @@ class ShmPublisherEndpoint:
         if not hmac.compare_digest(msg.token.encode(), self.token.encode()):
             refuse("wrong token")
             return
-        if not _is_eventfd(wake_fd):
+        if not is_eventfd(wake_fd):
             refuse("the wake-up descriptor is not an eventfd")
             return
         os.set_blocking(wake_fd, False)
@@ -307,8 +452,13 @@ class ShmPublisherEndpoint:
         ring = self._ring_for(0)
         head = ring.layout.head
         first = head if self.latch and head > 0 else head + 1
-        link = ShmSubscriberLink(self, channel, wake_fd, header.callerid or "?", pid)
-        if not self._send_ring(link, control.Attached(header=encode_header(reply)[4:], first=first)):
+        try:
+            link = ShmSubscriberLink(self, channel, wake_fd, callerid=header.callerid or "?", pid=pid, first=first)
+        except OSError as exc:
+            refuse(f"cannot make its acknowledgement page: {exc}")
+            return
+        attached = control.Attached(header=encode_header(reply)[4:], first=first)
+        if not self._send_ring(link, attached, link.ack.fd, self._wake_fd):
             return
         if first <= head:  # the latched message
             link.messages_sent += 1
@@ -343,6 +493,8 @@ class ShmPublisherEndpoint:
         if link in self.links:
             self.links.remove(link)
             self.on_change()
+            if self.backlog and not self.closed:
+                self._loop.call_soon(self._flush)  # it may have been the one holding the ring back
 
     # introspection ---------------------------------------------------------------------------------------
 
@@ -381,6 +533,15 @@ class ShmPublisherEndpoint:
         for link in list(self.links):
             link.close()
         self.links.clear()
+        self.backlog.clear()
+        if self._recheck is not None:
+            self._recheck.cancel()
+            self._recheck = None
+        if self._wake_fd >= 0:
+            with contextlib.suppress(Exception):
+                self._loop.remove_reader(self._wake_fd)
+            close_fds([self._wake_fd])
+            self._wake_fd = -1
         if self.ring is not None:
             self.ring.close()
             self.ring = None

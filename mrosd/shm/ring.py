@@ -6,13 +6,15 @@ there. This module knows nothing of file descriptors or sockets, so that it can 
 
     header (64 bytes)
     0   4s  magic b"MSHM"
-    4   H   layout version (1)
+    4   H   layout version (2)
     6   H   reserved
     8   I   slots N
     12  I   reserved
     16  Q   capacity of one slot's data, bytes
     24  Q   head: number of the last completed message (messages are numbered from 1; 0 = none yet)
     32  Q   retired: 1 once the publisher moved to a bigger ring (its messages up to ``head`` stay final)
+    40  Q   waiting: 1 while the publisher holds messages back until a subscriber frees a slot (it then wants
+            to be woken: see ``mrosd.shm.publisher``)
     slot i at 64 + i * stride, stride = 64 + capacity rounded up to 64:
     0   Q   seq: 2m - 1 while message m is being written into the slot, 2m once it is complete
     8   Q   length of message m
@@ -23,7 +25,9 @@ the older message in that slot now know it is going), copies, stores the length,
 ``head = m``. A reader that wants message ``m`` checks ``seq == 2m`` before and after its copy: anything else
 after means the slot was overwritten meanwhile (the reader was lapped) and the copy is discarded and counted
 as a drop. A reader more than N messages behind jumps to the oldest message still in the ring and counts
-what it skipped: drop-oldest, with memory bounded by the ring, and the writer never waits for anyone.
+what it skipped. The ring itself never makes the writer wait: whether the publisher writes into a slot that
+a subscriber has not read yet is the publisher's decision (it queues messages for a while first, as a
+TCPROS publisher's queue does; ``mrosd.shm.publisher``).
 Every word is read and written as one aligned 8-byte ``memoryview.cast('Q')`` item (atomic on x86-64 and
 arm64, stores kept in order by x86-64's memory model), as ``mrosd.ixm.layout`` does.
 
@@ -38,6 +42,7 @@ import struct
 from collections.abc import Iterable
 
 from mrosd.errors import LocalProtocolError, RemoteProtocolError
+from mrosd.msg.runtime import FrameBuffer, FramePool
 
 __all__ = [
     "HEADER_SIZE",
@@ -52,16 +57,17 @@ __all__ = [
 ]
 
 MAGIC = b"MSHM"
-LAYOUT_VERSION = 1
+LAYOUT_VERSION = 2
 HEADER_SIZE = 64
 SLOT_HEADER = 64
 #: More slots than this is refused (a subscriber's drop-oldest queue is at most this long).
 MAX_SLOTS = 4096
 
-_HEAD = struct.Struct("=4sHHIIQQQ24x")
+_HEAD = struct.Struct("=4sHHIIQQQQ16x")
 assert _HEAD.size == HEADER_SIZE
 _HEAD_OFF = 24
 _RETIRED_OFF = 32
+_WAITING_OFF = 40
 
 
 def slot_stride(capacity: int) -> int:
@@ -80,12 +86,12 @@ class RingLayout:
     ``buf`` may be a read-only mapping (subscribers); the write methods then fail in memoryview itself.
     """
 
-    __slots__ = ("_head", "_retired", "buf", "capacity", "data", "slots", "words")
+    __slots__ = ("_head", "_retired", "_waiting", "buf", "capacity", "data", "slots", "words")
 
     def __init__(self, buf: memoryview) -> None:
         if len(buf) < HEADER_SIZE:
             raise RemoteProtocolError(f"shared-memory ring of {len(buf)} bytes is smaller than its header")
-        magic, version, _r, slots, _r2, capacity, _head, _retired = _HEAD.unpack_from(buf, 0)
+        magic, version, _r, slots, _r2, capacity, _head, _retired, _waiting = _HEAD.unpack_from(buf, 0)
         if magic != MAGIC or version != LAYOUT_VERSION:
             raise RemoteProtocolError(f"not an mrosd shared-memory ring v{LAYOUT_VERSION} ({magic!r}, v{version})")
         if not 1 <= slots <= MAX_SLOTS:
@@ -99,6 +105,7 @@ class RingLayout:
         self.capacity: int = capacity
         self._head = buf[_HEAD_OFF : _HEAD_OFF + 8].cast("Q")
         self._retired = buf[_RETIRED_OFF : _RETIRED_OFF + 8].cast("Q")
+        self._waiting = buf[_WAITING_OFF : _WAITING_OFF + 8].cast("Q")
         stride = slot_stride(capacity)
         #: per slot: [seq, length] as native 8-byte words
         self.words = [buf[HEADER_SIZE + i * stride : HEADER_SIZE + i * stride + 16].cast("Q") for i in range(slots)]
@@ -110,7 +117,7 @@ class RingLayout:
     @staticmethod
     def header(slots: int, capacity: int, head: int = 0) -> bytes:
         """A fresh header whose first message will be ``head + 1`` (a replacement ring continues the count)."""
-        return _HEAD.pack(MAGIC, LAYOUT_VERSION, 0, slots, 0, capacity, head, 0)
+        return _HEAD.pack(MAGIC, LAYOUT_VERSION, 0, slots, 0, capacity, head, 0, 0)
 
     @classmethod
     def initialize(cls, buf: memoryview, slots: int, capacity: int, head: int = 0) -> RingLayout:
@@ -124,7 +131,7 @@ class RingLayout:
 
     def release(self) -> None:
         """Release every view so that the mapping can be closed."""
-        for view in (*self.words, *self.data, self._head, self._retired):
+        for view in (*self.words, *self.data, self._head, self._retired, self._waiting):
             view.release()
         self.buf.release()
 
@@ -140,6 +147,15 @@ class RingLayout:
     def retire(self) -> None:
         """Mark the ring final: the publisher continues in a bigger one it announces over the socket."""
         self._retired[0] = 1
+
+    @property
+    def waiting(self) -> bool:
+        """The publisher holds messages back and wants to be woken when a subscriber frees a slot."""
+        return bool(self._waiting[0])
+
+    @waiting.setter
+    def waiting(self, value: bool) -> None:
+        self._waiting[0] = 1 if value else 0
 
     # writing (the publisher: one writer per ring) ----------------------------------------------------------
 
@@ -264,6 +280,17 @@ class RingCursor:
                 return None
             m, n = got
             data = bytes(self.ring.data[(m - 1) % self.ring.slots][:n])
+            if self.finish(m):
+                return data
+
+    def read_into(self, pool: FramePool) -> FrameBuffer | None:
+        """``read()`` into a buffer from ``pool`` (reused when free: no fresh pages to fault in)."""
+        while True:
+            got = self.begin()
+            if got is None:
+                return None
+            m, n = got
+            data = pool.copy(self.ring.data[(m - 1) % self.ring.slots][:n])
             if self.finish(m):
                 return data
 

@@ -23,7 +23,7 @@ from mrosd.errors import RemoteProtocolError
 from mrosd.ixm.resources import reopen
 from mrosd.shm.ring import RingLayout, ring_size
 
-__all__ = ["F_SEAL_FUTURE_WRITE", "SEGMENT_PREFIX", "MappedRing", "RingSegment"]
+__all__ = ["ACK_PAGE", "F_SEAL_FUTURE_WRITE", "SEGMENT_PREFIX", "AckPage", "MappedAck", "MappedRing", "RingSegment"]
 
 log = logging.getLogger(__name__)
 
@@ -33,6 +33,8 @@ _REQUIRED = fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW
 _SEALS = _REQUIRED | F_SEAL_FUTURE_WRITE | fcntl.F_SEAL_SEAL
 #: Rings show in /proc/PID/fd as ``/memfd:mrosd-shm-<topic> (deleted)``.
 SEGMENT_PREFIX = "mrosd-shm-"
+#: Size of a subscriber's acknowledgement page (one word is used: the next message it wants).
+ACK_PAGE = 4096
 
 
 class RingSegment:
@@ -44,9 +46,10 @@ class RingSegment:
         try:
             os.ftruncate(fd, size)
             os.fchmod(fd, 0o600)
-            # populated at once: a first write into never-touched pages costs a fault per 4 KiB page (an 8 MB
-            # message took 8 ms instead of 1 ms to copy into a fresh slot)
-            self.map = mmap.mmap(fd, size, mmap.MAP_SHARED | mmap.MAP_POPULATE, mmap.PROT_READ | mmap.PROT_WRITE)
+            # Not populated: fresh shared memory costs ~0.7 ms per MB here however it is touched (MAP_POPULATE,
+            # MADV_POPULATE_WRITE or a first write all measured alike), so a slot gets its pages when it is
+            # first written, and a ring whose messages are smaller than its slots never pays for the rest.
+            self.map = mmap.mmap(fd, size, mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
             try:
                 self.layout = RingLayout.initialize(memoryview(self.map), slots, capacity, head)
                 fcntl.fcntl(fd, fcntl.F_ADD_SEALS, _SEALS)
@@ -89,8 +92,9 @@ class MappedRing:
             if not 0 < size <= max_bytes:
                 raise RemoteProtocolError(f"the publisher sent a ring of {size} bytes (at most {max_bytes} accepted)")
             try:
-                # populated: the pages are the publisher's (no memory of ours), only the page tables are filled
-                self.map = mmap.mmap(fd, size, mmap.MAP_SHARED | mmap.MAP_POPULATE, mmap.PROT_READ)
+                # not populated: a read fault maps the publisher's pages 16 at a time (fault-around), and
+                # populating would make this process allocate the slots the publisher has not written yet
+                self.map = mmap.mmap(fd, size, mmap.MAP_SHARED, mmap.PROT_READ)
             except OSError as exc:
                 raise RemoteProtocolError(f"cannot map the publisher's ring: {exc.strerror or exc}") from None
         finally:
@@ -111,3 +115,67 @@ class MappedRing:
         except BufferError:
             # a zero-copy view is still referenced: the mapping goes when that view does
             log.debug("a shared-memory view outlives its connection; the mapping is freed with it")
+
+
+class AckPage:
+    """The publisher's side of one subscriber's acknowledgement page: a sealed 4 KiB memfd whose first word
+        the subscriber writes (the number of the next message it wants); the publisher writes it once, before
+    sending the page, and then only reads it.
+
+        The publisher makes it and sends it writable to that subscriber alone; sealed against resizing, so no
+        one can make the publisher's mapping fault. What the word says is trusted for nothing but that
+        subscriber's own pace (``mrosd.shm.publisher`` clamps it).
+    """
+
+    def __init__(self, label: str) -> None:
+        fd = os.memfd_create((SEGMENT_PREFIX + "ack-" + label)[:200], os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
+        try:
+            os.ftruncate(fd, ACK_PAGE)
+            os.fchmod(fd, 0o600)
+            fcntl.fcntl(fd, fcntl.F_ADD_SEALS, _REQUIRED | fcntl.F_SEAL_SEAL)
+            self.map = mmap.mmap(fd, ACK_PAGE, mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
+        except BaseException:
+            os.close(fd)
+            raise
+        self.fd = fd
+        self.word = memoryview(self.map)[:8].cast("Q")
+
+    def read(self) -> int:
+        return int(self.word[0])
+
+    def close(self) -> None:
+        self.word.release()
+        self.map.close()
+        with contextlib.suppress(OSError):
+            os.close(self.fd)
+
+
+class MappedAck:
+    """A subscriber's writable mapping of the acknowledgement page its publisher sent; owns ``fd``.
+
+    Raises:
+        RemoteProtocolError: the file is not a memfd sealed against resizing, of ``ACK_PAGE`` bytes.
+    """
+
+    def __init__(self, fd: int) -> None:
+        try:
+            try:
+                seals = fcntl.fcntl(fd, fcntl.F_GET_SEALS)
+            except OSError:
+                raise RemoteProtocolError("the publisher sent an acknowledgement page that is not a memfd") from None
+            if seals & _REQUIRED != _REQUIRED or os.fstat(fd).st_size != ACK_PAGE:
+                raise RemoteProtocolError("the publisher sent an acknowledgement page that is not sealed at 4 KiB")
+            try:
+                self.map = mmap.mmap(fd, ACK_PAGE, mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
+            except OSError as exc:
+                raise RemoteProtocolError(f"cannot map the acknowledgement page: {exc.strerror or exc}") from None
+        finally:
+            os.close(fd)
+        self.word = memoryview(self.map)[:8].cast("Q")
+
+    def write(self, next_message: int) -> None:
+        self.word[0] = next_message
+
+    def close(self) -> None:
+        self.word.release()
+        self.map.close()

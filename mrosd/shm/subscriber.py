@@ -1,11 +1,14 @@
 """A subscriber's end of the shared-memory transport: its connection to one publisher's ring.
 
-``ShmSubscriberConnection`` attaches (token, connection header, eventfd out; header, read-only ring in, over
-the socket of ``mrosd.shm.channel``), then is woken by the loop (``add_reader`` on the eventfd,
-spin-then-block through ``mrosd.spin``) and reads the ring: copies by default, or zero-copy ``ShmView``s on
-request. A subscriber that falls behind loses the oldest messages and counts them; it reports the count to
-the publisher for its statistics. The publisher's end (exit, crash) is its socket closing; ``closed`` is
-then done and ``error`` says why. A publisher breaking the protocol closes this connection, with one log line.
+``ShmSubscriberConnection`` attaches (token, connection header, eventfd out; header, read-only ring, its
+acknowledgement page and the publisher's eventfd in, over the socket of ``mrosd.shm.channel``), then is
+woken by the loop (``add_reader`` on the eventfd, spin-then-block through ``mrosd.spin``) and reads the ring:
+copies by default, or zero-copy ``ShmView``s on request. After each message it writes the number of the
+next one it wants into its acknowledgement page (for a view: once the view is released), and wakes the
+publisher when the ring says the publisher waits for a slot. A subscriber that falls too far behind loses
+the oldest messages and counts them; it reports the count to the publisher for its statistics. The
+publisher's end (exit, crash) is its socket closing; ``closed`` is then done and ``error`` says why. A
+publisher breaking the protocol closes this connection, with one log line.
 """
 
 from __future__ import annotations
@@ -20,11 +23,21 @@ from collections.abc import Callable
 from typing import Any
 
 from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
+from mrosd.msg.runtime import FramePool
 from mrosd.shm import control
-from mrosd.shm.channel import ATTACH_TIMEOUT, ControlChannel, abstract_name, close_fds, connect_unix, peer_credentials
+from mrosd.shm.channel import (
+    ATTACH_TIMEOUT,
+    ONE,
+    ControlChannel,
+    abstract_name,
+    close_fds,
+    connect_unix,
+    is_eventfd,
+    peer_credentials,
+)
 from mrosd.shm.negotiate import ShmAnswer, trusted_uids
 from mrosd.shm.ring import RingCursor
-from mrosd.shm.segment import MappedRing
+from mrosd.shm.segment import MappedAck, MappedRing
 from mrosd.spin import loop_spinner
 from mrosd.wire.header import ConnectionHeader, decode_connection_header, encode_header
 
@@ -79,7 +92,7 @@ class ShmView:
         self.data.release()
 
 
-Frame = bytes | ShmView
+Frame = bytes | bytearray | ShmView
 
 
 class ShmSubscriberConnection:
@@ -105,6 +118,11 @@ class ShmSubscriberConnection:
         self._wake_fd: int | None = None
         self._ring: MappedRing | None = None
         self._cursor: RingCursor | None = None
+        self._ack: MappedAck | None = None
+        #: copies are made into these buffers, reused once the messages decoded from them are gone
+        self._pool = FramePool()
+        #: the publisher's eventfd: written when it waits for a slot and we freed one
+        self._publisher_fd: int | None = None
         self._dropped_before = 0
         self._reported = 0
         self._on_frame: Callable[[Any], None] | None = None
@@ -180,8 +198,18 @@ class ShmSubscriberConnection:
             raise RemoteProtocolError(f"expected Attached from the shared-memory publisher, got {type(msg).__name__}")
         if rest:
             raise RemoteProtocolError("the shared-memory publisher sent messages before we were attached")
+        ring_fd, ack_fd, self._publisher_fd = fds
+        if not is_eventfd(self._publisher_fd):
+            close_fds([ring_fd, ack_fd])
+            raise RemoteProtocolError("the shared-memory publisher's wake-up descriptor is not an eventfd")
+        os.set_blocking(self._publisher_fd, False)  # a write must never block us, whatever the publisher set
+        try:
+            self._ack = MappedAck(ack_fd)
+        except BaseException:
+            close_fds([ring_fd])
+            raise
         self.reply_header = decode_connection_header(msg.header)
-        self._ring = MappedRing(fds[0], self._max_map)
+        self._ring = MappedRing(ring_fd, self._max_map)
         self._cursor = RingCursor(self._ring.layout, max(1, msg.first))
         loop.add_reader(self._wake_fd, self._on_wake)
         loop.add_reader(sock.fileno(), self._on_control)
@@ -240,6 +268,7 @@ class ShmSubscriberConnection:
                 finally:
                     if isinstance(frame, ShmView):
                         frame.release()
+                        self._acknowledge(frame.number + 1)
             else:
                 self._schedule()
         except RemoteProtocolError as exc:
@@ -261,9 +290,10 @@ class ShmSubscriberConnection:
                     n = len(view)
                     break
             else:
-                data = cursor.read()
+                data = cursor.read_into(self._pool)
                 if data is not None:
                     frame, n = data, len(data)
+                    self._acknowledge(cursor.next)
                     break
             if not self._next_rings:
                 return None
@@ -271,6 +301,17 @@ class ShmSubscriberConnection:
         self.messages_received += 1
         self.bytes_received += n
         return frame
+
+    def _acknowledge(self, next_message: int) -> None:
+        """Tell the publisher we are done with the messages before ``next_message``; wake it if it waits."""
+        ack = self._ack
+        if ack is None:
+            return
+        ack.write(next_message)
+        ring = self._ring
+        if ring is not None and ring.layout.waiting and self._publisher_fd is not None:
+            with contextlib.suppress(OSError):
+                os.write(self._publisher_fd, ONE)
 
     def _report(self) -> None:
         dropped = self.dropped
@@ -346,6 +387,7 @@ class ShmSubscriberConnection:
     def _release_view(self) -> None:
         if self._last_view is not None:
             self._last_view.release()
+            self._acknowledge(self._last_view.number + 1)
             self._last_view = None
 
     # lifecycle --------------------------------------------------------------------------------------------
@@ -385,6 +427,12 @@ class ShmSubscriberConnection:
         if self._ring is not None:
             self._ring.close()
             self._ring = None
+        if self._ack is not None:
+            self._ack.close()
+            self._ack = None
+        if self._publisher_fd is not None:
+            close_fds([self._publisher_fd])
+            self._publisher_fd = None
         while self._next_rings:
             self._next_rings.popleft().close()
 

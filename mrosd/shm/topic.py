@@ -161,7 +161,7 @@ def request_protocols(allow_shm: bool = True) -> list[list[Any]]:
 
 
 async def attach_subscriber(
-    subscriber: SubscriberLike, uri: str, params: Any, on_frame: Callable[[bytes], None], timeout: float
+    subscriber: SubscriberLike, uri: str, params: Any, on_frame: Callable[[bytes | bytearray], None], timeout: float
 ) -> tuple[ShmSubscriberConnection, ConnectionHeader] | None:
     """Attach to the ring a publisher's requestTopic answer points to; None when it answered TCPROS.
 

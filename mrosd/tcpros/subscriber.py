@@ -147,7 +147,7 @@ class PublisherLink:
     def transport_name(self) -> str:
         return "SHMROS" if self.shm is not None else "TCPROS"
 
-    def _shm_frame(self, body: bytes) -> None:
+    def _shm_frame(self, body: bytes | bytearray) -> None:
         self.bytes_received += len(body) + 4
         self.messages_received += 1
         self.subscriber._deliver(body, self)

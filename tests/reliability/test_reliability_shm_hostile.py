@@ -4,7 +4,8 @@ A subscriber cannot resize or write the ring (sealed memfd, read-only descriptor
 against reopening it read-write through /proc); a publisher that sends an unsealed or oversized file, lies
 about lengths or heads, or speaks garbage ends only its own connection, with one line, and never makes the
 subscriber read out of bounds; a subscriber that sends a pipe for an eventfd, garbage, or nothing at all is
-closed and the publisher serves the others.
+closed and the publisher serves the others. A subscriber that lies in its acknowledgement page, or stops
+reading, costs only itself: the publisher never waits for it beyond its queue, and the others are served.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from mrosd.shm import publisher as shm_publisher
 from mrosd.shm import subscriber as shm_subscriber
 from mrosd.shm.negotiate import ShmAnswer
 from mrosd.shm.ring import RingLayout, ring_size
-from mrosd.shm.segment import MappedRing, RingSegment
+from mrosd.shm.segment import ACK_PAGE, MappedRing, RingSegment
 from mrosd.wire.header import ConnectionHeader, encode_header
 
 HEADER = ConnectionHeader(callerid="/victim", topic="/t", md5sum="*", type="*")
@@ -102,6 +103,27 @@ def sealed(raw: bytes) -> int:
     return fd
 
 
+def ack_page(size: int = ACK_PAGE, seal: bool = True) -> int:
+    fd = os.memfd_create("mrosd-shm-fake-ack", os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
+    os.ftruncate(fd, size)
+    if seal:
+        import fcntl
+
+        fcntl.fcntl(fd, fcntl.F_ADD_SEALS, fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW)
+    return fd
+
+
+def pipe_end() -> int:
+    r, w = os.pipe()
+    os.close(r)
+    return w
+
+
+def attached_fds(ring_fd: int, ack: int | None = None, wake: int | None = None) -> list[int]:
+    """What an honest Attached carries beside the ring: an acknowledgement page and the publisher's eventfd."""
+    return [ring_fd, ack_page() if ack is None else ack, os.eventfd(0) if wake is None else wake]
+
+
 def lying_ring(mutate: Callable[[RingLayout], None]) -> bytes:
     buf = bytearray(ring_size(2, 64))
     ring = RingLayout.initialize(memoryview(buf), 2, 64)
@@ -161,7 +183,7 @@ ATTACHED = control.Attached(header=encode_header(ConnectionHeader(callerid="/lia
 async def test_a_publisher_that_lies_about_the_ring_ends_only_its_connection(
     mutate: Callable[[RingLayout], None], why: str, caplog: pytest.LogCaptureFixture
 ) -> None:
-    answer, task = await fake_publisher(lambda c: send(c, ATTACHED, [sealed(lying_ring(mutate))]))
+    answer, task = await fake_publisher(lambda c: send(c, ATTACHED, attached_fds(sealed(lying_ring(mutate)))))
     got: list[bytes] = []
     with caplog.at_level(logging.WARNING):
         conn = await ShmSubscriberConnection.attach(answer, HEADER, on_frame=got.append)
@@ -174,8 +196,14 @@ async def test_a_publisher_that_lies_about_the_ring_ends_only_its_connection(
 @pytest.mark.parametrize(
     ("reply", "match"),
     [
-        (lambda c: send(c, ATTACHED, [os.memfd_create("x", os.MFD_ALLOW_SEALING)]), "not sealed"),
+        (lambda c: send(c, ATTACHED, attached_fds(os.memfd_create("x", os.MFD_ALLOW_SEALING))), "not sealed"),
         (lambda c: send(c, ATTACHED, []), "file descriptors"),
+        (lambda c: send(c, ATTACHED, [sealed(lying_ring(lambda r: None))]), "file descriptors"),
+        # the acknowledgement page: unsealed (could be shrunk under our mapping), or not one page
+        (lambda c: send(c, ATTACHED, attached_fds(sealed(lying_ring(lambda r: None)), ack_page(seal=False))), "4 KiB"),
+        (lambda c: send(c, ATTACHED, attached_fds(sealed(lying_ring(lambda r: None)), ack_page(1 << 20))), "4 KiB"),
+        # a pipe for the publisher's wake-up: a full pipe would block every acknowledgement
+        (lambda c: send(c, ATTACHED, attached_fds(sealed(lying_ring(lambda r: None)), wake=pipe_end())), "eventfd"),
         (lambda c: c.send(b"\x05\x00\x00\x00garba"), "bad shared-memory control message"),
         (lambda c: c.send(b"\xff\xff\xff\x7f"), "limit"),
         (lambda c: send(c, control.Ring(slots=2), [sealed(lying_ring(lambda r: None))]), "expected Attached"),
@@ -261,7 +289,7 @@ async def test_hostile_subscribers_are_closed_and_the_others_served(monkeypatch:
 
 async def test_a_publisher_that_floods_replacement_rings_is_cut_off() -> None:
     def flood(c: socket.socket) -> None:
-        send(c, ATTACHED, [sealed(lying_ring(lambda r: None))])
+        send(c, ATTACHED, attached_fds(sealed(lying_ring(lambda r: None))))
         for _ in range(shm_subscriber.MAX_NEXT_RINGS + 1):
             send(c, control.Ring(slots=2), [sealed(lying_ring(lambda r: None))])
 
@@ -274,3 +302,38 @@ async def test_a_publisher_that_floods_replacement_rings_is_cut_off() -> None:
         await asyncio.wait_for(asyncio.shield(conn.closed), 5)
         assert "too often" in conn.error
     await stop(task)
+
+
+async def test_a_subscriber_that_lies_in_its_acknowledgement_page_costs_only_itself(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(shm_publisher, "STALL", 0.05)
+    ep = ShmPublisherEndpoint("/t", queue_size=1000)
+    await ep.start()
+    shm_answer = ShmAnswer(version=1, address=ep.address, token=ep.token)
+    liar = await ShmSubscriberConnection.attach(shm_answer, HEADER)  # never reads
+    got: list[bytes] = []
+    honest = await ShmSubscriberConnection.attach(shm_answer, HEADER, on_frame=lambda b: got.append(bytes(b)))
+    try:
+        assert liar._ack is not None and liar._publisher_fd is not None
+        sent = [i.to_bytes(2, "little") * 5000 for i in range(300)]
+        for i, body in enumerate(sent):
+            if i == 0:
+                liar._ack.write((1 << 64) - 1)  # "I have read messages that do not exist yet"
+            elif i == 100:
+                liar._ack.write(0)  # "I have read nothing at all"
+            elif i == 200:
+                for _ in range(10_000):  # and wakes the publisher for nothing, over and over
+                    os.write(liar._publisher_fd, (1).to_bytes(8, "little"))
+            ep.publish(body)
+            assert len(ep.backlog) <= 1000
+            await asyncio.sleep(0.0005)
+        async with asyncio.timeout(10):
+            while len(got) < len(sent):  # noqa: ASYNC110 - filled by the connection's callback
+                await asyncio.sleep(0.01)
+        assert got == sent and honest.dropped == 0
+        assert not ep.backlog
+    finally:
+        await liar.aclose()
+        await honest.aclose()
+        await ep.aclose()

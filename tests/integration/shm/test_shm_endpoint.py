@@ -1,14 +1,17 @@
-"""ShmPublisherEndpoint and ShmSubscriberConnection in one event loop: iteration, views, growth, refusals, ends."""
+"""ShmPublisherEndpoint and ShmSubscriberConnection in one event loop: iteration, views, growth, refusals, ends,
+and the publisher's queue beside the ring (bursts, stalled subscribers)."""
 
 from __future__ import annotations
 
 import asyncio
+import time
 from collections.abc import Callable
 
 import pytest
 
 from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
 from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection, ShmView, parse_answer
+from mrosd.shm import publisher as shm_publisher
 from mrosd.shm.negotiate import ShmAnswer
 from mrosd.wire.handshake import publisher_reply
 from mrosd.wire.header import ConnectionHeader
@@ -173,3 +176,76 @@ async def test_cancelling_a_waiter_of_closed_still_releases_everything_at_aclose
     await conn.aclose()
     assert conn._channel is None and conn._ring is None and not conn.connected
     await ep.aclose()
+
+
+# the publisher's queue beside the ring -------------------------------------------------------------------
+
+
+async def test_a_burst_longer_than_the_ring_waits_in_the_publishers_queue_and_arrives_whole() -> None:
+    ep = await endpoint(queue_size=100)
+    conn = await ShmSubscriberConnection.attach(answer(ep), HEADER)
+    try:
+        await until(lambda: ep.links)
+        sent = [bytes([i]) * 300_000 for i in range(40)]
+        for body in sent:  # no turn of the loop in between: the subscriber reads nothing meanwhile
+            ep.publish(body)
+        assert ep.ring is not None and ep.ring.layout.slots < 40
+        assert len(ep.backlog) == 40 - ep.ring.layout.slots and ep.ring.layout.waiting
+        got = [bytes(await asyncio.wait_for(anext(conn), 5)) for _ in sent]
+        assert got == sent and conn.dropped == 0
+        await until(lambda: not ep.backlog)
+        assert not ep.ring.layout.waiting and ep.stats()[0]["messages"] == 40
+    finally:
+        await conn.aclose()
+        await ep.aclose()
+
+
+async def test_a_stalled_subscriber_holds_back_one_that_keeps_up_for_at_most_stall(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(shm_publisher, "STALL", 0.1)
+    ep = await endpoint(queue_size=1000)
+    stalled = await ShmSubscriberConnection.attach(answer(ep), HEADER)  # never iterated until the end
+    got: list[tuple[float, bytes]] = []
+    live = await ShmSubscriberConnection.attach(
+        answer(ep), HEADER, on_frame=lambda b: got.append((time.monotonic(), bytes(b)))
+    )
+    try:
+        await until(lambda: len(ep.links) == 2)
+        sent = [i.to_bytes(4, "little") * 1000 for i in range(200)]
+        published: list[float] = []
+        for body in sent:
+            ep.publish(body)
+            published.append(time.monotonic())
+            await asyncio.sleep(0.001)
+        await until(lambda: len(got) == len(sent))
+        assert [b for _, b in got] == sent and live.dropped == 0
+        delays = [t - p for (t, _), p in zip(got, published, strict=True)]
+        assert max(delays) < 0.1 + 0.5  # STALL, and a loaded machine's slack
+        assert [lk.lagging for lk in ep.links] == [True, False]
+        # the stalled one finds the newest messages that are still in the ring, and counts the rest as lost
+        first = await asyncio.wait_for(anext(stalled), 5)
+        assert bytes(first) != sent[0] and stalled.dropped > 0
+    finally:
+        await stalled.aclose()
+        await live.aclose()
+        await ep.aclose()
+
+
+async def test_a_lone_stalled_subscriber_is_queued_for_at_most_queue_size_then_loses_the_oldest() -> None:
+    ep = await endpoint(queue_size=3)
+    conn = await ShmSubscriberConnection.attach(answer(ep), HEADER)
+    try:
+        await until(lambda: ep.links)
+        for i in range(50):
+            ep.publish(bytes([i]) * 100)  # never waits, whatever the subscriber does
+            assert len(ep.backlog) <= 3 + 1
+        assert ep.links[0].lagging
+        got = []
+        while len(got) + conn.dropped < 50:
+            got.append(bytes(await asyncio.wait_for(anext(conn), 5)))
+        assert got[-1] == bytes([49]) * 100 and conn.dropped > 0
+        assert got == sorted(got)  # in order, the oldest ones gone
+    finally:
+        await conn.aclose()
+        await ep.aclose()

@@ -21,7 +21,8 @@ from mrosd.shm.negotiate import (
     subscriber_offer,
     trusted_uids,
 )
-from mrosd.shm.publisher import _grown, slots_for
+from mrosd.shm.publisher import MIN_SLOTS, RING_BYTES, _grown, slots_for
+from mrosd.shm.ring import MAX_SLOTS
 
 HERE = HostIdentity(boot_id="b0", netns="4026531833", uid=1000)
 TRUSTED = frozenset({0, 1000})
@@ -118,8 +119,8 @@ def test_any_answer_parses_or_is_a_protocol_error(params: list[Any]) -> None:
 
 
 def test_environment_switches() -> None:
-    assert not enabled({}) and not enabled({"MROSD_SHM": "0"})  # opt-in
-    assert enabled({"MROSD_SHM": "1"}) and enabled({"MROSD_SHM": " on "})
+    assert enabled({}) and enabled({"MROSD_SHM": "1"}) and enabled({"MROSD_SHM": " on "})  # on by default
+    assert not enabled({"MROSD_SHM": "0"}) and not enabled({"MROSD_SHM": " Off "})
     assert 1234 in trusted_uids({"MROSD_SHM_TRUSTED_UIDS": "1234, x"})
 
 
@@ -131,10 +132,14 @@ def test_control_frames_round_trip_and_garbage_is_refused() -> None:
         control.decode(b"\x93garbage")
 
 
-def test_ring_sizes_follow_queue_size_within_the_memory_cap() -> None:
-    assert slots_for(1, 4096, 1 << 30) == 3
+def test_ring_slots_fill_ring_bytes_within_queue_size_and_the_memory_cap() -> None:
+    assert RING_BYTES == 4 << 20 and MIN_SLOTS == 2
+    assert slots_for(1, 4096, 1 << 30) == 2  # queue_size + 1, never fewer than MIN_SLOTS
     assert slots_for(10, 4096, 1 << 30) == 11
-    assert slots_for(100, 9 << 20, 128 << 20) == 14
+    assert slots_for(100, 1 << 20, 1 << 30) == 3  # as many 1 MiB slots as fit in RING_BYTES
+    assert slots_for(100, 9 << 20, 128 << 20) == 2  # 8 MB images: the backlog queues, the ring pipelines
+    assert slots_for(100_000, 64, 1 << 30) == MAX_SLOTS
+    assert slots_for(100, 4096, 16384) == 3  # the memory cap wins over RING_BYTES
     assert slots_for(100, 512 << 20, 128 << 20) == 2
     assert _grown(65536, 8 << 20) >= (8 << 20) + (1 << 20)
     assert _grown(65536, 100_000) == 131072
