@@ -104,14 +104,11 @@ def permitted_uid(uid: int, trusted: frozenset[int]) -> bool:
 
 
 def enabled(environ: dict[str, str] | None = None) -> bool:
-    """True when ``MROSD_SHM=1``: this process offers and answers shared memory to same-host mrosd peers.
-
-    Off by default: the ring drops the oldest messages once a burst outruns its subscriber (it holds at most
-    ``queue_size + 1`` slots and 128 MiB), where TCPROS would queue them, and a fresh connection pays for
-    mapping the ring, so short bursts of large messages are slower than over loopback TCP (docs/shm.md).
+    """True unless ``MROSD_SHM=0`` (or false/no/off): this process offers and answers shared memory to
+    same-host mrosd peers (docs/shm.md). Off, every connection is plain TCPROS, as between any other peers.
     """
     env = os.environ if environ is None else environ
-    return env.get(ENABLE_ENV, "0").strip().lower() in ("1", "true", "yes", "on")
+    return env.get(ENABLE_ENV, "1").strip().lower() not in ("0", "false", "no", "off")
 
 
 def subscriber_offer(identity: HostIdentity) -> list[Any]:
