@@ -20,7 +20,7 @@ NODE = str(Path(__file__).with_name("shmnode.py"))
 
 @pytest.fixture(autouse=True)
 def shared_memory_on(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The transport is opt-in (``MROSD_SHM=1``); these tests, and the processes they start, turn it on."""
+    """On by default; set here so that ``MROSD_SHM=0`` in a developer's environment does not turn these tests off."""
     monkeypatch.setenv("MROSD_SHM", "1")
 
 
