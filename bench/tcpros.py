@@ -8,7 +8,10 @@ another, in mixed pairings (an mrosd sender with a roscpp or rospy echo node and
 median, p99 and max are printed, the means in the layout of the paper's Tables 1-3, and box plots like its
 Figs. 16/17 go to bench/out/. Then throughput: bursts of small Strings (msgs/s) and echoed 1 MB / 8 MB
 sensor_msgs/Image and 1 MB / 4 MB PointCloud2 (MB/s), over TCPROS for every implementation and, as the
-``same-host`` row, between two mrosd processes on the shared-memory transport they negotiate. Finally the RTT
+``same-host`` row, between two mrosd processes on the shared-memory transport they negotiate. Each burst runs
+twice on one connection, for every implementation alike: first on the new connection (what its first messages
+cost, buffers and shared memory touched for the first time included), then again on the warm connection (the
+transport's throughput, as the RTT figures come after warm-up round trips). Finally the RTT
 and image rows again beside a CPU-bound neighbour (one busy-loop process), for every implementation in the
 same run. All against one Debian rosmaster.
 
@@ -191,18 +194,19 @@ async def _send(mode: str, kind: str, sizes: list[int], n: int) -> None:
                     rtts.append(state["last"] - t0)
                 print(f"RTT {size} " + " ".join(map(str, rtts)), flush=True)
             else:
-                start = state["received"]
-                t0 = time.perf_counter_ns()
-                for i in range(n):
-                    pub.publish_nowait(msg)
-                    if i % 64 == 63:
-                        await asyncio.sleep(0)
-                before = -1
-                while state["received"] != before and state["received"] - start < n:
-                    before = state["received"]
-                    await wait_for(start + n, 1.0)
-                got = state["received"] - start
-                print(f"BURST {size} {got} {(state['last'] - t0) / 1e9:.6f}", flush=True)
+                for label in ("BURST", "WARM"):  # on the new connection, then again on the warm one
+                    start = state["received"]
+                    t0 = time.perf_counter_ns()
+                    for i in range(n):
+                        pub.publish_nowait(msg)
+                        if i % 64 == 63:
+                            await asyncio.sleep(0)
+                    before = -1
+                    while state["received"] != before and state["received"] - start < n:
+                        before = state["received"]
+                        await wait_for(start + n, 1.0)
+                    got = state["received"] - start
+                    print(f"{label} {size} {got} {(state['last'] - t0) / 1e9:.6f}", flush=True)
 
 
 def _role(args: argparse.Namespace) -> int:
@@ -332,10 +336,12 @@ def _rtts(lines: list[str]) -> dict[int, list[int]]:
     return {int(line.split()[1]): [int(v) for v in line.split()[2:]] for line in lines if line.startswith("RTT ")}
 
 
-def _bursts(lines: list[str]) -> list[tuple[int, int, float]]:
+def _bursts(lines: list[str], label: str = "BURST") -> list[tuple[int, int, float]]:
+    """(size, messages echoed, seconds) of each burst on a new connection, or with ``label="WARM"`` of the same
+    burst repeated on the warm connection."""
     out = []
     for line in lines:
-        if line.startswith("BURST "):
+        if line.startswith(label + " "):
             _, size, got, secs = line.split()
             out.append((int(size), int(got), float(secs)))
     return out
@@ -462,7 +468,7 @@ def main(argv: list[str]) -> int:
                         res.small[pair[0]] = count / secs if secs > 0 else 0.0
             # images and point clouds also between two mrosd processes on shared memory (the same-host row)
             large = selves + ([("same-host", "same-host")] if "mrosd" in impls and not args.no_shm else [])
-            _throughput(runner, large, cpp, max(1, args.rounds), res.large)
+            _throughput(runner, large, cpp, max(1, args.rounds), res.large, res.warm_large)
             if not args.no_neighbour:
                 busy = _busy_loop(runner)
                 try:
@@ -470,7 +476,7 @@ def main(argv: list[str]) -> int:
                         res.busy_rtt[pair[0]] = _rtts(
                             _run_pair(runner, pair, cpp, "ping", "mros", NEIGHBOUR_SIZES, args.count)
                         )
-                    _throughput(runner, selves, cpp, 1, res.busy_large, kinds=("image",))
+                    _throughput(runner, selves, cpp, 1, res.busy_large, res.busy_warm_large, kinds=("image",))
                 finally:
                     runner.stop(busy)
         finally:
@@ -491,8 +497,11 @@ class Results:
         self.small: dict[str, float] = {}
         #: (kind, size) -> implementation -> MB/s (median of rounds)
         self.large: dict[tuple[str, int], dict[str, float]] = {}
+        #: the same bursts repeated on the warm connection
+        self.warm_large: dict[tuple[str, int], dict[str, float]] = {}
         self.busy_rtt: dict[str, dict[int, list[int]]] = {}
         self.busy_large: dict[tuple[str, int], dict[str, float]] = {}
+        self.busy_warm_large: dict[tuple[str, int], dict[str, float]] = {}
 
 
 def _throughput(
@@ -501,22 +510,28 @@ def _throughput(
     cpp: str | None,
     rounds: int,
     into: dict[tuple[str, int], dict[str, float]],
+    warm: dict[tuple[str, int], dict[str, float]],
     kinds: tuple[str, ...] = ("image", "cloud"),
 ) -> None:
-    """Echoed large-message bursts. Rounds interleave the implementations so that a burst of outside load
-    hits them alike (large-message throughput is the noisiest figure on a shared machine); the median is kept."""
+    """Echoed large-message bursts, each on a new connection (``into``) and then again on that connection once
+    it is warm (``warm``). Rounds interleave the implementations so that a burst of outside load hits them alike
+    (large-message throughput is the noisiest figure on a shared machine); the median is kept."""
     runs: dict[tuple[str, int], dict[str, list[float]]] = {}
+    warm_runs: dict[tuple[str, int], dict[str, list[float]]] = {}
     for _ in range(rounds):
         for pair in selves:
             for kind in kinds:
                 for size, n in IMAGES if kind == "image" else CLOUDS:
-                    for got_size, got, secs in _bursts(_run_pair(runner, pair, cpp, "burst", kind, [size], n)):
-                        if secs > 0:
-                            runs.setdefault((kind, got_size), {}).setdefault(pair[0], []).append(
-                                got * got_size / 1e6 / secs
-                            )
-    for key, by_impl in runs.items():
-        into[key] = {impl: statistics.median(values) for impl, values in by_impl.items()}
+                    lines = _run_pair(runner, pair, cpp, "burst", kind, [size], n)
+                    for label, table in (("BURST", runs), ("WARM", warm_runs)):
+                        for got_size, got, secs in _bursts(lines, label):
+                            if secs > 0:
+                                table.setdefault((kind, got_size), {}).setdefault(pair[0], []).append(
+                                    got * got_size / 1e6 / secs
+                                )
+    for table, out in ((runs, into), (warm_runs, warm)):
+        for key, by_impl in table.items():
+            out[key] = {impl: statistics.median(values) for impl, values in by_impl.items()}
 
 
 def _ratio(a: float | None, b: float | None) -> str:
@@ -573,10 +588,15 @@ def _report(impls: list[str], res: Results) -> None:
             f"{impl} {v:,.0f}" for impl, v in res.small.items()
         ) + f" | mrosd/rospy {_ratio(res.small.get('mrosd'), res.small.get('rospy'))}"
           + f" mrosd/roscpp {_ratio(res.small.get('mrosd'), res.small.get('roscpp'))}")  # fmt: skip
-    for title, table in (("", res.large), ("beside a busy-loop process: ", res.busy_large)):
+    for title, table, how in (
+        ("", res.large, "echoed"),
+        ("", res.warm_large, "echoed on a warm connection"),
+        ("beside a busy-loop process: ", res.busy_large, "echoed"),
+        ("beside a busy-loop process: ", res.busy_warm_large, "echoed on a warm connection"),
+    ):
         for (kind, size), vals in sorted(table.items()):
             name = f"{title}{'image' if kind == 'image' else 'PointCloud2'}"
-            print(f"{name} throughput {size // (1024 * 1024)} MB (echoed, MB/s, median of rounds): " + " | ".join(
+            print(f"{name} throughput {size // (1024 * 1024)} MB ({how}, MB/s, median of rounds): " + " | ".join(
                 f"{impl} {vals[impl]:.1f}" if vals.get(impl) else f"{impl} n/a" for impl in impls
             ) + f" | mrosd/rospy {_ratio(vals.get('mrosd'), vals.get('rospy'))}"
               + f" mrosd/roscpp {_ratio(vals.get('mrosd'), vals.get('roscpp'))}"

@@ -5,7 +5,8 @@
 //   ping <string|image> <sizes> <n>   for each comma-separated size, send n messages on /ping, wait for each on /pong,
 //                                     print "RTT <size> <ns> <ns> ..." (one round trip per message)
 //   burst <string|image> <sizes> <n>  for each size, send n messages back to back, count replies on /pong,
-//                                     print "BURST <size> <received> <seconds>"
+//                                     print "BURST <size> <received> <seconds>"; then the same burst again
+//                                     on the warm connection: "WARM <size> <received> <seconds>"
 #include <ros/callback_queue.h>
 #include <ros/ros.h>
 #include <sensor_msgs/Image.h>
@@ -162,19 +163,23 @@ static int run_size(Node<M>& node, const std::string& mode, size_t size, long lo
     }
     std::printf("\n");
   } else {
-    long long start = node.received;
-    long long t0 = now_ns();
-    for (long long i = 0; i < n; ++i) {
-      node.pub.publish(msg);
-      ros::getGlobalCallbackQueue()->callAvailable(ros::WallDuration(0));
+    // the same burst twice: on the new connection ("BURST"), then again on the now warm one ("WARM")
+    for (const char* label : {"BURST", "WARM"}) {
+      long long start = node.received;
+      long long t0 = now_ns();
+      for (long long i = 0; i < n; ++i) {
+        node.pub.publish(msg);
+        ros::getGlobalCallbackQueue()->callAvailable(ros::WallDuration(0));
+      }
+      long long before = -1;
+      while (ros::ok() && node.received != before) {  // until one quiet second
+        before = node.received;
+        node.wait_for(start + n, 1.0);
+        if (node.received - start >= n) break;
+      }
+      std::printf("%s %zu %lld %.6f\n", label, size, node.received - start, (node.last_ns - t0) / 1e9);
+      std::fflush(stdout);
     }
-    long long before = -1;
-    while (ros::ok() && node.received != before) {  // until one quiet second
-      before = node.received;
-      node.wait_for(start + n, 1.0);
-      if (node.received - start >= n) break;
-    }
-    std::printf("BURST %zu %lld %.6f\n", size, node.received - start, (node.last_ns - t0) / 1e9);
   }
   std::fflush(stdout);
   return 0;
