@@ -4,8 +4,8 @@
 master. ``echo``, ``hz``, ``bw`` and ``delay`` subscribe in raw mode (``AnyMsg``) so they need no local
 definition of the type: messages are decoded with a class built from the publisher's ``message_definition``
 (``mrosd.msg.load_type``), the way a ROS user wishes rostopic did. ``pub`` lives in ``mros_cli.publish``; the
-YAML-to-message builder in ``mros_cli.values``; rendering and the coalesced stdout writer in
-``mros_cli.output``; the statistics in ``mros_cli.stats``.
+YAML-to-message builder in ``mros_cli.values``; what echo does with each message in ``mros_cli.echo``,
+rendering in ``mros_cli.output``, the stdout writer in ``mros_cli.writer``; the statistics in ``mros_cli.stats``.
 """
 
 from __future__ import annotations
@@ -18,17 +18,10 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from mros_cli.echo import Echo, MessageFilter, field_type
 from mros_cli.graph import poll_option, shared_memory_section, watch_topics
 from mros_cli.main import anonymous, master_client, resolve_name, run
-from mros_cli.output import (
-    SEPARATOR,
-    CoalescedWriter,
-    Decoder,
-    JsonRenderer,
-    PlotRenderer,
-    TextRenderer,
-    extract_field,
-)
+from mros_cli.output import Decoder
 from mros_cli.publish import pub
 from mros_cli.stats import BandwidthStats, DelayStats, RateStats
 from mros_cli.values import build_message, file_documents, parse_pub_args
@@ -40,8 +33,6 @@ if TYPE_CHECKING:
 
 #: Re-exported for ``mros_cli.ixm`` and older imports; the builder lives in ``mros_cli.values``.
 __all__ = ["build_message", "file_documents", "group", "parse_pub_args"]
-
-_SEPARATOR_BYTES = SEPARATOR.encode()
 
 #: rostopic hz's default window ("-1": effectively everything).
 HZ_WINDOW = 50000
@@ -85,7 +76,7 @@ def _has_fields(msg_type: str, path: str) -> bool:
     except MrosError:
         return True
     try:
-        _field_type(msg_type, names)
+        field_type(msg_type, names)
     except MrosError:
         return False
     return True
@@ -269,18 +260,7 @@ def type_(topic: str) -> None:
     if not fields:
         click.echo(msg_type)
         return
-    click.echo(f"{msg_type} {'/'.join(fields)} {_field_type(msg_type, fields)}")
-
-
-def _field_type(msg_type: str, fields: list[str]) -> str:
-    current = msg_type
-    for name in fields:
-        cls = get_message_class("std_msgs/Header" if current == "Header" else current)
-        table = dict(zip(cls.__struct_fields__, cls._field_types, strict=True))
-        if name not in table:
-            raise MrosError(f"{current} has no field {name!r}; its fields are: {', '.join(table)}")
-        current = table[name]
-    return current
+    click.echo(f"{msg_type} {'/'.join(fields)} {field_type(msg_type, fields)}")
 
 
 @group.command()
@@ -301,106 +281,6 @@ def find(msg_type: str) -> None:
 
 
 # --- echo ---------------------------------------------------------------------------------------------
-
-
-class MessageFilter:
-    """``--filter EXPR``: a Python expression evaluated per message with ``m`` (the message) and ``topic``.
-
-    This runs code given on the command line, in this process, exactly as rostopic's ``--filter`` does; it is
-    the user's own expression, never data from the graph. A message for which the expression raises is not
-    shown, and the first such error is reported on stderr in one line (rostopic prints a traceback per message).
-    """
-
-    def __init__(self, expression: str, topic: str) -> None:
-        try:
-            self.code = compile(expression, "<--filter>", "eval")
-        except SyntaxError as exc:
-            raise MrosError(f"--filter {expression!r} is not a Python expression: {exc.msg}") from exc
-        self.expression = expression
-        self.topic = topic
-        self.warned = False
-
-    def __call__(self, msg: Any) -> bool:
-        try:
-            return bool(eval(self.code, {"m": msg, "topic": self.topic}))  # the user's own expression, as rostopic
-        except Exception as exc:  # any error of the user's expression skips the message
-            if not self.warned:
-                self.warned = True
-                click.echo(f"WARNING: --filter {self.expression!r} raised {type(exc).__name__}: {exc}", err=True)
-            return False
-
-
-class Echo:
-    """Decodes raw messages with the publisher's own definition and writes them, coalesced per loop turn."""
-
-    def __init__(
-        self,
-        fields: list[str],
-        count: int | None,
-        *,
-        noarr: bool,
-        as_json: bool,
-        offset: bool,
-        nostr: bool = False,
-        plot: bool = False,
-        keep: MessageFilter | None = None,
-    ) -> None:
-        self.fields = fields
-        self.count = count
-        self.shown = 0
-        self.offset = offset
-        self.keep = keep
-        self.text = TextRenderer(noarr=noarr, nostr=nostr)
-        self.json = JsonRenderer() if as_json else None
-        self.plot = PlotRenderer(noarr=noarr, nostr=nostr) if plot else None
-        self.done = asyncio.Event()
-        self.error: BaseException | None = None
-        self.decoder = Decoder()
-        self.writer = CoalescedWriter(sys.stdout.buffer, on_broken=self.done.set)
-        self._field_type: str | None = None
-
-    def on_raw(self, raw: Any) -> None:
-        """Subscriber callback: decode, filter, render, queue for the coalesced write."""
-        if self.done.is_set():
-            return
-        try:
-            msg = self.decoder.decode(raw)
-            if self.keep is not None and not self.keep(msg):
-                return
-            value = extract_field(msg, self.fields) if self.fields else msg
-            self.writer.add(self._render(value, type(msg), getattr(raw, "stamp_ns", None)))
-        except (MrosError, KeyError) as exc:
-            self.error = exc
-            self.done.set()
-            return
-        self.shown += 1
-        if self.count is not None and self.shown >= self.count:
-            self.writer.flush()
-            self.done.set()
-
-    def _render(self, value: Any, cls: Any, recorded_ns: int | None) -> list[bytes]:
-        if self.json is not None:
-            return [self.json.render(value) + b"\n"]
-        now = time.time_ns()
-        if self.plot is not None:
-            row = self.plot.row(value, now, now if self.offset else None, recorded_ns=recorded_ns) + "\n"
-            return [(self.plot.heading(value) + "\n" + row).encode() if self.shown == 0 else row.encode()]
-        if self.offset:
-            self.text.offset_ns = now
-        type_info = self._type_info(cls) if self.fields else None
-        return [*self.text.render_chunks(value, type_info), _SEPARATOR_BYTES]
-
-    def _type_info(self, cls: Any) -> str | None:
-        if self._field_type is None:
-            try:
-                self._field_type = _field_type(cls._type, [f.split("[", 1)[0] for f in self.fields])
-            except MrosError:
-                self._field_type = ""
-        return self._field_type or None
-
-    def flush(self) -> None:
-        """Write what is still queued."""
-        self.writer.flush()
 
 
 filter_option = click.option(

@@ -1,9 +1,11 @@
 """The fast uint8[] renderer agrees byte for byte with rostopic's ``str(list(data))`` wherever it is used.
 
-``uint8_bytes`` reuses one scratch buffer per array size and fills it with translate passes, so these tests
-cover what that could get wrong: odd and even lengths, the empty array, a size change between frames, the
-same size with new data, views and bytearrays as input, several big arrays in one message (each spliced in
-as a separate piece), big arrays inside arrays of messages, and threads rendering at the same time.
+``uint8_pieces`` renders an array a slice at a time (``_SLICE`` bytes), reusing one cell buffer for the
+whole slices and filling it with translate passes, so these tests cover what that could get wrong: odd and
+even lengths, the empty array, lengths around the slice size (and, with a tiny slice, many slices of
+arbitrary bytes), a size change between frames, the same size with new data, views and bytearrays as input,
+several big arrays in one message (each spliced in as its own pieces), big arrays inside arrays of messages,
+and threads rendering at the same time.
 """
 
 from __future__ import annotations
@@ -11,12 +13,14 @@ from __future__ import annotations
 import os
 import threading
 from typing import ClassVar
+from unittest import mock
 
 import msgspec
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-from mros_cli.output import TextRenderer, uint8_bytes, uint8_text
+from mros_cli import output
+from mros_cli.output import TextRenderer, uint8_bytes, uint8_pieces, uint8_text
 
 
 class Blob(msgspec.Struct):
@@ -46,6 +50,25 @@ def test_uint8_bytes_matches_rostopic_for_odd_even_and_boundary_lengths(size: in
     assert uint8_bytes(data) == reference(data)
     assert uint8_bytes(memoryview(data)) == reference(data)
     assert uint8_bytes(bytearray(data)) == reference(data)
+
+
+@pytest.mark.parametrize("size", [32767, 32768, 32769, 65536, 65537, 3 * 32768 + 5, 1 << 20])
+def test_arrays_of_one_slice_and_of_many_render_exactly_in_pieces(size: int) -> None:
+    assert output._SLICE == 32768  # the sizes above sit around it
+    data = os.urandom(size)
+    pieces = uint8_pieces(memoryview(data))
+    assert b"".join(pieces) == reference(data)
+    assert len(pieces) == (1 if size <= output._SLICE else 1 + -(-size // output._SLICE))
+
+
+@given(st.binary(max_size=2000), st.integers(min_value=1, max_value=40))
+def test_any_bytes_in_any_number_of_slices_render_as_str_of_the_list(data: bytes, slice_size: int) -> None:
+    with mock.patch.object(output, "_SLICE", slice_size):
+        expected = str(list(data))
+        assert b"".join(uint8_pieces(data)) == expected.encode()
+        assert b"".join(uint8_pieces(memoryview(bytearray(data)))) == expected.encode()
+        assert uint8_bytes(data) == expected.encode()
+        assert uint8_text(data) == expected
 
 
 def test_every_byte_value_renders_as_its_decimal() -> None:
@@ -111,8 +134,16 @@ def test_big_uint8_arrays_inside_arrays_of_messages_and_nested_messages_render_e
     assert renderer.render(msg) == text
     chunks = renderer.render_chunks(msg)
     assert b"".join(chunks) == text.encode()
-    assert len(chunks) == 1 + 2 * 4  # four big arrays, each spliced in as its own piece
+    assert len(chunks) == 1 + 2 * 4  # four big arrays (of one slice each), each spliced in as its own piece
     assert renderer.render_bytes(msg) == text.encode()
+
+
+def test_a_megabyte_array_in_a_message_is_spliced_in_as_its_slices_never_joined() -> None:
+    msg = Blob("img", os.urandom(1 << 20))
+    chunks = TextRenderer().render_chunks(msg)
+    assert b"".join(chunks) == f'name: "img"\ndata: {list(msg.data)}'.encode()
+    assert chunks[0] == b'name: "img"\ndata: '
+    assert len(chunks) == 1 + 1 + (1 << 20) // output._SLICE  # the text, "[", one piece per slice
 
 
 def test_a_uint8_field_alone_renders_as_rostopic_echo_topic_field_does() -> None:
