@@ -73,9 +73,10 @@ class ShmView:
     """A zero-copy, read-only view of one message in the publisher's ring.
 
     Lifetime: in a callback, the view is released when the callback returns; from ``async for``, when the
-    next message is asked for. Independently, the publisher overwrites the slot ``slots - 1`` messages later:
-    the bytes read through ``data`` were those of this message if ``intact()`` is still True after reading
-    them (copy what you keep, then check).
+    next message is asked for. The message is acknowledged only then, so the publisher does not overwrite
+    the slot while you hold the view, unless this subscriber lags (it held the ring back too long: see
+    ``mrosd.shm.publisher``): the bytes read through ``data`` were those of this message if ``intact()`` is
+    still True after reading them (copy what you keep, then check).
     """
 
     __slots__ = ("_cursor", "data", "number")
