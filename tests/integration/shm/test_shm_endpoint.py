@@ -249,3 +249,22 @@ async def test_a_lone_stalled_subscriber_is_queued_for_at_most_queue_size_then_l
     finally:
         await conn.aclose()
         await ep.aclose()
+
+
+async def test_a_held_zero_copy_view_is_not_overwritten_until_it_is_released() -> None:
+    ep = await endpoint(queue_size=100)
+    conn = await ShmSubscriberConnection.attach(answer(ep), HEADER, zero_copy=True)
+    try:
+        await until(lambda: ep.links)
+        ep.publish(b"first" * 1000)
+        view = await asyncio.wait_for(anext(conn), 5)
+        assert isinstance(view, ShmView)
+        assert ep.ring is not None
+        for i in range(ep.ring.layout.slots + 3):  # laps the ring: these wait while the view is held
+            ep.publish(bytes([i]) * 5000)
+        assert view.intact() and bytes(view.data) == b"first" * 1000 and ep.backlog
+        rest = [bytes((await asyncio.wait_for(anext(conn), 5)).data) for _ in range(ep.ring.layout.slots + 3)]
+        assert rest == [bytes([i]) * 5000 for i in range(ep.ring.layout.slots + 3)] and conn.dropped == 0
+    finally:
+        await conn.aclose()
+        await ep.aclose()
