@@ -66,12 +66,16 @@ def test_graph_queries_on_an_empty_master_print_nothing_and_succeed(mrosd_master
         assert out.stdout.strip() == "" or argv == ["node", "list"]
 
 
-@pytest.mark.parametrize("shm", ["1", "0"])
+@pytest.mark.parametrize("shm", [None, "0"])
 def test_topic_info_lists_the_connections_that_use_shared_memory(
-    mrosd_master: str, procs: Processes, tmp_path: Path, shm: str
+    mrosd_master: str, procs: Processes, tmp_path: Path, shm: str | None
 ) -> None:
-    """Two mrosd processes on one host share memory (unless MROSD_SHM=0); `topic info` says which connections do."""
-    env = ros_env(mrosd_master, tmp_path, MROSD_SHM=shm)
+    """Two mrosd processes on one host share memory by default (not with MROSD_SHM=0); `topic info` says which
+    connections do."""
+    env = ros_env(mrosd_master, tmp_path)
+    env.pop("MROSD_SHM", None)
+    if shm is not None:
+        env["MROSD_SHM"] = shm
     base = ["-m", "mros_cli.main", "--master-uri", mrosd_master, "topic"]
     procs.our_python([*base, "pub", "/shm_info", "std_msgs/String", "data: x", "-r", "20"], env)
     echo = procs.our_python([*base, "echo", "/shm_info"], env)
@@ -80,7 +84,7 @@ def test_topic_info_lists_the_connections_that_use_shared_memory(
         [sys.executable, *base, "info", "/shm_info"], env=env, capture_output=True, text=True, timeout=60, check=True
     ).stdout
     talker, listener = re.findall(r"^ \* (\S+) \(http", shown, re.MULTILINE)
-    if shm == "1":
+    if shm is None:
         assert shown.endswith(f"/)\n\nShared memory: \n * {talker} -> {listener}\n\n\n"), shown
     else:
         assert "Shared memory" not in shown, shown
