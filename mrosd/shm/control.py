@@ -7,8 +7,8 @@ goes through this socket:
 - ``Attach`` (subscriber -> publisher, + its eventfd): the token from requestTopic and the TCPROS
   connection header the subscriber would have sent over TCP.
 - ``Attached`` (publisher -> subscriber, + three descriptors: the ring, read-only; the subscriber's own
-  acknowledgement page, writable; the publisher's eventfd): the publisher's connection header and the
-  number of the first message to read (the latched one when there is one).
+  acknowledgement page, writable; its own eventfd to wake the publisher with): the publisher's connection
+  header and the number of the first message to read (the latched one when there is one).
 - ``Refused``: why the publisher will not serve this subscriber (md5 mismatch, bad token); then it closes.
 - ``Ring`` (publisher -> subscriber, + the new ring): a message did not fit, the old ring is retired.
 - ``Progress`` (subscriber -> publisher): the subscriber's drop count, for the publisher's getBusStats.

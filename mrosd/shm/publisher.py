@@ -1,16 +1,17 @@
 """A topic's publishing end of the shared-memory transport: its ring, its listener, its subscribers.
 
 ``ShmPublisherEndpoint`` owns one topic's ring (a sealed memfd, ``mrosd.shm.segment``), an abstract Unix
-socket (``mrosd.shm.channel``) on which same-host subscribers attach, one eventfd per subscriber and one of
-its own. ``publish`` copies the serialized message once into the ring and writes 8 bytes to each
-subscriber's eventfd: its cost does not grow with the number of subscribers, and it never waits for anyone.
+socket (``mrosd.shm.channel``) on which same-host subscribers attach, and two eventfds per subscriber (one
+to wake it, one it wakes the publisher with). ``publish`` copies the serialized message once into the ring
+and writes 8 bytes to each subscriber's eventfd: its cost does not grow with the number of subscribers, and
+it never waits for anyone.
 
 The ring is small (``RING_BYTES``, at least ``MIN_SLOTS`` slots): it is there to pipeline, and fresh shared
 memory is expensive to touch. The publisher's queue is kept beside it, as a TCPROS publisher keeps one per
 connection: each subscriber writes the number of the next message it wants into its own acknowledgement
 page, and a message whose slot still holds one that a subscriber has not read waits in the backlog (as
 references, never copied twice) until that subscriber moves on and, seeing the ring's ``waiting`` word,
-wakes the publisher through its eventfd. A subscriber that holds the ring back too long stops being waited
+wakes the publisher through its own eventfd. A subscriber that holds the ring back too long stops being waited
 for ("lagging": it is overwritten and counts drops, drop-oldest) once the backlog holds more than
 ``queue_size`` messages, or when it has delayed a subscriber that keeps up for ``STALL`` seconds; it is
 waited for again once it has caught up. Memory is bounded by the ring plus ``queue_size`` messages.
@@ -126,6 +127,13 @@ class ShmSubscriberLink:
         #: the subscriber's acknowledgement page: the number of the next message it wants
         self.ack = AckPage(endpoint.label)
         self.ack.word[0] = first
+        #: its own eventfd to wake us when it moves on while ``waiting`` is set (one per subscriber: a subscriber
+        #: that reads it, or floods it, touches only its own wake-ups)
+        try:
+            self.progress_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        except OSError:
+            self.ack.close()
+            raise
         #: no longer waited for (it fell too far behind) until it catches up
         self.lagging = False
 
@@ -140,8 +148,10 @@ class ShmSubscriberLink:
         loop = self.endpoint._loop
         with contextlib.suppress(Exception):
             loop.remove_reader(self.channel.sock.fileno())
+        with contextlib.suppress(Exception):
+            loop.remove_reader(self.progress_fd)
         self.channel.close()
-        close_fds([self.wake_fd])
+        close_fds([self.wake_fd, self.progress_fd])
         self.ack.close()
 
 
@@ -187,8 +197,6 @@ class ShmPublisherEndpoint:
         self._ring_first = 1
         #: messages waiting for a free slot: (parts, size, monotonic time queued)
         self.backlog: collections.deque[tuple[tuple[Any, ...], int, float]] = collections.deque()
-        #: subscribers wake us here when they move on while ``waiting`` is set
-        self._wake_fd = -1
         self._recheck: asyncio.TimerHandle | None = None
         self._recheck_delay = 0.0
         #: rings made so far (the first and each replacement)
@@ -210,8 +218,6 @@ class ShmPublisherEndpoint:
             raise
         self._sock = sock
         self._loop.add_reader(sock.fileno(), self._accept)
-        self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
-        self._loop.add_reader(self._wake_fd, self._on_progress)
 
     def answer(self) -> list[Any]:
         """requestTopic's protocol parameters that send a subscriber here."""
@@ -324,9 +330,9 @@ class ShmPublisherEndpoint:
             log.debug("%s: shared-memory subscriber %s is behind: its oldest messages go", self.topic, link.callerid)
         return True
 
-    def _on_progress(self) -> None:
+    def _on_progress(self, link: ShmSubscriberLink) -> None:
         with contextlib.suppress(OSError):
-            os.read(self._wake_fd, 8)
+            os.read(link.progress_fd, 8)
         if self.backlog and not self.closed:
             self._recheck_delay = 0.0
             self._flush()
@@ -458,13 +464,15 @@ class ShmPublisherEndpoint:
             refuse(f"cannot make its acknowledgement page: {exc}")
             return
         attached = control.Attached(header=encode_header(reply)[4:], first=first)
-        if not self._send_ring(link, attached, link.ack.fd, self._wake_fd):
+        if not self._send_ring(link, attached, link.ack.fd, link.progress_fd):
             return
+        link.ack.sent()
         if first <= head:  # the latched message
             link.messages_sent += 1
             link.bytes_sent += int(ring.layout.words[(head - 1) % ring.layout.slots][1])
         self.links.append(link)
         self._loop.add_reader(channel.sock.fileno(), self._on_link, link)
+        self._loop.add_reader(link.progress_fd, self._on_progress, link)
         self.on_change()
 
     def _on_link(self, link: ShmSubscriberLink) -> None:
@@ -537,11 +545,6 @@ class ShmPublisherEndpoint:
         if self._recheck is not None:
             self._recheck.cancel()
             self._recheck = None
-        if self._wake_fd >= 0:
-            with contextlib.suppress(Exception):
-                self._loop.remove_reader(self._wake_fd)
-            close_fds([self._wake_fd])
-            self._wake_fd = -1
         if self.ring is not None:
             self.ring.close()
             self.ring = None

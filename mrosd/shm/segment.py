@@ -143,11 +143,17 @@ class AckPage:
     def read(self) -> int:
         return int(self.word[0])
 
+    def sent(self) -> None:
+        """The page went to its subscriber: our descriptor is no longer needed (the mapping keeps its own)."""
+        if self.fd >= 0:
+            with contextlib.suppress(OSError):
+                os.close(self.fd)
+            self.fd = -1
+
     def close(self) -> None:
         self.word.release()
         self.map.close()
-        with contextlib.suppress(OSError):
-            os.close(self.fd)
+        self.sent()
 
 
 class MappedAck:

@@ -1,7 +1,7 @@
 """A subscriber's end of the shared-memory transport: its connection to one publisher's ring.
 
 ``ShmSubscriberConnection`` attaches (token, connection header, eventfd out; header, read-only ring, its
-acknowledgement page and the publisher's eventfd in, over the socket of ``mrosd.shm.channel``), then is
+acknowledgement page and an eventfd to wake the publisher with in, over the socket of ``mrosd.shm.channel``), then is
 woken by the loop (``add_reader`` on the eventfd, spin-then-block through ``mrosd.spin``) and reads the ring:
 copies by default, or zero-copy ``ShmView``s on request. After each message it writes the number of the
 next one it wants into its acknowledgement page (for a view: once the view is released), and wakes the
@@ -122,7 +122,7 @@ class ShmSubscriberConnection:
         self._ack: MappedAck | None = None
         #: copies are made into these buffers, reused once the messages decoded from them are gone
         self._pool = FramePool()
-        #: the publisher's eventfd: written when it waits for a slot and we freed one
+        #: our eventfd to the publisher: written when it waits for a slot and we freed one
         self._publisher_fd: int | None = None
         self._dropped_before = 0
         self._reported = 0

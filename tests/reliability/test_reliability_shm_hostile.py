@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import array
 import asyncio
+import contextlib
 import errno
 import logging
 import mmap
 import os
 import secrets
 import socket
+import threading
 from collections.abc import Callable
 
 import pytest
@@ -335,5 +337,53 @@ async def test_a_subscriber_that_lies_in_its_acknowledgement_page_costs_only_its
         assert not ep.backlog
     finally:
         await liar.aclose()
+        await honest.aclose()
+        await ep.aclose()
+
+
+async def test_a_subscriber_that_steals_wake_ups_from_its_descriptor_takes_only_its_own(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    woken_by: list[int] = []
+    real = ShmPublisherEndpoint._on_progress
+
+    def spy(self: ShmPublisherEndpoint, link: shm_publisher.ShmSubscriberLink) -> None:
+        woken_by.append(link.id)
+        real(self, link)
+
+    monkeypatch.setattr(ShmPublisherEndpoint, "_on_progress", spy)
+    ep = ShmPublisherEndpoint("/t", queue_size=1000)
+    await ep.start()
+    shm_answer = ShmAnswer(version=1, address=ep.address, token=ep.token)
+    thief_got: list[int] = []
+    thief = await ShmSubscriberConnection.attach(shm_answer, HEADER, on_frame=lambda b: thief_got.append(len(b)))
+    got: list[bytes] = []
+    honest = await ShmSubscriberConnection.attach(shm_answer, HEADER, on_frame=lambda b: got.append(bytes(b)))
+    stop = threading.Event()
+    fd = thief._publisher_fd
+    assert fd is not None
+
+    def steal() -> None:  # drains the publisher's wake-ups from the descriptor it was given, all the time
+        while not stop.is_set():
+            with contextlib.suppress(OSError):
+                os.read(fd, 8)
+
+    stealer = threading.Thread(target=steal, daemon=True)
+    stealer.start()
+    try:
+        honest_id = ep.links[1].id
+        sent = [i.to_bytes(2, "little") * 100_000 for i in range(200)]
+        for body in sent:  # a burst far longer than the ring: it waits in the publisher's queue
+            ep.publish(body)
+        assert ep.backlog
+        async with asyncio.timeout(10):
+            while len(got) < len(sent):  # noqa: ASYNC110 - filled by the connection's callback
+                await asyncio.sleep(0.01)
+        assert got == sent and honest.dropped == 0
+        assert honest_id in woken_by  # the honest subscriber's own wake-ups reached the publisher
+    finally:
+        stop.set()
+        stealer.join(5)
+        await thief.aclose()
         await honest.aclose()
         await ep.aclose()

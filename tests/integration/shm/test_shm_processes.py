@@ -102,6 +102,7 @@ def test_sigkill_of_a_subscriber_frees_its_eventfd_and_the_publisher_goes_on(pro
     keeper = start_sub(procs, address, token, "--expect", "60", hold=True)
     read_line(pub, "attached")
     eventfds = fd_kinds(pub.pid).count("anon_inode:[eventfd]")
+    ack_pages = sum("mrosd-shm-ack" in kind for kind in fd_kinds(pub.pid))
     command(pub, "go 30")
     time.sleep(random.uniform(0.0, 0.1))
     os.kill(victim.pid, signal.SIGKILL)
@@ -111,7 +112,9 @@ def test_sigkill_of_a_subscriber_frees_its_eventfd_and_the_publisher_goes_on(pro
     assert read_line(pub, "published") == "60"
     stats = json.loads(read_line(pub, "stats"))
     assert len(stats) == 1, "the killed subscriber's link is gone"
-    assert fd_kinds(pub.pid).count("anon_inode:[eventfd]") == eventfds - 1
+    # its two eventfds (the one that woke it, the one it woke us with) and its acknowledgement page are gone
+    assert fd_kinds(pub.pid).count("anon_inode:[eventfd]") == eventfds - 2
+    assert sum("mrosd-shm-ack" in kind for kind in fd_kinds(pub.pid)) == ack_pages - 1 == 1  # mmap's own dup
     res = result(keeper)
     assert res["last"] == 60 and res["bad"] == 0 and res["ordered"]
     command(keeper, "")
