@@ -268,8 +268,9 @@ class RingCursor:
             self.next = m + 1
         return ok
 
-    def read(self) -> bytes | None:
-        """The next message, copied out and consistent; None when no new one is complete.
+    def read(self, pool: FramePool | None = None) -> bytes | FrameBuffer | None:
+        """The next message, copied out and consistent; None when no new one is complete. The copy is a
+        buffer from ``pool`` when one is given (reused when free: no fresh pages to fault in), else bytes.
 
         Raises:
             RemoteProtocolError: the ring's words contradict each other (a publisher that lies).
@@ -279,18 +280,8 @@ class RingCursor:
             if got is None:
                 return None
             m, n = got
-            data = bytes(self.ring.data[(m - 1) % self.ring.slots][:n])
-            if self.finish(m):
-                return data
-
-    def read_into(self, pool: FramePool) -> FrameBuffer | None:
-        """``read()`` into a buffer from ``pool`` (reused when free: no fresh pages to fault in)."""
-        while True:
-            got = self.begin()
-            if got is None:
-                return None
-            m, n = got
-            data = pool.copy(self.ring.data[(m - 1) % self.ring.slots][:n])
+            slot = self.ring.data[(m - 1) % self.ring.slots][:n]
+            data = pool.copy(slot) if pool is not None else bytes(slot)
             if self.finish(m):
                 return data
 

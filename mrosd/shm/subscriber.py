@@ -291,7 +291,7 @@ class ShmSubscriberConnection:
                     n = len(view)
                     break
             else:
-                data = cursor.read_into(self._pool)
+                data = cursor.read(self._pool)
                 if data is not None:
                     frame, n = data, len(data)
                     self._acknowledge(cursor.next)

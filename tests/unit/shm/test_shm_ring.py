@@ -7,6 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mrosd.errors import LocalProtocolError, RemoteProtocolError
+from mrosd.msg.runtime import FrameBuffer, FramePool
 from mrosd.shm.ring import HEADER_SIZE, RingCursor, RingLayout, ring_size, slot_stride
 
 
@@ -35,6 +36,23 @@ def test_messages_are_read_in_order_once() -> None:
         assert ring.write(content(m, m * 5)) == m
     assert [cur.read() for _ in range(4)] == [content(1, 5), content(2, 10), content(3, 15), None]
     assert cur.dropped == 0
+
+
+def test_copies_into_a_pool_reuse_a_buffer_nothing_holds_and_wait_word_round_trips() -> None:
+    ring = fresh()
+    cur = RingCursor(ring, 1)
+    pool = FramePool()
+    ring.write(content(1, 40))
+    first = cur.read(pool)
+    assert type(first) is FrameBuffer and first == content(1, 40)
+    first_id = id(first)
+    del first
+    ring.write(content(2, 40))
+    again = cur.read(pool)
+    assert id(again) == first_id and again == content(2, 40)  # refilled in place
+    assert not ring.waiting
+    ring.waiting = True
+    assert RingLayout(ring.buf).waiting  # a reader's view of the same bytes sees it
 
 
 def test_a_slow_reader_loses_the_oldest_and_counts_them() -> None:
