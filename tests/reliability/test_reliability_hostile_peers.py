@@ -6,6 +6,7 @@ Each bad connection is closed on its own; the publisher keeps serving a well-beh
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import struct
 
 import mrosd
@@ -50,6 +51,9 @@ async def test_hostile_connections_are_closed_and_the_publisher_keeps_serving(pr
         assert got and got[0] == "ok"
         for _, w in idle:
             w.close()
+        for _, w in idle:
+            with contextlib.suppress(ConnectionError):
+                await w.wait_closed()
 
 
 async def test_connections_that_never_send_a_header_are_closed_with_the_node(procs: Processes) -> None:
@@ -74,3 +78,5 @@ async def test_connections_that_never_send_a_header_are_closed_with_the_node(pro
             pass  # or a reset: closed all the same
         finally:
             writer.close()
+            with contextlib.suppress(ConnectionError):
+                await writer.wait_closed()  # before the test's loop ends, or the transport is reported unclosed
