@@ -270,6 +270,7 @@ class ShmSubscriberConnection:
                     if isinstance(frame, ShmView):
                         frame.release()
                         self._acknowledge(frame.number + 1)
+                del frame  # not held while the next one is copied: its buffer can be refilled
             else:
                 self._schedule()
         except RemoteProtocolError as exc:
