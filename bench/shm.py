@@ -106,9 +106,10 @@ async def _sub(args: argparse.Namespace) -> None:
 
     if args.transport == "shm":
         from mrosd.shm import ShmSubscriberConnection, parse_answer
+        from mrosd.shm.negotiate import PROTOCOL, VERSION
         from mrosd.wire.header import ConnectionHeader
 
-        answer = parse_answer(["MROSSHM", 1, args.address, args.token])
+        answer = parse_answer([PROTOCOL, VERSION, args.address, args.token])
         assert answer is not None
         header = ConnectionHeader(callerid=f"/bench_sub{os.getpid()}", topic=TOPIC, md5sum="*", type="*")
         conn = await ShmSubscriberConnection.attach(answer, header, on_frame=on_body)

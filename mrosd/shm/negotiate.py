@@ -43,7 +43,9 @@ __all__ = [
 PROTOCOL = "MROSSHM"
 #: The transport name getBusInfo reports for a shared-memory connection.
 TRANSPORT = "SHMROS"
-VERSION = 1
+#: 2: acknowledgement pages and the publisher's queue (an Attached carries three descriptors, ring layout v2).
+#: Peers of another version do not share memory: they find each other's offer unknown and use TCPROS.
+VERSION = 2
 #: Comma-separated uids whose nodes may read (subscriber side: write) our topics' memory, besides ours and root.
 TRUSTED_UIDS_ENV = "MROSD_SHM_TRUSTED_UIDS"
 #: Turns the shared-memory transport off for this process when set to 0.

@@ -28,7 +28,7 @@ from mrosd.errors import RemoteProtocolError
 from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection, control
 from mrosd.shm import publisher as shm_publisher
 from mrosd.shm import subscriber as shm_subscriber
-from mrosd.shm.negotiate import ShmAnswer
+from mrosd.shm.negotiate import VERSION, ShmAnswer
 from mrosd.shm.ring import RingLayout, ring_size
 from mrosd.shm.segment import ACK_PAGE, MappedRing, RingSegment
 from mrosd.wire.header import ConnectionHeader, encode_header
@@ -157,7 +157,7 @@ async def fake_publisher(reply: Callable[[socket.socket], None]) -> tuple[ShmAns
         finally:
             conn.close()
 
-    return ShmAnswer(version=1, address=address, token="t" * 32), loop.create_task(serve())
+    return ShmAnswer(version=VERSION, address=address, token="t" * 32), loop.create_task(serve())
 
 
 async def stop(task: asyncio.Task[None]) -> None:
@@ -251,7 +251,7 @@ async def test_hostile_subscribers_are_closed_and_the_others_served(monkeypatch:
     monkeypatch.setattr(shm_publisher, "ATTACH_TIMEOUT", 0.3)
     ep = ShmPublisherEndpoint("/t", queue_size=4)
     await ep.start()
-    good = await ShmSubscriberConnection.attach(ShmAnswer(version=1, address=ep.address, token=ep.token), HEADER)
+    good = await ShmSubscriberConnection.attach(ShmAnswer(version=VERSION, address=ep.address, token=ep.token), HEADER)
     try:
         attach = control.Attach(token=ep.token, header=encode_header(HEADER)[4:])
         # a pipe instead of an eventfd: a blocking write into it could stall the publisher
@@ -273,7 +273,8 @@ async def test_hostile_subscribers_are_closed_and_the_others_served(monkeypatch:
         sock.close()
         pipe_sock.close()
         # an attached subscriber that claims absurd drops is capped, then one that sends garbage is dropped
-        liar = await ShmSubscriberConnection.attach(ShmAnswer(version=1, address=ep.address, token=ep.token), HEADER)
+        answer = ShmAnswer(version=VERSION, address=ep.address, token=ep.token)
+        liar = await ShmSubscriberConnection.attach(answer, HEADER)
         assert liar._channel is not None
         liar._channel.sock.send(control.encode(control.Progress(dropped=1 << 63, received=0)))
         await asyncio.sleep(0.05)
@@ -312,7 +313,7 @@ async def test_a_subscriber_that_lies_in_its_acknowledgement_page_costs_only_its
     monkeypatch.setattr(shm_publisher, "STALL", 0.05)
     ep = ShmPublisherEndpoint("/t", queue_size=1000)
     await ep.start()
-    shm_answer = ShmAnswer(version=1, address=ep.address, token=ep.token)
+    shm_answer = ShmAnswer(version=VERSION, address=ep.address, token=ep.token)
     liar = await ShmSubscriberConnection.attach(shm_answer, HEADER)  # never reads
     got: list[bytes] = []
     honest = await ShmSubscriberConnection.attach(shm_answer, HEADER, on_frame=lambda b: got.append(bytes(b)))
@@ -354,7 +355,7 @@ async def test_a_subscriber_that_steals_wake_ups_from_its_descriptor_takes_only_
     monkeypatch.setattr(ShmPublisherEndpoint, "_on_progress", spy)
     ep = ShmPublisherEndpoint("/t", queue_size=1000)
     await ep.start()
-    shm_answer = ShmAnswer(version=1, address=ep.address, token=ep.token)
+    shm_answer = ShmAnswer(version=VERSION, address=ep.address, token=ep.token)
     thief_got: list[int] = []
     thief = await ShmSubscriberConnection.attach(shm_answer, HEADER, on_frame=lambda b: thief_got.append(len(b)))
     got: list[bytes] = []

@@ -21,6 +21,7 @@ import stat
 import sys
 
 from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection, ShmView, parse_answer
+from mrosd.shm.negotiate import PROTOCOL, VERSION
 from mrosd.wire.header import ConnectionHeader
 
 
@@ -105,7 +106,7 @@ async def pub(args: argparse.Namespace) -> None:
 
 async def sub(args: argparse.Namespace) -> None:
     fail_on_loop_errors()
-    answer = parse_answer(["MROSSHM", 1, args.address, args.token])
+    answer = parse_answer([PROTOCOL, VERSION, args.address, args.token])
     assert answer is not None
     numbers: list[int] = []
     bad = 0

@@ -12,7 +12,7 @@ import pytest
 from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
 from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection, ShmView, parse_answer
 from mrosd.shm import publisher as shm_publisher
-from mrosd.shm.negotiate import ShmAnswer
+from mrosd.shm.negotiate import VERSION, ShmAnswer
 from mrosd.wire.handshake import publisher_reply
 from mrosd.wire.header import ConnectionHeader
 
@@ -88,7 +88,7 @@ async def test_a_handshake_checks_md5_as_tcpros_does() -> None:
 async def test_a_wrong_token_is_refused() -> None:
     ep = await endpoint()
     try:
-        wrong = ShmAnswer(version=1, address=ep.address, token="0" * 32)
+        wrong = ShmAnswer(version=VERSION, address=ep.address, token="0" * 32)
         with pytest.raises(HandshakeError, match="wrong token"):
             await ShmSubscriberConnection.attach(wrong, HEADER)
     finally:
