@@ -12,6 +12,7 @@ from mrosd.errors import RemoteProtocolError
 from mrosd.shm import control
 from mrosd.shm.negotiate import (
     PROTOCOL,
+    VERSION,
     HostIdentity,
     choose_protocol,
     enabled,
@@ -97,12 +98,13 @@ def test_a_tcpros_answer_is_not_a_shm_answer() -> None:
     "params",
     [
         [PROTOCOL],
-        [PROTOCOL, 2, "@x", "t" * 32],
+        [PROTOCOL, 1, "@x", "t" * 32],  # the first version (one descriptor per Attached): not ours
+        [PROTOCOL, 3, "@x", "t" * 32],
         [PROTOCOL, True, "@x", "t" * 32],
-        [PROTOCOL, 1, "/tmp/sock", "t" * 32],
-        [PROTOCOL, 1, "@" + "x" * 200, "t" * 32],
-        [PROTOCOL, 1, "@x", "short"],
-        [PROTOCOL, 1, "@x", 12345678901234567890],
+        [PROTOCOL, VERSION, "/tmp/sock", "t" * 32],
+        [PROTOCOL, VERSION, "@" + "x" * 200, "t" * 32],
+        [PROTOCOL, VERSION, "@x", "short"],
+        [PROTOCOL, VERSION, "@x", 12345678901234567890],
     ],
 )
 def test_a_bad_shm_answer_is_a_protocol_error(params: list[Any]) -> None:
