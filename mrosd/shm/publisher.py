@@ -125,8 +125,7 @@ class ShmSubscriberLink:
         self.dropped = 0
         self.connected = True
         #: the subscriber's acknowledgement page: the number of the next message it wants
-        self.ack = AckPage(endpoint.label)
-        self.ack.word[0] = first
+        self.ack = AckPage(endpoint.label, first)
         #: its own eventfd to wake us when it moves on while ``waiting`` is set (one per subscriber: a subscriber
         #: that reads it, or floods it, touches only its own wake-ups)
         try:

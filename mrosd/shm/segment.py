@@ -18,9 +18,10 @@ import fcntl
 import logging
 import mmap
 import os
+import sys
 
 from mrosd.errors import RemoteProtocolError
-from mrosd.ixm.resources import reopen
+from mrosd.ixm.resources import reopen, sealed_memfd
 from mrosd.shm.ring import RingLayout, ring_size
 
 __all__ = ["ACK_PAGE", "F_SEAL_FUTURE_WRITE", "SEGMENT_PREFIX", "AckPage", "MappedAck", "MappedRing", "RingSegment"]
@@ -119,21 +120,18 @@ class MappedRing:
 
 class AckPage:
     """The publisher's side of one subscriber's acknowledgement page: a sealed 4 KiB memfd whose first word
-        the subscriber writes (the number of the next message it wants); the publisher writes it once, before
-    sending the page, and then only reads it.
+    the subscriber writes (the number of the next message it wants, ``first`` to begin with); the publisher
+    only reads it.
 
-        The publisher makes it and sends it writable to that subscriber alone; sealed against resizing, so no
-        one can make the publisher's mapping fault. What the word says is trusted for nothing but that
-        subscriber's own pace (``mrosd.shm.publisher`` clamps it).
+    The publisher makes it and sends it writable to that subscriber alone; sealed against resizing, so no
+    one can make the publisher's mapping fault. What the word says is trusted for nothing but that
+    subscriber's own pace (``mrosd.shm.publisher`` clamps it).
     """
 
-    def __init__(self, label: str) -> None:
-        fd = os.memfd_create((SEGMENT_PREFIX + "ack-" + label)[:200], os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
+    def __init__(self, label: str, first: int) -> None:
+        fd = sealed_memfd((SEGMENT_PREFIX + "ack-" + label)[:200], ACK_PAGE, first.to_bytes(8, sys.byteorder))
         try:
-            os.ftruncate(fd, ACK_PAGE)
-            os.fchmod(fd, 0o600)
-            fcntl.fcntl(fd, fcntl.F_ADD_SEALS, _REQUIRED | fcntl.F_SEAL_SEAL)
-            self.map = mmap.mmap(fd, ACK_PAGE, mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
+            self.map = mmap.mmap(fd, ACK_PAGE, mmap.MAP_SHARED, mmap.PROT_READ)
         except BaseException:
             os.close(fd)
             raise
