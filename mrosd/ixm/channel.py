@@ -18,7 +18,7 @@ from collections.abc import Sequence
 from mrosd.errors import RemoteProtocolError
 from mrosd.wire.framing import FrameDecoder
 
-__all__ = ["MAX_FDS_PER_MESSAGE", "MAX_PENDING_FDS", "FdReader", "recv_with_fds", "send_frame"]
+__all__ = ["MAX_FDS_PER_MESSAGE", "MAX_PENDING_FDS", "FdReader", "is_eventfd", "recv_with_fds", "send_frame"]
 
 #: The kernel's SCM_MAX_FD: at most 253 fds in one sendmsg.
 MAX_FDS_PER_MESSAGE = 253
@@ -106,3 +106,12 @@ def send_frame(sock: socket.socket, frame: bytes | memoryview, fds: Sequence[int
         anc = [(socket.SOL_SOCKET, socket.SCM_RIGHTS, array.array("i", fds).tobytes())]
         return sock.sendmsg([frame], anc)
     return sock.send(frame)
+
+
+def is_eventfd(fd: int) -> bool:
+    """Is ``fd`` an eventfd (what a peer sends as its wake-up descriptor must be: a pipe or a socket could
+    block the writes that wake it)?"""
+    try:
+        return os.readlink(f"/proc/self/fd/{fd}") == "anon_inode:[eventfd]"
+    except OSError:
+        return False

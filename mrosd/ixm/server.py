@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from mrosd.errors import IxmError, IxmPermissionError, MrosError, RemoteProtocolError
-from mrosd.ixm.channel import MAX_FDS_PER_MESSAGE, FdReader, send_frame
+from mrosd.ixm.channel import MAX_FDS_PER_MESSAGE, FdReader, is_eventfd, send_frame
 from mrosd.ixm.protocol import (
     MAX_REQUEST_SIZE,
     Close,
@@ -99,13 +99,6 @@ def _peer_of(sock: socket.socket) -> Peer:
             if line.startswith("Groups:"):
                 groups = {int(g) for g in line.split()[1:]}
     return Peer(pid=pid, uid=uid, gid=gid, groups=frozenset(groups), names=names_of(comm, argv))
-
-
-def _is_eventfd(fd: int) -> bool:
-    try:
-        return os.readlink(f"/proc/self/fd/{fd}") == "anon_inode:[eventfd]"
-    except OSError:
-        return False
 
 
 class _Client:
@@ -419,7 +412,7 @@ class IxmServer:
         wake_fd = client.reader.take_fds(1)[0] if req.wake else None
         try:
             if wake_fd is not None:
-                if not _is_eventfd(wake_fd):
+                if not is_eventfd(wake_fd):
                     raise IxmError("the wake-up descriptor sent with open is not an eventfd")
                 flags = fcntl.fcntl(wake_fd, fcntl.F_GETFL)
                 fcntl.fcntl(wake_fd, fcntl.F_SETFL, flags | os.O_NONBLOCK)

@@ -28,7 +28,6 @@ __all__ = [
     "abstract_name",
     "close_fds",
     "connect_unix",
-    "is_eventfd",
     "peer_credentials",
 ]
 
@@ -73,14 +72,6 @@ async def connect_unix(sock: socket.socket, address: str) -> None:
     err = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
     if err:
         raise OSError(err, os.strerror(err))
-
-
-def is_eventfd(fd: int) -> bool:
-    """Is ``fd`` an eventfd (what a peer sent as its wake-up descriptor must be, not a pipe or a socket)?"""
-    try:
-        return os.readlink(f"/proc/self/fd/{fd}") == "anon_inode:[eventfd]"
-    except OSError:
-        return False
 
 
 def close_fds(fds: Iterable[int]) -> None:

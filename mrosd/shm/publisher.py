@@ -37,6 +37,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
+from mrosd.ixm.channel import is_eventfd
 from mrosd.msg.runtime import is_immutable
 from mrosd.shm import control
 from mrosd.shm.channel import (
@@ -45,7 +46,6 @@ from mrosd.shm.channel import (
     ControlChannel,
     abstract_name,
     close_fds,
-    is_eventfd,
     peer_credentials,
 )
 from mrosd.shm.negotiate import TRANSPORT, publisher_answer, trusted_uids

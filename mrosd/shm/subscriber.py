@@ -23,6 +23,7 @@ from collections.abc import Callable
 from typing import Any
 
 from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
+from mrosd.ixm.channel import is_eventfd
 from mrosd.msg.runtime import FramePool
 from mrosd.shm import control
 from mrosd.shm.channel import (
@@ -32,7 +33,6 @@ from mrosd.shm.channel import (
     abstract_name,
     close_fds,
     connect_unix,
-    is_eventfd,
     peer_credentials,
 )
 from mrosd.shm.negotiate import ShmAnswer, trusted_uids
