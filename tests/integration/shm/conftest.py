@@ -30,14 +30,8 @@ def held_rings(pids: set[int] | None = None) -> dict[int, int]:
     for entry in os.listdir("/proc"):
         if not entry.isdigit() or (pids is not None and int(entry) not in pids):
             continue
-        n = 0
         try:
-            for fd in os.listdir(f"/proc/{entry}/fd"):
-                try:
-                    if os.readlink(f"/proc/{entry}/fd/{fd}").startswith("/memfd:mrosd-shm-"):
-                        n += 1
-                except OSError:
-                    pass
+            n = sum(kind.startswith("/memfd:mrosd-shm-") for kind in fd_kinds(int(entry)))
             with open(f"/proc/{entry}/maps") as f:
                 n += sum(1 for line in f if "/memfd:mrosd-shm-" in line)
         except OSError:
