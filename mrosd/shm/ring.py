@@ -43,6 +43,7 @@ from collections.abc import Iterable
 
 from mrosd.errors import LocalProtocolError, RemoteProtocolError
 from mrosd.msg.runtime import FrameBuffer, FramePool
+from mrosd.wire.framing import LARGE_FRAME
 
 __all__ = [
     "HEADER_SIZE",
@@ -269,8 +270,9 @@ class RingCursor:
         return ok
 
     def read(self, pool: FramePool | None = None) -> bytes | FrameBuffer | None:
-        """The next message, copied out and consistent; None when no new one is complete. The copy is a
-        buffer from ``pool`` when one is given (reused when free: no fresh pages to fault in), else bytes.
+        """The next message, copied out and consistent; None when no new one is complete. The copy of a message
+        over ``LARGE_FRAME`` is a buffer from ``pool`` when one is given (reused when free: no fresh pages to
+        fault in), as TCPROS receives large frames into FrameBuffers; anything else is copied into bytes.
 
         Raises:
             RemoteProtocolError: the ring's words contradict each other (a publisher that lies).
@@ -281,7 +283,7 @@ class RingCursor:
                 return None
             m, n = got
             slot = self.ring.data[(m - 1) % self.ring.slots][:n]
-            data = pool.copy(slot) if pool is not None else bytes(slot)
+            data = pool.copy(slot) if pool is not None and n > LARGE_FRAME else bytes(slot)
             if self.finish(m):
                 return data
 

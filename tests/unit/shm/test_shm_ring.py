@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 from mrosd.errors import LocalProtocolError, RemoteProtocolError
 from mrosd.msg.runtime import FrameBuffer, FramePool
 from mrosd.shm.ring import HEADER_SIZE, RingCursor, RingLayout, ring_size, slot_stride
+from mrosd.wire.framing import LARGE_FRAME
 
 
 def fresh(slots: int = 4, capacity: int = 64, head: int = 0) -> RingLayout:
@@ -39,17 +40,20 @@ def test_messages_are_read_in_order_once() -> None:
 
 
 def test_copies_into_a_pool_reuse_a_buffer_nothing_holds_and_wait_word_round_trips() -> None:
-    ring = fresh()
+    big = LARGE_FRAME + 1
+    ring = fresh(capacity=big)
     cur = RingCursor(ring, 1)
     pool = FramePool()
-    ring.write(content(1, 40))
+    ring.write(content(1, big))
     first = cur.read(pool)
-    assert type(first) is FrameBuffer and first == content(1, 40)
+    assert type(first) is FrameBuffer and first == content(1, big)
     first_id = id(first)
     del first
-    ring.write(content(2, 40))
+    ring.write(content(2, big))
     again = cur.read(pool)
-    assert id(again) == first_id and again == content(2, 40)  # refilled in place
+    assert id(again) == first_id and again == content(2, big)  # refilled in place
+    ring.write(content(3, 40))
+    assert type(cur.read(pool)) is bytes  # a small message is copied into bytes, as TCPROS frames are
     assert not ring.waiting
     ring.waiting = True
     assert RingLayout(ring.buf).waiting  # a reader's view of the same bytes sees it
