@@ -2,17 +2,19 @@
 
 The daemon, ``python -m mrosd.master`` and the ``mros`` CLI all run their coroutines through
 ``event_loop_factory()`` (or ``run()``), so one environment variable switches every mrosd program back to the
-standard loop, to debug or to rule uvloop out.
+standard loop, to debug or to rule uvloop out. ``close_server`` closes an asyncio server without losing the
+connection it accepted last (a flaw of asyncio's own loop).
 """
 
 from __future__ import annotations
 
 import asyncio
 import os
+from asyncio.selector_events import BaseSelectorEventLoop
 from collections.abc import Callable, Coroutine, Mapping
 from typing import Any, TypeVar
 
-__all__ = ["event_loop_factory", "run"]
+__all__ = ["close_server", "event_loop_factory", "run"]
 
 T = TypeVar("T")
 
@@ -40,3 +42,27 @@ def run(main: Coroutine[Any, Any, T], *, use_uvloop: bool = True) -> T:
     """Run ``main`` to completion on a fresh loop from ``event_loop_factory()`` and close the loop."""
     with asyncio.Runner(loop_factory=event_loop_factory(use_uvloop=use_uvloop)) as runner:
         return runner.run(main)
+
+
+#: Loop turns from an accepted socket to its protocol's ``connection_made`` (asyncio's accept task, then the
+#: transport's callbacks), with one to spare.
+_ACCEPT_TURNS = 4
+
+
+async def close_server(server: asyncio.AbstractServer) -> None:
+    """``server.close()``, after the connections it has already accepted have reached their protocols.
+
+    asyncio's own loop accepts a connection in one turn and makes its transport in a task, turns later;
+    Python 3.11's ``Server.close()`` in between makes that task fail on an assertion that nobody sees, and the
+    accepted socket stays open, owned by no one, until the garbage collector finds it (its peer sees neither
+    data nor EOF meanwhile). So accepting stops first, the connections in flight arrive, and only then does
+    the server close; the caller then closes them with the rest.
+    """
+    loop = asyncio.get_running_loop()
+    sockets = getattr(server, "sockets", None) or ()
+    if isinstance(loop, BaseSelectorEventLoop):  # uvloop makes the transport as it accepts
+        for sock in sockets:
+            loop.remove_reader(sock.fileno())
+        for _ in range(_ACCEPT_TURNS):
+            await asyncio.sleep(0)
+    server.close()

@@ -33,6 +33,7 @@ import aiohttp
 from aiohttp import web
 
 from mrosd.errors import LocalProtocolError, RemoteProtocolError, XmlRpcError, XmlRpcFault
+from mrosd.loop import close_server
 
 log = logging.getLogger(__name__)
 
@@ -340,6 +341,10 @@ def fast_encode_response(value: Any) -> bytes | None:
 # --- server -----------------------------------------------------------------------------------
 
 
+#: Seconds a request being handled when the server closes may take to finish (slave API calls take milliseconds).
+_SHUTDOWN_TIMEOUT = 2.0
+
+
 class XmlRpcServer:
     """An aiohttp XML-RPC server dispatching to a table of async handlers.
 
@@ -372,7 +377,9 @@ class XmlRpcServer:
         """Bind and start serving; ``self.port`` holds the bound port afterwards."""
         app = web.Application(client_max_size=MAX_BODY_SIZE)
         app.router.add_route("POST", "/{tail:.*}", self._handle_http)
-        self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
+        self._runner = web.AppRunner(
+            app, access_log=None, handle_signals=False, shutdown_timeout=_SHUTDOWN_TIMEOUT
+        )
         await self._runner.setup()
         self._site = web.TCPSite(
             self._runner,
@@ -387,10 +394,22 @@ class XmlRpcServer:
         self.port = sockets[0].getsockname()[1] if sockets else self._port
 
     async def aclose(self) -> None:
-        """Stop serving and close every connection."""
-        if self._runner is not None:
-            await self._runner.cleanup()
-            self._runner = None
+        """Stop serving and close every connection, the one accepted as the listener closed included."""
+        runner, site = self._runner, self._site
+        if runner is None:
+            return
+        self._runner = self._site = None
+        server = runner.server
+        listener = getattr(site, "_server", None)
+        if listener is not None:
+            await close_server(listener)  # what it accepted reaches aiohttp first (asyncio's loop)
+        if site is not None:
+            await site.stop()
+        await asyncio.sleep(0)  # the handler of a connection that just arrived starts reading (a task of its own)
+        await runner.cleanup()
+        if server is not None:
+            for handler in server.connections:  # anything that still came after aiohttp listed them
+                handler.force_close()
 
     async def __aenter__(self) -> XmlRpcServer:
         await self.start()

@@ -18,6 +18,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from mrosd.errors import LocalProtocolError, MasterError, MasterUnreachableError, MrosError
+from mrosd.loop import close_server
 from mrosd.master.client import MasterClient
 from mrosd.msg import get_message_class
 from mrosd.names import NodeNames, parse_argv
@@ -248,7 +249,7 @@ class Node:
 
     async def _close_servers(self) -> None:
         if self._server is not None:
-            self._server.close()
+            await close_server(self._server)  # the connections it accepted last join _inbound first
             self._server = None
         if self._inbound:
             for proto in list(self._inbound):

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import socket
 import struct
 
 import mrosd
@@ -80,3 +81,33 @@ async def test_connections_that_never_send_a_header_are_closed_with_the_node(pro
             writer.close()
             with contextlib.suppress(ConnectionError):
                 await writer.wait_closed()  # before the test's loop ends, or the transport is reported unclosed
+
+
+async def test_connections_arriving_while_the_node_closes_are_all_closed(procs: Processes) -> None:
+    """Peers (the master's publisherUpdate, a subscriber) connect while the node is closing: asyncio makes an
+    accepted connection's transport turns later, in a task, and closing the listener in between must not leave
+    that socket open and owned by no one (its peer would wait for an answer that never comes)."""
+    _, uri = start_master(procs)
+    loop = asyncio.get_running_loop()
+    node = mrosd.Node("closing_target", master_uri=uri, host="127.0.0.1", argv=[], rosout=False)
+    await node.start()
+    ports = (node.tcpros_port, int(node.uri.rsplit(":", 1)[1].strip("/")))  # TCPROS and the slave API
+    closing = asyncio.ensure_future(node.aclose())
+    socks: list[socket.socket] = []
+    try:
+        while not closing.done():  # one new connection to each port on every loop turn until the node is gone
+            for port in ports:
+                sock = socket.socket()
+                sock.setblocking(False)
+                socks.append(sock)
+                with contextlib.suppress(BlockingIOError, ConnectionRefusedError):
+                    sock.connect(("127.0.0.1", port))
+            await asyncio.sleep(0)
+        await closing
+        assert len(socks) > 20
+        for sock in socks:  # EOF, or a reset or refusal, at once: the node closed its end of every one
+            with contextlib.suppress(ConnectionError):
+                assert await asyncio.wait_for(loop.sock_recv(sock, 1), 5.0) == b"", "a connection was left open"
+    finally:
+        for sock in socks:
+            sock.close()

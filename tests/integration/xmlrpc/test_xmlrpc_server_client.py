@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import io
+import socket
 import xmlrpc.client
 from collections.abc import AsyncIterator
 
@@ -97,3 +100,20 @@ async def test_an_unreachable_server_is_a_clear_error() -> None:
     async with XmlRpcClient(timeout=2) as client:
         with pytest.raises(XmlRpcError, match=r"ping at http://127\.0\.0\.1"):
             await client.call(f"http://127.0.0.1:{free_port()}/", "ping")
+
+
+@pytest.mark.parametrize("turns", [0, 1, 2, 3, 4])
+async def test_aclose_closes_a_connection_accepted_as_it_was_closing(turns: int) -> None:
+    """asyncio accepts a connection in one loop turn and hands it to its protocol in later ones (a task of
+    its own); one that reaches aiohttp after its shutdown listed the connections must be closed all the same."""
+    loop = asyncio.get_running_loop()
+    srv = XmlRpcServer({"add": _add}, "127.0.0.1", 0)
+    await srv.start()
+    with socket.create_connection(("127.0.0.1", srv.port), timeout=5) as sock:  # the kernel completes it
+        sock.setblocking(False)
+        for _ in range(turns):  # let the server's loop get as far as accepting it, or further
+            await asyncio.sleep(0)
+        await srv.aclose()
+        # the server's end is closed: EOF (or a reset) at once, not when this client gives up
+        with contextlib.suppress(ConnectionResetError):
+            assert await asyncio.wait_for(loop.sock_recv(sock, 1), 5.0) == b""
