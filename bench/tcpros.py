@@ -11,7 +11,10 @@ sensor_msgs/Image and 1 MB / 4 MB PointCloud2 (MB/s), over TCPROS for every impl
 ``same-host`` row, between two mrosd processes on the shared-memory transport they negotiate. Each burst runs
 twice on one connection, for every implementation alike: first on the new connection (what its first messages
 cost, buffers and shared memory touched for the first time included), then again on the warm connection (the
-transport's throughput, as the RTT figures come after warm-up round trips). Finally the RTT
+transport's throughput, as the RTT figures come after warm-up round trips). With the same-host rows it also
+measures what writing memory costs on this machine (fresh shared, fresh private, already touched) and prints
+the throughput that each burst on a new shared-memory connection cannot exceed from memory writes alone (the
+rings' first slots and the first receive buffers are fresh memory). Finally the RTT
 and image rows again beside a CPU-bound neighbour (one busy-loop process), for every implementation in the
 same run. All against one Debian rosmaster.
 
@@ -468,6 +471,8 @@ def main(argv: list[str]) -> int:
                         res.small[pair[0]] = count / secs if secs > 0 else 0.0
             # images and point clouds also between two mrosd processes on shared memory (the same-host row)
             large = selves + ([("same-host", "same-host")] if "mrosd" in impls and not args.no_shm else [])
+            if ("same-host", "same-host") in large:
+                res.memory = _memory_costs()
             _throughput(runner, large, cpp, max(1, args.rounds), res.large, res.warm_large)
             if not args.no_neighbour:
                 busy = _busy_loop(runner)
@@ -502,6 +507,8 @@ class Results:
         self.busy_rtt: dict[str, dict[int, list[int]]] = {}
         self.busy_large: dict[tuple[str, int], dict[str, float]] = {}
         self.busy_warm_large: dict[tuple[str, int], dict[str, float]] = {}
+        #: this machine's cost of memory, ms per MB (``_memory_costs``)
+        self.memory: dict[str, float] = {}
 
 
 def _throughput(
@@ -560,6 +567,52 @@ def _stat_line(s: dict[str, float]) -> str:
     return f"{s['mean']:8.1f} {s['sd']:7.1f} {s['median']:8.1f} {s['p99']:8.1f} {s['max']:9.1f}"
 
 
+def _memory_costs(mb: int = 64, repeats: int = 3) -> dict[str, float]:
+    """ms per MB, medians of ``repeats``: the first write into fresh shared memory (a memfd, as a ring's slots),
+    into fresh private memory (as a receive buffer), and a write into memory already touched."""
+    import mmap
+
+    size = mb << 20
+    src = b"\x5a" * size
+    costs: dict[str, list[float]] = {"fresh shared": [], "fresh private": [], "warm": []}
+    for _ in range(repeats):
+        fd = os.memfd_create("mrosd-bench")
+        try:
+            os.ftruncate(fd, size)
+            with mmap.mmap(fd, size) as shared:
+                t0 = time.perf_counter()
+                shared[:] = src
+                t1 = time.perf_counter()
+                shared[:] = src
+                t2 = time.perf_counter()
+        finally:
+            os.close(fd)
+        costs["fresh shared"].append((t1 - t0) * 1e3 / mb)
+        costs["warm"].append((t2 - t1) * 1e3 / mb)
+        with mmap.mmap(-1, size, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS) as private:
+            t0 = time.perf_counter()
+            private[:] = src
+            costs["fresh private"].append((time.perf_counter() - t0) * 1e3 / mb)
+    return {what: statistics.median(values) for what, values in costs.items()}
+
+
+def _new_connection_ceiling(memory: dict[str, float], size: int, n: int) -> float:
+    """MB/s that an echoed burst of ``n`` messages of ``size`` bytes on a new shared-memory connection cannot
+    exceed here, counting memory writes alone: each process writes every message once into its ring (the ring's
+    ``MIN_SLOTS`` slots for the first time) and copies every message it receives out into its own buffer (the
+    first one fresh); the two processes work in parallel at best."""
+    from mrosd.shm.publisher import MIN_SLOTS
+
+    mb = size / (1 << 20)
+    fresh_slots = min(n, MIN_SLOTS)
+    ms = mb * (
+        fresh_slots * memory["fresh shared"]
+        + memory["fresh private"]
+        + (2 * n - fresh_slots - 1) * memory["warm"]
+    )
+    return n * size / 1e6 / (ms / 1e3)
+
+
 def _report(impls: list[str], res: Results) -> None:
     labels = [label for label in res.rtt if res.rtt[label]]
     sizes = sorted({x for by_size in res.rtt.values() for x in by_size})
@@ -602,6 +655,20 @@ def _report(impls: list[str], res: Results) -> None:
               + f" mrosd/roscpp {_ratio(vals.get('mrosd'), vals.get('roscpp'))}"
               + (f" same-host/roscpp {_ratio(vals.get('same-host'), vals.get('roscpp'))}"
                  if "same-host" in vals else ""))  # fmt: skip
+    if res.memory:
+        print("memory here (ms per MB, written with one copy): " + ", ".join(
+            f"{what} {ms:.3f}" for what, ms in res.memory.items()
+        ))  # fmt: skip
+        for msg_kind, bursts in (("image", IMAGES), ("cloud", CLOUDS)):
+            for size, n in bursts:
+                cpp = res.large.get((msg_kind, size), {}).get("roscpp")
+                ceiling = _new_connection_ceiling(res.memory, size, n)
+                name = "image" if msg_kind == "image" else "PointCloud2"
+                print(
+                    f"{name} {size // (1024 * 1024)} MB x {n}, same-host on a new connection,"
+                    f" ceiling from memory writes alone: {ceiling:.0f} MB/s"
+                    + (f" = {_ratio(ceiling, cpp)} roscpp" if cpp else "")
+                )
     if res.busy_rtt:
         print("beside a busy-loop process: RTT median (µs), and idle -> busy")
         for x in NEIGHBOUR_SIZES:
