@@ -56,13 +56,17 @@ async def close_server(server: asyncio.AbstractServer) -> None:
     Python 3.11's ``Server.close()`` in between makes that task fail on an assertion that nobody sees, and the
     accepted socket stays open, owned by no one, until the garbage collector finds it (its peer sees neither
     data nor EOF meanwhile). So accepting stops first, the connections in flight arrive, and only then does
-    the server close; the caller then closes them with the rest.
+    the server close; the caller then closes them with the rest. (uvloop closes safely, but calls
+    ``connection_made`` a turn later: the same wait lets those arrive too.)
     """
     loop = asyncio.get_running_loop()
-    sockets = getattr(server, "sockets", None) or ()
-    if isinstance(loop, BaseSelectorEventLoop):  # uvloop makes the transport as it accepts
-        for sock in sockets:
-            loop.remove_reader(sock.fileno())
+    try:
+        if isinstance(loop, BaseSelectorEventLoop):
+            for sock in getattr(server, "sockets", None) or ():
+                loop.remove_reader(sock.fileno())
+        else:
+            server.close()  # uvloop: closing is safe, but connection_made still comes a turn later
         for _ in range(_ACCEPT_TURNS):
             await asyncio.sleep(0)
-    server.close()
+    finally:
+        server.close()  # cancelled meanwhile or not

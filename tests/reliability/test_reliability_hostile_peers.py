@@ -10,6 +10,8 @@ import contextlib
 import socket
 import struct
 
+import pytest
+
 import mrosd
 from mrosd.msg import get_message_class
 from tests.reliability.relnodes import start_master
@@ -88,6 +90,16 @@ async def test_connections_arriving_while_the_node_closes_are_all_closed(procs: 
     accepted connection's transport turns later, in a task, and closing the listener in between must not leave
     that socket open and owned by no one (its peer would wait for an answer that never comes)."""
     _, uri = start_master(procs)
+    await _connect_while_the_node_closes(uri)
+
+
+def test_the_same_on_uvloop_which_calls_connection_made_a_turn_late(procs: Processes) -> None:
+    uvloop = pytest.importorskip("uvloop")
+    _, uri = start_master(procs)
+    uvloop.run(_connect_while_the_node_closes(uri))
+
+
+async def _connect_while_the_node_closes(uri: str) -> None:
     loop = asyncio.get_running_loop()
     node = mrosd.Node("closing_target", master_uri=uri, host="127.0.0.1", argv=[], rosout=False)
     await node.start()
