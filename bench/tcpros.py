@@ -598,9 +598,10 @@ def _memory_costs(mb: int = 64, repeats: int = 3) -> dict[str, float]:
 
 def _new_connection_ceiling(memory: dict[str, float], size: int, n: int) -> float:
     """MB/s that an echoed burst of ``n`` messages of ``size`` bytes on a new shared-memory connection cannot
-    exceed here, counting memory writes alone: each process writes every message once into its ring (the ring's
-    ``MIN_SLOTS`` slots for the first time) and copies every message it receives out into its own buffer (the
-    first one fresh); the two processes work in parallel at best."""
+    exceed here, counting memory writes alone: each process writes every message once into its ring (at least
+    the ring's first ``MIN_SLOTS`` slots are fresh; counting no more keeps this an upper bound) and copies every
+    message it receives out into its own buffer (the first one fresh); the two processes work in parallel at
+    best."""
     from mrosd.shm.publisher import MIN_SLOTS
 
     mb = size / (1 << 20)
