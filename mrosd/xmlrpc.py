@@ -399,17 +399,10 @@ class XmlRpcServer:
         if runner is None:
             return
         self._runner = self._site = None
-        server = runner.server
         listener = getattr(site, "_server", None)
         if listener is not None:
-            await close_server(listener)  # what it accepted reaches aiohttp first (asyncio's loop)
-        if site is not None:
-            await site.stop()
-        await asyncio.sleep(0)  # the handler of a connection that just arrived starts reading (a task of its own)
+            await close_server(listener)  # what it accepted reaches aiohttp before aiohttp closes the connections
         await runner.cleanup()
-        if server is not None:
-            for handler in server.connections:  # anything that still came after aiohttp listed them
-                handler.force_close()
 
     async def __aenter__(self) -> XmlRpcServer:
         await self.start()
