@@ -607,9 +607,7 @@ def _new_connection_ceiling(memory: dict[str, float], size: int, n: int) -> floa
     mb = size / (1 << 20)
     fresh_slots = min(n, MIN_SLOTS)
     ms = mb * (
-        fresh_slots * memory["fresh shared"]
-        + memory["fresh private"]
-        + (2 * n - fresh_slots - 1) * memory["warm"]
+        fresh_slots * memory["fresh shared"] + memory["fresh private"] + (2 * n - fresh_slots - 1) * memory["warm"]
     )
     return n * size / 1e6 / (ms / 1e3)
 

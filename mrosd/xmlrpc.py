@@ -377,9 +377,7 @@ class XmlRpcServer:
         """Bind and start serving; ``self.port`` holds the bound port afterwards."""
         app = web.Application(client_max_size=MAX_BODY_SIZE)
         app.router.add_route("POST", "/{tail:.*}", self._handle_http)
-        self._runner = web.AppRunner(
-            app, access_log=None, handle_signals=False, shutdown_timeout=_SHUTDOWN_TIMEOUT
-        )
+        self._runner = web.AppRunner(app, access_log=None, handle_signals=False, shutdown_timeout=_SHUTDOWN_TIMEOUT)
         await self._runner.setup()
         self._site = web.TCPSite(
             self._runner,

@@ -174,7 +174,12 @@ def read(ctx: click.Context, key: str, follow: bool, count: int | None, timeout:
 @click.option("--hold", is_flag=True, help="Keep the key open (and its value alive) until interrupted.")
 @click.pass_context
 def write(  # noqa: PLR0917  (one parameter per click option)
-    ctx: click.Context, key: str, value: str, type_name: str | None, count: int | None, max_size: int | None,
+    ctx: click.Context,
+    key: str,
+    value: str,
+    type_name: str | None,
+    count: int | None,
+    max_size: int | None,
     hold: bool,
 ) -> None:
     """Write VALUE (YAML) to KEY; the key is created with --type if nobody holds it.

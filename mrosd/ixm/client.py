@@ -160,8 +160,12 @@ class IxmClient:
     """
 
     def __init__(
-        self, socket_path: str | None = None, name: str | None = None, timeout: float = DEFAULT_TIMEOUT,
-        *, trusted_uids: Iterable[int] | None = None,
+        self,
+        socket_path: str | None = None,
+        name: str | None = None,
+        timeout: float = DEFAULT_TIMEOUT,
+        *,
+        trusted_uids: Iterable[int] | None = None,
     ) -> None:
         self.socket_path = socket_path or default_ixm_socket()
         self.timeout = timeout
@@ -271,7 +275,11 @@ class IxmClient:
     # API ---------------------------------------------------------------------------------------------------
 
     def open(
-        self, key: str, type: str | None = None, count: int | None = None, max_size: int | None = None,
+        self,
+        key: str,
+        type: str | None = None,
+        count: int | None = None,
+        max_size: int | None = None,
         mode: Mode = "r",
     ) -> IxmKey:
         """IxmInit: get access to ``key`` (created with this type if it does not exist yet).
@@ -407,8 +415,12 @@ class AsyncIxmClient:
     """An asyncio connection to the IXM daemon; ``await AsyncIxmClient.connect()`` or ``async with``."""
 
     def __init__(
-        self, socket_path: str | None = None, name: str | None = None, timeout: float = DEFAULT_TIMEOUT,
-        *, trusted_uids: Iterable[int] | None = None,
+        self,
+        socket_path: str | None = None,
+        name: str | None = None,
+        timeout: float = DEFAULT_TIMEOUT,
+        *,
+        trusted_uids: Iterable[int] | None = None,
     ) -> None:
         self.socket_path = socket_path or default_ixm_socket()
         self.name = name or _default_name()
@@ -504,7 +516,11 @@ class AsyncIxmClient:
                 self._pending = None
 
     async def open(
-        self, key: str, type: str | None = None, count: int | None = None, max_size: int | None = None,
+        self,
+        key: str,
+        type: str | None = None,
+        count: int | None = None,
+        max_size: int | None = None,
         mode: Mode = "r",
     ) -> AsyncIxmKey:
         """IxmInit; see ``IxmClient.open``."""

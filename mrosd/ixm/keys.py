@@ -80,7 +80,10 @@ class KeyState:
             os.close(fd)
             raise IxmError(f"the segment of {opened.key} does not have the capacity the daemon announced")
         self.type = IxmType(
-            name=opened.type, count=opened.count, max_size=opened.max_size, capacity=opened.capacity,
+            name=opened.type,
+            count=opened.count,
+            max_size=opened.max_size,
+            capacity=opened.capacity,
             code=self.layout.type_code,
         )
         self.encode, self.decode = codec(self.type)

@@ -86,9 +86,7 @@ class SegmentLayout:
         if magic != MAGIC or version != LAYOUT_VERSION:
             raise IxmError(f"not an IXM v{LAYOUT_VERSION} segment (magic {magic!r}, version {version})")
         if self.segment_size(capacity) > len(buf):
-            raise IxmError(
-                f"segment header claims {SLOTS} slots of {capacity} bytes but the mapping has {len(buf)}"
-            )
+            raise IxmError(f"segment header claims {SLOTS} slots of {capacity} bytes but the mapping has {len(buf)}")
         self.capacity: int = capacity
         #: The sequence counter as one native 8-byte item (atomic loads and stores, see the module doc).
         self.counter = buf[_SEQ_OFF : _SEQ_OFF + 8].cast("Q")
@@ -246,8 +244,6 @@ class SegmentLayout:
         if deadline == 0.0:
             return now + MAX_LAPPED_WAIT
         if now > deadline:
-            raise IxmError(
-                f"the writer overwrote the value faster than it could be copied for {MAX_LAPPED_WAIT} s"
-            )
+            raise IxmError(f"the writer overwrote the value faster than it could be copied for {MAX_LAPPED_WAIT} s")
         time.sleep(0)
         return deadline

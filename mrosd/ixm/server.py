@@ -141,8 +141,10 @@ class IxmServer:
         self.socket_path = str(socket_path)
         self.prefix = segment_prefix(self.socket_path)
         self._given = {
-            "max_clients": max_clients, "max_clients_per_uid": max_clients_per_uid,
-            "max_keys": max_keys, "max_keys_per_uid": max_keys_per_uid,
+            "max_clients": max_clients,
+            "max_clients_per_uid": max_clients_per_uid,
+            "max_keys": max_keys,
+            "max_keys_per_uid": max_keys_per_uid,
         }
         self.limits = Limits.for_fd_limit(resource.getrlimit(resource.RLIMIT_NOFILE)[0], **self._given)
         self.registry = Registry(self._resolve_rules(rules), self._name_segment)
@@ -359,8 +361,13 @@ class IxmServer:
         client.closed = True
         if level >= logging.WARNING:
             self._ratelog.log(
-                level, f"drop-{client.peer.uid}", "IXM client %d (pid %d, uid %d) %s",
-                client.id, client.peer.pid, client.peer.uid, reason,
+                level,
+                f"drop-{client.peer.uid}",
+                "IXM client %d (pid %d, uid %d) %s",
+                client.id,
+                client.peer.pid,
+                client.peer.uid,
+                reason,
             )
         else:
             log.log(level, "IXM client %d (pid %d, uid %d) %s", client.id, client.peer.pid, client.peer.uid, reason)
@@ -462,8 +469,15 @@ class IxmServer:
         if notice is not None:
             fds.append(notice.client_fd)
         reply = Opened(
-            key=req.key, type=t.name, count=t.count, max_size=t.max_size, capacity=t.capacity,
-            mode=req.mode, shm_name=info.shm_name, wake=len(wake), generation=client.pushes,
+            key=req.key,
+            type=t.name,
+            count=t.count,
+            max_size=t.max_size,
+            capacity=t.capacity,
+            mode=req.mode,
+            shm_name=info.shm_name,
+            wake=len(wake),
+            generation=client.pushes,
             notice=notice is not None,
         )
         self._send(client, reply, fds=[*fds, *wake], close_after=fds)
@@ -510,14 +524,20 @@ class IxmServer:
         registry = self.registry
         everything = caller.uid in registry.rules.superusers
         visible = {
-            s.key for s in registry.segments.values()
+            s.key
+            for s in registry.segments.values()
             if (key is None or s.key == key) and (everything or registry.visible(caller, s))
         }
         pid_of = {c: p.peer.pid for c, p in registry.processes.items()}
         segments = [
             SegmentView(
-                key=s.key, shm_name=s.shm_name, type=s.type.name, count=s.type.count, max_size=s.type.max_size,
-                capacity=s.type.capacity, creator_uid=s.creator_uid,
+                key=s.key,
+                shm_name=s.shm_name,
+                type=s.type.name,
+                count=s.type.count,
+                max_size=s.type.max_size,
+                capacity=s.type.capacity,
+                creator_uid=s.creator_uid,
                 readers=sorted(pid_of[c] for c in s.readers if c in pid_of),
                 writers=sorted(pid_of[c] for c in s.writers if c in pid_of),
             )
@@ -588,4 +608,3 @@ class IxmServer:
 
     def _on_writable(self, client: _Client) -> None:
         self._flush(client)
-

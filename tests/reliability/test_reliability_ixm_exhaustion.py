@@ -71,8 +71,15 @@ def flood(sock_path: str, connections: int, keys_per_connection: int) -> Callabl
                 except IxmError as exc:
                     note(exc)
                     break
-        report({"clients": len(clients), "raw": len(raw), "keys": keys, "errors": errors,
-                "seconds": time.monotonic() - started})
+        report(
+            {
+                "clients": len(clients),
+                "raw": len(raw),
+                "keys": keys,
+                "errors": errors,
+                "seconds": time.monotonic() - started,
+            }
+        )
         for c in clients:
             c.close()
         for s in raw:
@@ -118,8 +125,10 @@ def test_hostile_clients_of_one_uid_cannot_exhaust_the_daemon_fds_and_a_normal_c
         finally:
             child.close()
         lines = Path(log).read_text().count("\n")
-        print(f"hostile held {held}; daemon fds {fds}/512, rss {rss} KiB, cpu {cpu:.2f}, log lines {lines}",
-              file=sys.stderr)
+        print(
+            f"hostile held {held}; daemon fds {fds}/512, rss {rss} KiB, cpu {cpu:.2f}, log lines {lines}",
+            file=sys.stderr,
+        )
         assert alive, "the daemon died"
         assert normal == "ok 1.5"
         assert fds < 512 - 16, "the daemon ran out of file descriptors"

@@ -118,10 +118,7 @@ def test_a_listing_shows_each_user_only_the_keys_its_rules_let_it_open(procs: Pr
     user = nobody()
     with shared_dir() as tmp:
         config = Path(tmp) / "mrosd.toml"
-        config.write_text(
-            '[ixm.rules]\ndefault = "deny"\n'
-            f'[ixm.rules.keys."/public"]\nread_uids = [{user.pw_uid}]\n'
-        )
+        config.write_text(f'[ixm.rules]\ndefault = "deny"\n[ixm.rules.keys."/public"]\nread_uids = [{user.pw_uid}]\n')
         path = os.path.join(tmp, "ixm.sock")
         start_daemon(procs, path, str(config))
         with IxmClient(path, name="rootproc") as ixm:
@@ -134,9 +131,7 @@ def test_a_listing_shows_each_user_only_the_keys_its_rules_let_it_open(procs: Pr
                     one = c.list("/secret")
                 return {
                     "keys": sorted(s.key for s in listing.segments),
-                    "processes": sorted(
-                        (p.name, sorted(p.keys)) for p in listing.processes
-                    ),
+                    "processes": sorted((p.name, sorted(p.keys)) for p in listing.processes),
                     "secret": [s.key for s in one.segments] + [p.name for p in one.processes],
                 }
 

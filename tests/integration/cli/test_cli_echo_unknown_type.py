@@ -51,4 +51,3 @@ def test_echo_decodes_a_type_known_only_to_the_publisher(procs: Processes) -> No
         check=False,
     )
     assert typed.stdout == "nowhere_pkg/Reading\n"
-

@@ -19,7 +19,7 @@ from tests.rosenv import Processes, needs_ros, start_rosmaster
 
 pytestmark = [needs_ros, pytest.mark.interop]
 
-CORPUS = r'''
+CORPUS = r"""
 import rospy, genpy
 from std_msgs.msg import String, Bool, Float32, Int8, Header, UInt8MultiArray, MultiArrayDimension, Empty
 from geometry_msgs.msg import PoseStamped, Twist, Point
@@ -55,7 +55,7 @@ for p, m in zip(pubs, msgs.values()):
     p.publish(m)
 print("up", flush=True)
 rospy.spin()
-'''
+"""
 
 TOPICS = [
     "/s/plain", "/s/empty", "/s/quote", "/s/unicode", "/s/long", "/s/multiline", "/b", "/f", "/i", "/e",

@@ -45,9 +45,7 @@ def test_list_and_namespace_list_match_rosparam(rosmaster: str, tmp_path: Path) 
         assert ours.returncode == theirs.returncode == 0
 
 
-def test_getting_a_missing_parameter_fails_with_exit_code_1_and_one_stderr_line(
-    rosmaster: str, tmp_path: Path
-) -> None:
+def test_getting_a_missing_parameter_fails_with_exit_code_1_and_one_stderr_line(rosmaster: str, tmp_path: Path) -> None:
     ours = mros(rosmaster, tmp_path, "param", "get", "/missing")
     theirs = ros_tool(rosmaster, tmp_path, "rosparam", "get", "/missing")
     assert ours.returncode == theirs.returncode == 1
@@ -72,9 +70,10 @@ def test_dump_matches_rosparam_dump_and_load_round_trips(rosmaster: str, tmp_pat
     dump = tmp_path / "cfg.yaml"
     dump.write_text(ours.stdout)
     assert mros(rosmaster, tmp_path, "param", "load", str(dump), "/copy").returncode == 0
-    assert mros(rosmaster, tmp_path, "param", "get", "/copy").stdout == ros_tool(
-        rosmaster, tmp_path, "rosparam", "get", "/cfg"
-    ).stdout
+    assert (
+        mros(rosmaster, tmp_path, "param", "get", "/copy").stdout
+        == ros_tool(rosmaster, tmp_path, "rosparam", "get", "/cfg").stdout
+    )
 
 
 def test_load_honours_the_ns_key_of_each_document_like_rosparam(rosmaster: str, tmp_path: Path) -> None:
@@ -82,9 +81,9 @@ def test_load_honours_the_ns_key_of_each_document_like_rosparam(rosmaster: str, 
     doc.write_text("_ns: first\nx: 1\n---\n_ns: second\ny: 2\n")
     assert mros(rosmaster, tmp_path, "param", "load", str(doc), "/m").returncode == 0
     ros_tool(rosmaster, tmp_path, "rosparam", "load", str(doc), "/r")
-    assert mros(rosmaster, tmp_path, "param", "get", "/m").stdout == mros(
-        rosmaster, tmp_path, "param", "get", "/r"
-    ).stdout
+    assert (
+        mros(rosmaster, tmp_path, "param", "get", "/m").stdout == mros(rosmaster, tmp_path, "param", "get", "/r").stdout
+    )
 
 
 def test_bad_yaml_and_oversized_integers_are_one_line_errors(rosmaster: str, tmp_path: Path) -> None:
