@@ -76,17 +76,24 @@ def watch(as_json: bool, poll: float) -> None:
     run(print_changes(as_json=as_json, poll=poll))
 
 
-async def print_changes(*, as_json: bool, poll: float, keep: Callable[[GraphChange], bool] | None = None) -> None:
-    """Print each change of the graph (those ``keep`` accepts), one line each, until cancelled."""
+def every_change(change: GraphChange) -> bool:
+    """``print_changes``' default filter: keep everything."""
+    return True
+
+
+async def print_changes(*, as_json: bool, poll: float, keep: Callable[[GraphChange], bool] = every_change) -> None:
+    """Print each change of the graph (those ``keep`` accepts), one line each, until cancelled.
+
+    ``keep`` is a predicate, never None: mypy's narrowing of an optional callable captured by a comprehension
+    differs between versions (``"object" not callable`` under one), and a default predicate needs none.
+    """
     from mrosd.master.client import GraphSnapshot, graph_changes, watch_graph
 
     async with master_client() as client:
         previous = GraphSnapshot()
         async for graph in watch_graph(client, poll_interval=poll):
             lines = [
-                format_change(change, as_json=as_json)
-                for change in graph_changes(previous, graph)
-                if keep is None or keep(change)
+                format_change(change, as_json=as_json) for change in graph_changes(previous, graph) if keep(change)
             ]
             previous = graph
             if lines:
