@@ -31,6 +31,7 @@ from typing import Any
 
 import aiohttp
 from aiohttp import web
+from aiohttp.web_protocol import RequestHandler
 
 from mrosd.errors import LocalProtocolError, RemoteProtocolError, XmlRpcError, XmlRpcFault
 from mrosd.loop import close_server
@@ -369,15 +370,14 @@ class XmlRpcServer:
         self._name = name
         self._backlog = backlog
         self._reuse_address = reuse_address
-        self._runner: web.AppRunner | None = None
+        self._runner: web.ServerRunner | None = None
         self._site: web.TCPSite | None = None
         self.port = 0
 
     async def start(self) -> None:
         """Bind and start serving; ``self.port`` holds the bound port afterwards."""
-        app = web.Application(client_max_size=MAX_BODY_SIZE)
-        app.router.add_route("POST", "/{tail:.*}", self._handle_http)
-        self._runner = web.AppRunner(app, access_log=None, handle_signals=False, shutdown_timeout=_SHUTDOWN_TIMEOUT)
+        server = _HalfCloseServer(self._handle_http, request_factory=_make_request, access_log=None)
+        self._runner = web.ServerRunner(server, handle_signals=False, shutdown_timeout=_SHUTDOWN_TIMEOUT)
         await self._runner.setup()
         self._site = web.TCPSite(
             self._runner,
@@ -387,8 +387,8 @@ class XmlRpcServer:
             reuse_address=self._reuse_address,
         )
         await self._site.start()
-        server = self._site._server
-        sockets = getattr(server, "sockets", None) or []
+        listener = self._site._server
+        sockets = getattr(listener, "sockets", None) or []
         self.port = sockets[0].getsockname()[1] if sockets else self._port
 
     async def aclose(self) -> None:
@@ -409,7 +409,9 @@ class XmlRpcServer:
     async def __aexit__(self, *exc_info: object) -> None:
         await self.aclose()
 
-    async def _handle_http(self, request: web.Request) -> web.Response:
+    async def _handle_http(self, request: web.BaseRequest) -> web.Response:
+        if request.method != "POST":
+            return web.Response(status=405, text="only POST is supported\n", headers={"Allow": "POST"})
         try:
             body = await request.read()
         except web.HTTPRequestEntityTooLarge:
@@ -477,6 +479,55 @@ class XmlRpcServer:
             except Fault as exc:
                 results.append({"faultCode": exc.code, "faultString": exc.message})
         return results
+
+
+class _HalfCloseHandler(RequestHandler):
+    """aiohttp's connection protocol, except that a request followed by the peer's EOF is still answered.
+
+    A client may send its request and shut its write side (``shutdown(SHUT_WR)``) before reading the answer;
+    rosmaster and rospy's servers execute and answer it. aiohttp closes the transport on EOF, cancelling a
+    request it has received whole. Here, when every received request is whole, the write side stays open,
+    they are answered in order, then the connection closes; a request cut short by the EOF can never be
+    answered, so the connection closes at once as before.
+    """
+
+    __slots__ = ("last_body",)
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        #: The body of the request handed to the handler last (set by ``_make_request``): between aiohttp taking
+        #: a request off its queue and starting its handler, no other attribute shows it.
+        self.last_body: aiohttp.StreamReader | None = None
+
+    def eof_received(self) -> bool | None:  # type: ignore[override]  # asyncio.Protocol allows True
+        bodies = [payload for _, payload in self._messages]
+        if self.last_body is not None:
+            bodies.append(self.last_body)
+        if not all(body.is_eof() for body in bodies):
+            return None  # a request cut short: close at once, as aiohttp does
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            return None  # idle between requests: nothing to answer
+        self.close()  # answer what was received whole, then close
+        return True
+
+
+class _HalfCloseServer(web.Server):
+    """aiohttp's low-level server building ``_HalfCloseHandler`` protocols."""
+
+    def __call__(self) -> RequestHandler:
+        return _HalfCloseHandler(self, loop=self._loop, **self._kwargs)
+
+
+def _make_request(
+    message: Any, payload: aiohttp.StreamReader, protocol: RequestHandler, writer: Any, task: asyncio.Task[None]
+) -> web.BaseRequest:
+    """A request whose body may be as large as ``MAX_BODY_SIZE`` (aiohttp's default is 1 MiB)."""
+    if isinstance(protocol, _HalfCloseHandler):
+        protocol.last_body = payload
+    return web.BaseRequest(
+        message, payload, protocol, writer, task, asyncio.get_running_loop(), client_max_size=MAX_BODY_SIZE
+    )
 
 
 def _xml_response(body: bytes) -> web.Response:

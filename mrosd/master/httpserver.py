@@ -111,6 +111,7 @@ class HttpProtocol(asyncio.Protocol):
         self._request: _Request | None = None
         self._busy = False
         self._closed = False
+        self._eof = False
         self._reading_paused = False
         self._timer: asyncio.TimerHandle | None = None
         self._task: asyncio.Task[bytes] | None = None
@@ -140,6 +141,19 @@ class HttpProtocol(asyncio.Protocol):
         if self._task is not None:
             self._task.cancel()
         self._server.forget(self)
+
+    def eof_received(self) -> bool | None:
+        """The peer shut its write side: a call still running is answered, then the connection closes.
+
+        Clients may send a request and ``shutdown(SHUT_WR)`` before reading (rosmaster answers them). Calls
+        answered within the read that brought them are done already; a slow one (a big body decoded in
+        slices) is still running: keep the write side open for it. Bytes left over after it can only be a
+        request cut short. Nothing running: close now (returning None lets the transport close).
+        """
+        if not self._busy or self._closed:
+            return None
+        self._eof = True
+        return True
 
     @property
     def idle(self) -> bool:
@@ -294,6 +308,8 @@ class HttpProtocol(asyncio.Protocol):
         out = encode_fault(FAULT_INTERNAL_ERROR, f"internal error: {exc!r}") if exc else task.result()
         self._respond(out, keep_alive)
         self._process()
+        if self._eof and not self._busy:
+            self.close()
 
     def _respond(self, body: bytes, keep_alive: bool) -> None:
         if self._transport is None or self._closed:
