@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 from mrosd.errors import HttpRefused
 from mrosd.lograte import RateLimitedLog
+from mrosd.master.admission import Admission
 from mrosd.master.httpframing import (
     CACHED_HEAD_SIZE,
     CONTINUE_RESPONSE,
@@ -41,6 +42,7 @@ from mrosd.master.httpframing import (
     parse_short_head,
     status_response,
 )
+from mrosd.master.peers import Endpoint, PeerUids, is_local
 from mrosd.xmlrpc import FAULT_INTERNAL_ERROR, encode_fault
 
 if TYPE_CHECKING:
@@ -101,10 +103,22 @@ class _Request:
 class HttpProtocol(asyncio.Protocol):
     """One client connection: parse requests, answer them in order."""
 
-    def __init__(self, handler: XmlRpcHttpHandler, server: HttpServer, host: str, refused: bool) -> None:
+    def __init__(
+        self,
+        handler: XmlRpcHttpHandler,
+        server: HttpServer,
+        host: str,
+        refused: bool,
+        *,
+        peer: Endpoint = ("", 0),
+        ours: Endpoint = ("", 0),
+    ) -> None:
         self._handler = handler
         self._server = server
         self.host = host
+        #: The two ends as ``(host, port)``: the key to the peer's socket in the kernel's tables.
+        self.peer = peer
+        self.ours = ours
         self._refused = refused
         self._buf = bytearray()
         self._transport: asyncio.Transport | None = None
@@ -122,6 +136,9 @@ class HttpProtocol(asyncio.Protocol):
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self._transport = cast(asyncio.Transport, transport)  # uvloop's transports are not subclasses
+        if self._closed:  # shed before its transport existed
+            transport.close()
+            return
         if self._refused:
             # Answered once its request is in (closing at once races the client's send into a broken pipe
             # instead of a readable 403); MAX_REFUSED_BYTES bounds what such a client may send first.
@@ -160,11 +177,17 @@ class HttpProtocol(asyncio.Protocol):
         """Nothing pending: no partial request, no call running."""
         return not self._buf and not self._busy and self._request is None
 
+    @property
+    def sheddable(self) -> bool:
+        """No call running: closing it loses no answer (it is idle, or its request is still arriving)."""
+        return not self._busy and not self._closed
+
     def close(self) -> None:
         """Close quietly (an idle connection: any response now would be mistaken for the next call's)."""
-        if self._transport is not None and not self._closed:
-            self._transport.close()
+        if not self._closed:
             self._closed = True
+            if self._transport is not None:
+                self._transport.close()
 
     def abort(self) -> None:
         if self._task is not None:
@@ -354,7 +377,8 @@ class HttpServer:
         self.max_connections_per_host = max_connections_per_host
         self.idle_timeout = idle_timeout
         self._live: set[HttpProtocol] = set()
-        self._per_host: dict[str, int] = {}
+        self._admission: Admission[HttpProtocol] = Admission(max_connections, max_connections_per_host)
+        self._peers = PeerUids()
         self._pending: set[asyncio.Task[Any]] = set()
         self._socks: list[socket.socket] = []
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -362,8 +386,10 @@ class HttpServer:
         self._resume: asyncio.TimerHandle | None = None
         self._sweeper: asyncio.TimerHandle | None = None
         self._cap = max_connections
-        #: Connections refused for a cap, and accept back-offs for lack of file descriptors (for tests and stats).
+        #: Connections refused for a cap, closed to make room for another client's, and accept back-offs for
+        #: lack of file descriptors (for tests and stats).
         self.refused_connections = 0
+        self.shed_connections = 0
         self.accept_backoffs = 0
         self.port = 0
 
@@ -396,6 +422,7 @@ class HttpServer:
         self._socks = socks
         self._loop = loop
         self._cap = max(1, min(self.max_connections, _nofile_limit() - FD_RESERVE))
+        self._admission = Admission(self._cap, self.max_connections_per_host)
         if self._cap < self.max_connections:
             log.warning(
                 "master: at most %d connections (RLIMIT_NOFILE %d); raise the limit for %d",
@@ -459,11 +486,29 @@ class HttpServer:
 
     def _adopt(self, conn: socket.socket, addr: Any) -> None:
         host = str(addr[0]) if isinstance(addr, tuple) and addr else ""
-        count = self._per_host.get(host, 0)
-        if len(self._live) >= self._cap or count >= self.max_connections_per_host:
+        peer: Endpoint = (host, int(addr[1])) if isinstance(addr, tuple) and len(addr) > 1 else (host, 0)
+        try:
+            name = conn.getsockname()
+            ours: Endpoint = (str(name[0]), int(name[1]))
+        except OSError:
+            ours = ("", 0)
+        local = is_local(host, ours[0])
+        refused = not allowed(self._networks, host)
+        proto = HttpProtocol(self._handler, self, host, refused, peer=peer, ours=ours)
+        admission = self._admission
+        uid = None
+        if admission.needs_identity(host, local):
+            # Only now is it worth asking the kernel who is who: first the local connections admitted
+            # without a uid (each once), then the newcomer.
+            for other in admission.unidentified():
+                admission.identify(other, self._peers.uid(other.peer, other.ours))
+            if local:
+                uid = self._peers.uid(peer, ours)
+        decision = admission.admit(proto, host, local, uid)
+        if not decision.admitted:
             self.refused_connections += 1
-            which = "all clients" if len(self._live) >= self._cap else host
-            _ratelog.warning("cap", "master: refusing a connection from %s: connection cap reached for %s", host, which)
+            who = f"{host} (uid {uid})" if uid is not None else host
+            _ratelog.warning("cap", "master: refusing a connection from %s: %s", who, decision.reason)
             try:
                 conn.setblocking(False)
                 conn.send(status_response(503, b"too many connections\n"))
@@ -471,11 +516,20 @@ class HttpServer:
                 pass
             conn.close()
             return
+        shed = decision.shed
+        if shed is not None:
+            self.shed_connections += 1
+            self._live.discard(shed)
+            _ratelog.warning(
+                "shed",
+                "master: all %d connection slots taken; closing the oldest idle connection of %s to admit %s",
+                self._cap,
+                decision.shed_from,
+                host if uid is None else f"{host} (uid {uid})",
+            )
+            shed.close()
         conn.setblocking(False)
-        refused = not allowed(self._networks, host)
-        proto = HttpProtocol(self._handler, self, host, refused)
         self._live.add(proto)
-        self._per_host[host] = count + 1
         assert self._loop is not None
         task = self._loop.create_task(self._connect(conn, proto))
         self._pending.add(task)
@@ -492,13 +546,8 @@ class HttpServer:
 
     def forget(self, proto: HttpProtocol) -> None:
         """Called once a connection is gone: its slot is free again."""
-        if proto in self._live:
-            self._live.discard(proto)
-            left = self._per_host.get(proto.host, 1) - 1
-            if left > 0:
-                self._per_host[proto.host] = left
-            else:
-                self._per_host.pop(proto.host, None)
+        self._live.discard(proto)
+        self._admission.forget(proto)
 
     def _sweep(self) -> None:
         """Close connections idle since the sweep before last (sweeps run every ``idle_timeout / 2``)."""
@@ -530,5 +579,6 @@ class HttpServer:
         for proto in list(self._live):
             proto.abort()
         self._live.clear()
-        self._per_host.clear()
+        self._admission = Admission(self._cap, self.max_connections_per_host)
+        self._peers.close()
         await asyncio.sleep(0)  # let the aborted transports report connection_lost
