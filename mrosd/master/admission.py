@@ -2,10 +2,10 @@
 
 A remote peer is its address. A local peer (a loopback address, or the host's own) is the uid owning its
 socket: every node of the robot connects from 127.0.0.1, so a cap per address let one flooding uid lock out
-all the others. The uid costs a kernel lookup, so it is asked for only when it matters: once a local address
-holds ``per_who`` connections, or all ``total`` slots are taken (``needs_identity``); below that no uid can be
-over its share. Connections admitted before then are identified in one pass when it first matters (the
-caller looks up each of ``unidentified()`` once).
+all the others. The uid costs a kernel lookup, so it is asked for only when it matters: once local peers
+(whatever loopback address each uses) hold ``per_who`` connections in all, or all ``total`` slots are taken
+(``needs_identity``); below that no uid can be over its share. Connections admitted before then are
+identified in one pass when it first matters (the caller looks up each of ``unidentified()`` once).
 
 Refusal and shedding (``admit``):
 
@@ -70,9 +70,8 @@ class Admission(Generic[C]):
         self.per_who = per_who
         self._by_who: dict[Who, dict[C, None]] = {}  # insertion order: oldest first
         self._who: dict[C, Who] = {}
-        self._host: dict[C, str] = {}
         self._local_unidentified: dict[C, None] = {}
-        self._per_host: dict[str, int] = {}
+        self._local: dict[C, None] = {}
 
     def __len__(self) -> int:
         return len(self._who)
@@ -80,11 +79,11 @@ class Admission(Generic[C]):
     def count(self, who: Who) -> int:
         return len(self._by_who.get(who, ()))
 
-    def needs_identity(self, host: str, local: bool) -> bool:
-        """Whether a newcomer from ``host`` must be told apart by uid before deciding (and the others first)."""
+    def needs_identity(self, local: bool) -> bool:
+        """Whether a newcomer must be told apart by uid before deciding (and the unidentified others first)."""
         if len(self._who) >= self.total:
             return True
-        return local and self._per_host.get(host, 0) >= self.per_who
+        return local and len(self._local) >= self.per_who
 
     def unidentified(self) -> list[C]:
         """Local connections admitted without a uid; look each up once and ``identify`` it."""
@@ -112,11 +111,11 @@ class Admission(Generic[C]):
             shed_from = describe(self._who[shed])
             self.forget(shed)
         self._who[conn] = who
-        self._host[conn] = host
         self._by_who.setdefault(who, {})[conn] = None
-        self._per_host[host] = self._per_host.get(host, 0) + 1
-        if local and uid is None:
-            self._local_unidentified[conn] = None
+        if local:
+            self._local[conn] = None
+            if uid is None:
+                self._local_unidentified[conn] = None
         return Decision(True, shed, shed_from)
 
     def forget(self, conn: C) -> None:
@@ -125,12 +124,7 @@ class Admission(Generic[C]):
         if who is None:
             return
         self._local_unidentified.pop(conn, None)
-        host = self._host.pop(conn)
-        left = self._per_host[host] - 1
-        if left:
-            self._per_host[host] = left
-        else:
-            del self._per_host[host]
+        self._local.pop(conn, None)
         group = self._by_who[who]
         del group[conn]
         if not group:

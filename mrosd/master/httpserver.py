@@ -497,7 +497,7 @@ class HttpServer:
         proto = HttpProtocol(self._handler, self, host, refused, peer=peer, ours=ours)
         admission = self._admission
         uid = None
-        if admission.needs_identity(host, local):
+        if admission.needs_identity(local):
             # Only now is it worth asking the kernel who is who: first the local connections admitted
             # without a uid (each once), then the newcomer.
             for other in admission.unidentified():

@@ -21,10 +21,10 @@ def test_a_flooding_uid_on_loopback_does_not_spend_another_uids_share() -> None:
     adm: Admission[Conn] = Admission(total=100, per_who=10)
     flood = [Conn(f"f{i}", uid=1000) for i in range(10)]
     for c in flood:
-        assert not adm.needs_identity("127.0.0.1", local=True)
+        assert not adm.needs_identity(local=True)
         assert adm.admit(c, "127.0.0.1", True, None).admitted  # no lookup needed below the cap
-    assert adm.needs_identity("127.0.0.1", local=True)
-    assert not adm.needs_identity("10.0.0.5", local=False)
+    assert adm.needs_identity(local=True)
+    assert not adm.needs_identity(local=False)
     pending = adm.unidentified()
     assert pending == flood
     for c in pending:
@@ -33,6 +33,8 @@ def test_a_flooding_uid_on_loopback_does_not_spend_another_uids_share() -> None:
     refused = adm.admit(Conn("f10"), "127.0.0.1", True, 1000)
     assert not refused.admitted and "uid 1000" in refused.reason
     assert adm.admit(Conn("node"), "127.0.0.1", True, 0).admitted  # root's node still gets in
+    # another loopback address is the same uid: no fresh share per address
+    assert not adm.admit(Conn("f11"), "127.0.0.9", True, 1000).admitted
     assert adm.count(("uid", 1000)) == 10 and adm.count(("uid", 0)) == 1
 
 
