@@ -42,6 +42,11 @@ log = logging.getLogger(__name__)
 #: rosparam-loaded YAML) reach a few MB; 64 MiB leaves room while bounding memory per call.
 MAX_BODY_SIZE = 64 * 1024 * 1024
 
+#: Largest reply the master sends (beyond: a fault naming this budget) and the largest response our client
+#: reads: a whole parameter tree or a big graph may exceed a request's MAX_BODY_SIZE, and our own client
+#: must read any reply our master may legally send.
+MAX_REPLY_SIZE = 128 * 1024 * 1024
+
 #: Default timeout for one outgoing call, connect included.
 DEFAULT_TIMEOUT = 10.0
 
@@ -203,6 +208,114 @@ def encode_fault(code: int, message: str) -> bytes:
     return xmlrpc.client.dumps(xmlrpc.client.Fault(code, message), methodresponse=True).encode()
 
 
+_PARAMS_HEAD = "<params>\n<param>\n"
+_PARAMS_TAIL = "</param>\n</params>\n"
+
+#: ``encode_value_chunks`` cuts its output into bytes objects of about this size.
+VALUE_CHUNK = 256 * 1024
+
+
+class _OverLimit(Exception):
+    """Raised inside ``_ChunkWriter`` once its output passed its limit: the rest is not encoded."""
+
+
+class _ChunkWriter:
+    """Collects text pieces into bytes chunks of about ``VALUE_CHUNK``: no single join or copy of a whole value."""
+
+    __slots__ = ("_limit", "_pending", "_size", "chunks", "total")
+
+    def __init__(self, limit: int | None) -> None:
+        self.chunks: list[bytes] = []
+        self.total = 0
+        self._limit = limit
+        self._pending: list[str] = []
+        self._size = 0
+
+    def write(self, text: str) -> None:
+        self._pending.append(text)
+        self._size += len(text)
+        if self._size >= VALUE_CHUNK:
+            self.flush()
+
+    def flush(self) -> None:
+        if self._pending:
+            chunk = "".join(self._pending).encode()
+            self.chunks.append(chunk)
+            self.total += len(chunk)
+            self._pending = []
+            self._size = 0
+            if self._limit is not None and self.total > self._limit:
+                raise _OverLimit
+
+
+def _write_value(value: Any, w: _ChunkWriter) -> None:
+    """The stdlib Marshaller's output for ``value``, piece by piece (its own code for any other type)."""
+    kind = type(value)
+    if kind is str:
+        w.write("<value><string>")
+        for i in range(0, len(value), _ESCAPE_SLICE):
+            w.write(_escape(value[i : i + _ESCAPE_SLICE]))
+        w.write("</string></value>\n")
+    elif kind is bool:
+        w.write(f"<value><boolean>{int(value)}</boolean></value>\n")
+    elif kind is int:
+        if not _INT_MIN <= value <= _INT_MAX:
+            raise OverflowError("int exceeds XML-RPC limits")
+        w.write(f"<value><int>{value}</int></value>\n")
+    elif kind is float:
+        w.write(f"<value><double>{value!r}</double></value>\n")
+    elif value is None:
+        w.write("<value><nil/></value>")
+    elif kind is list or kind is tuple:
+        w.write("<value><array><data>\n")
+        for item in value:
+            _write_value(item, w)
+        w.write("</data></array></value>\n")
+    elif kind is dict:
+        w.write("<value><struct>\n")
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise TypeError("dictionary key must be string")
+            w.write(f"<member>\n<name>{_escape(key)}</name>\n")
+            _write_value(item, w)
+            w.write("</member>\n")
+        w.write("</struct></value>\n")
+    else:  # bytes, datetime, Binary, subclasses: the stdlib's own rules
+        text = xmlrpc.client.dumps((value,), allow_none=True)
+        w.write(text[len(_PARAMS_HEAD) : len(text) - len(_PARAMS_TAIL)])
+
+
+def encode_value_chunks(value: Any, limit: int | None = None) -> tuple[list[bytes], int]:
+    """One value's ``<value>...</value>`` exactly as the stdlib writes it inside any reply, as ``(chunks, size)``.
+
+    For big values encoded once and shared by the replies of many callers (``reply_parts``): chunks of about
+    ``VALUE_CHUNK`` bytes are written one by one, so the value is never joined or copied whole, and a thread
+    encoding it holds the GIL for one slice of a long string at a time. Past ``limit`` bytes encoding stops and
+    ``([], size so far)`` comes back (a size over the limit says so): memory never follows a value further.
+
+    Raises:
+        LocalProtocolError: the value cannot be represented in XML-RPC.
+    """
+    writer = _ChunkWriter(limit)
+    try:
+        _write_value(value, writer)
+        writer.flush()
+    except _OverLimit:
+        return [], writer.total
+    except (OverflowError, TypeError, RecursionError) as exc:
+        raise LocalProtocolError(f"cannot encode XML-RPC response: {exc}") from exc
+    return writer.chunks, writer.total
+
+
+def reply_parts(code: int, status: str) -> tuple[bytes, bytes]:
+    """``(prefix, suffix)``: ``prefix + b"".join(encode_value_chunks(v)[0]) + suffix`` is
+    ``encode_response([code, status, v])``."""
+    head = [_RESPONSE_HEAD, "<value><array><data>\n"]
+    if not (_dump(code, head) and _dump(status, head)):
+        raise LocalProtocolError(f"cannot encode reply status {code!r}, {status!r}")
+    return "".join(head).encode(), ("</data></array></value>\n" + _RESPONSE_TAIL).encode()
+
+
 def decode_response(body: bytes) -> Any:
     """Parse a methodResponse body.
 
@@ -210,7 +323,8 @@ def decode_response(body: bytes) -> Any:
         Fault: the peer answered with a fault.
         RemoteProtocolError: the body is not a well-formed methodResponse, or it carries a DTD.
     """
-    _check_size(body, "response")
+    if len(body) > MAX_REPLY_SIZE:
+        raise RemoteProtocolError(f"XML-RPC response of {len(body)} bytes exceeds MAX_REPLY_SIZE ({MAX_REPLY_SIZE})")
     try:
         params, _ = _loads(body)
     except xmlrpc.client.Fault as exc:
@@ -307,8 +421,18 @@ def _escape(text: str) -> str:
     return text
 
 
+#: Strings longer than this are escaped slice by slice: a thread encoding a 100 MB value then holds the GIL
+#: for one slice at a time, not for a whole-string ``replace`` (escaping is per character, so slices agree).
+_ESCAPE_SLICE = 1 << 20
+
+
 def _dump(value: Any, out: list[str]) -> bool:
     if isinstance(value, str):
+        if len(value) > _ESCAPE_SLICE:
+            out.append("<value><string>")
+            out.extend(_escape(value[i : i + _ESCAPE_SLICE]) for i in range(0, len(value), _ESCAPE_SLICE))
+            out.append("</string></value>\n")
+            return True
         out.append(f"<value><string>{_escape(value)}</string></value>\n")
     elif value is True or value is False:
         out.append(f"<value><boolean>{int(value)}</boolean></value>\n")
@@ -542,16 +666,16 @@ _LARGE_REQUEST = 1024 * 1024
 
 
 async def _read_body(content: aiohttp.StreamReader) -> bytes | None:
-    """The whole response body (every read until EOF, not just the first chunk); None beyond MAX_BODY_SIZE."""
+    """The whole response body (every read until EOF, not just the first chunk); None beyond MAX_REPLY_SIZE."""
     chunks: list[bytes] = []
     size = 0
     while True:
-        chunk = await content.read(MAX_BODY_SIZE + 1 - size)
+        chunk = await content.read(MAX_REPLY_SIZE + 1 - size)
         if not chunk:
             return b"".join(chunks)
         chunks.append(chunk)
         size += len(chunk)
-        if size > MAX_BODY_SIZE:
+        if size > MAX_REPLY_SIZE:
             return None
 
 
@@ -592,11 +716,17 @@ class XmlRpcClient:
                 async with session.post(uri, data=data_out) as resp:
                     if resp.status != 200:
                         raise XmlRpcError(f"{method} at {uri}: HTTP status {resp.status}")
-                    if resp.content_length is not None and resp.content_length > MAX_BODY_SIZE:
-                        raise XmlRpcError(f"{method} at {uri}: response of {resp.content_length} bytes is too big")
+                    if resp.content_length is not None and resp.content_length > MAX_REPLY_SIZE:
+                        raise XmlRpcError(
+                            f"{method} at {uri}: response of {resp.content_length} bytes exceeds the"
+                            f" {MAX_REPLY_SIZE >> 20} MiB any mrosd master sends (MAX_REPLY_SIZE)"
+                        )
                     data = await _read_body(resp.content)
                     if data is None:
-                        raise XmlRpcError(f"{method} at {uri}: response exceeds {MAX_BODY_SIZE} bytes")
+                        raise XmlRpcError(
+                            f"{method} at {uri}: response exceeds the {MAX_REPLY_SIZE >> 20} MiB any mrosd master"
+                            " sends (MAX_REPLY_SIZE)"
+                        )
         except TimeoutError as exc:
             raise XmlRpcError(f"{method} at {uri}: no answer within {limit:g} s") from exc
         except (aiohttp.ClientError, OSError, ValueError) as exc:

@@ -33,10 +33,12 @@ from typing import TYPE_CHECKING, Any, cast
 from mrosd.errors import HttpRefused
 from mrosd.lograte import RateLimitedLog
 from mrosd.master.admission import Admission
+from mrosd.master.dispatch import LargeReply, Reply
 from mrosd.master.httpframing import (
     CACHED_HEAD_SIZE,
     CONTINUE_RESPONSE,
     MAX_HEADER_SIZE,
+    OK_HEAD,
     OK_RESPONSE,
     parse_head,
     parse_short_head,
@@ -54,8 +56,12 @@ _ratelog = RateLimitedLog(log)
 #: Largest body a client outside the allow-list may send before its 403 (it is read, never handled).
 MAX_REFUSED_BYTES = 64 * 1024
 
-#: Time a client has to complete a request once its first byte arrived (slowloris defence).
+#: Time a client has to complete a request once its first byte arrived (slowloris defence), and the longest a
+#: big reply may wait for its reader to take more (a reader that stops holds the reply's share of the budget).
 REQUEST_TIMEOUT = 30.0
+
+#: A big reply (``LargeReply``) is handed to the transport this many bytes at a time, as the client reads.
+WRITE_SLICE = 256 * 1024
 
 #: Defaults of ``HttpServer``/``Master``: open connections in all, from one peer address, and the idle time
 #: after which a kept-alive connection with nothing pending is closed (rospy and roscpp reconnect).
@@ -128,7 +134,14 @@ class HttpProtocol(asyncio.Protocol):
         self._eof = False
         self._reading_paused = False
         self._timer: asyncio.TimerHandle | None = None
-        self._task: asyncio.Task[bytes] | None = None
+        self._task: asyncio.Task[Reply] | None = None
+        #: A big reply being written, where it stands, and when its reader last took some of it.
+        self._out: LargeReply | None = None
+        self._out_chunk = 0
+        self._out_pos = 0
+        self._out_keep_alive = False
+        self._out_progress = 0.0
+        self._write_paused = False
         #: Bumped on every read; the server's idle sweep compares it between sweeps.
         self.activity = 0
         self.idle_sweeps = 0
@@ -153,6 +166,7 @@ class HttpProtocol(asyncio.Protocol):
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._closed = True
+        self._end_stream()
         self._buf.clear()
         self._disarm()
         if self._task is not None:
@@ -232,13 +246,21 @@ class HttpProtocol(asyncio.Protocol):
         self._fail(408, b"request not completed in time\n")
 
     def pause_writing(self) -> None:
-        # The client does not read its responses: stop reading its requests until it does.
+        # The client does not read its responses: stop reading its requests (and writing a big reply) until it does.
+        self._write_paused = True
         if self._transport is not None and not self._closed:
             self._transport.pause_reading()
 
     def resume_writing(self) -> None:
+        self._write_paused = False
         if self._transport is not None and not self._closed and not self._reading_paused:
             self._transport.resume_reading()
+        if self._out is not None:
+            self._pump()
+
+    def stalled(self, now: float) -> bool:
+        """A big reply whose reader took nothing for ``REQUEST_TIMEOUT`` seconds."""
+        return self._out is not None and now - self._out_progress > REQUEST_TIMEOUT
 
     def _fail(self, status: int, text: bytes) -> None:
         if self._transport is None or self._closed:
@@ -319,20 +341,80 @@ class HttpProtocol(asyncio.Protocol):
                 self._task = task
         return pos
 
-    def _finished(self, task: asyncio.Task[bytes], *, keep_alive: bool) -> None:
+    def _finished(self, task: asyncio.Task[Reply], *, keep_alive: bool) -> None:
         self._task = None
+        if task.cancelled():
+            self._next()
+            return
+        exc = task.exception()
+        out = encode_fault(FAULT_INTERNAL_ERROR, f"internal error: {exc!r}") if exc else task.result()
+        if type(out) is LargeReply:
+            self._start_stream(out, keep_alive)
+            return
+        self._respond(cast(bytes, out), keep_alive)
+        self._next()
+
+    def _next(self) -> None:
+        """The call in progress is answered: go on with what the client sent meanwhile."""
         self._busy = False
         if self._reading_paused and self._transport is not None and not self._closed:
             self._reading_paused = False
             self._transport.resume_reading()
-        if task.cancelled():
-            return
-        exc = task.exception()
-        out = encode_fault(FAULT_INTERNAL_ERROR, f"internal error: {exc!r}") if exc else task.result()
-        self._respond(out, keep_alive)
         self._process()
         if self._eof and not self._busy:
             self.close()
+
+    def _start_stream(self, reply: LargeReply, keep_alive: bool) -> None:
+        """Write a big reply a slice at a time as the client reads (the shared value is never copied whole)."""
+        if self._transport is None or self._closed:
+            reply.release()
+            self._busy = False
+            return
+        self._out = reply
+        self._out_chunk = 0
+        self._out_pos = 0
+        self._out_keep_alive = keep_alive
+        self._out_progress = asyncio.get_running_loop().time()
+        conn = b"keep-alive" if keep_alive else b"close"
+        self._transport.write(OK_HEAD % (len(reply), conn) + reply.prefix)
+        self._pump()
+
+    def _pump(self) -> None:
+        reply, transport = self._out, self._transport
+        if reply is None or transport is None:
+            return
+        self._out_progress = asyncio.get_running_loop().time()
+        chunks = reply.body.chunks
+        while not self._write_paused:
+            if self._closed:
+                self._end_stream()
+                return
+            if self._out_chunk >= len(chunks):
+                transport.write(reply.suffix)
+                self._end_stream()
+                if not self._out_keep_alive:
+                    transport.close()
+                    self._closed = True
+                    return
+                self._next()
+                return
+            chunk = chunks[self._out_chunk]
+            pos = self._out_pos
+            if pos == 0 and len(chunk) <= WRITE_SLICE:
+                piece: bytes | memoryview = chunk
+                self._out_chunk += 1
+            else:
+                piece = memoryview(chunk)[pos : pos + WRITE_SLICE]
+                self._out_pos = pos + len(piece)
+                if self._out_pos >= len(chunk):
+                    self._out_chunk += 1
+                    self._out_pos = 0
+            transport.write(piece)  # may call pause_writing() at once, ending this loop
+
+    def _end_stream(self) -> None:
+        if self._out is not None:
+            self._out.release()
+            self._out = None
 
     def _respond(self, body: bytes, keep_alive: bool) -> None:
         if self._transport is None or self._closed:
@@ -553,7 +635,12 @@ class HttpServer:
         """Close connections idle since the sweep before last (sweeps run every ``idle_timeout / 2``)."""
         if self._loop is None:
             return
+        now = self._loop.time()
         for proto in list(self._live):
+            if proto.stalled(now):
+                _ratelog.log(logging.INFO, "stalled", "master: closing %s: it stopped reading a big reply", proto.host)
+                proto.abort()
+                continue
             if proto.activity != proto.seen_activity or not proto.idle:
                 proto.seen_activity = proto.activity
                 proto.idle_sweeps = 0

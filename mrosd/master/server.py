@@ -134,6 +134,7 @@ class Master:
     async def aclose(self) -> None:
         """Stop serving, drop queued callbacks, close connections."""
         await self._server.aclose()
+        self._handler.close()
         await self.notifier.aclose()
         await self._client.aclose()
 
