@@ -26,7 +26,7 @@ import logging
 import re
 import xml.parsers.expat
 import xmlrpc.client
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Awaitable, Callable, Iterator, Mapping
 from typing import Any
 
 import aiohttp
@@ -231,11 +231,14 @@ class _ChunkWriter:
         self._pending: list[str] = []
         self._size = 0
 
-    def write(self, text: str) -> None:
+    def write(self, text: str) -> bool:
+        """Add a piece; True when that completed a chunk (a good moment to let other work run)."""
         self._pending.append(text)
         self._size += len(text)
         if self._size >= VALUE_CHUNK:
             self.flush()
+            return True
+        return False
 
     def flush(self) -> None:
         if self._pending:
@@ -248,63 +251,109 @@ class _ChunkWriter:
                 raise _OverLimit
 
 
-def _write_value(value: Any, w: _ChunkWriter) -> None:
-    """The stdlib Marshaller's output for ``value``, piece by piece (its own code for any other type)."""
+def _write_value(value: Any, w: _ChunkWriter) -> Iterator[None]:
+    """The stdlib Marshaller's output for ``value``, piece by piece (its own code for any other type); yields
+    after each completed chunk."""
     kind = type(value)
     if kind is str:
-        w.write("<value><string>")
+        if w.write("<value><string>"):
+            yield
         for i in range(0, len(value), _ESCAPE_SLICE):
-            w.write(_escape(value[i : i + _ESCAPE_SLICE]))
-        w.write("</string></value>\n")
+            if w.write(_escape(value[i : i + _ESCAPE_SLICE])):
+                yield
+        if w.write("</string></value>\n"):
+            yield
     elif kind is bool:
-        w.write(f"<value><boolean>{int(value)}</boolean></value>\n")
+        if w.write(f"<value><boolean>{int(value)}</boolean></value>\n"):
+            yield
     elif kind is int:
         if not _INT_MIN <= value <= _INT_MAX:
             raise OverflowError("int exceeds XML-RPC limits")
-        w.write(f"<value><int>{value}</int></value>\n")
+        if w.write(f"<value><int>{value}</int></value>\n"):
+            yield
     elif kind is float:
-        w.write(f"<value><double>{value!r}</double></value>\n")
+        if w.write(f"<value><double>{value!r}</double></value>\n"):
+            yield
     elif value is None:
-        w.write("<value><nil/></value>")
+        if w.write("<value><nil/></value>"):
+            yield
     elif kind is list or kind is tuple:
         w.write("<value><array><data>\n")
         for item in value:
-            _write_value(item, w)
-        w.write("</data></array></value>\n")
+            yield from _write_value(item, w)
+        if w.write("</data></array></value>\n"):
+            yield
     elif kind is dict:
         w.write("<value><struct>\n")
         for key, item in value.items():
             if not isinstance(key, str):
                 raise TypeError("dictionary key must be string")
             w.write(f"<member>\n<name>{_escape(key)}</name>\n")
-            _write_value(item, w)
-            w.write("</member>\n")
-        w.write("</struct></value>\n")
+            yield from _write_value(item, w)
+            if w.write("</member>\n"):
+                yield
+        if w.write("</struct></value>\n"):
+            yield
     else:  # bytes, datetime, Binary, subclasses: the stdlib's own rules
         text = xmlrpc.client.dumps((value,), allow_none=True)
-        w.write(text[len(_PARAMS_HEAD) : len(text) - len(_PARAMS_TAIL)])
+        if w.write(text[len(_PARAMS_HEAD) : len(text) - len(_PARAMS_TAIL)]):
+            yield
+
+
+class ValueEncoder:
+    """Encodes one value a chunk per ``step()``, so an event loop can run other work in between.
+
+    The result is the value's ``<value>...</value>`` exactly as the stdlib writes it inside any reply, as
+    ``chunks`` of about ``VALUE_CHUNK`` bytes (``size`` in all): a big value encoded once and spliced into the
+    replies of many callers (``reply_parts``) is never joined or copied whole. Past ``limit`` bytes encoding
+    stops with ``over_limit`` set (memory never follows a value further).
+    """
+
+    __slots__ = ("_steps", "_writer", "over_limit")
+
+    def __init__(self, value: Any, limit: int | None = None) -> None:
+        self._writer = _ChunkWriter(limit)
+        self._steps = _write_value(value, self._writer)
+        self.over_limit = False
+
+    @property
+    def chunks(self) -> list[bytes]:
+        return self._writer.chunks
+
+    @property
+    def size(self) -> int:
+        return self._writer.total
+
+    def step(self) -> bool:
+        """Encode about one more chunk; False once done (or over the limit).
+
+        Raises:
+            LocalProtocolError: the value cannot be represented in XML-RPC.
+            RuntimeError: a dict or list of the value changed size while it was being encoded.
+        """
+        try:
+            next(self._steps)
+            return True
+        except StopIteration:
+            self._writer.flush()
+        except _OverLimit:
+            self.over_limit = True
+            self._writer.chunks.clear()
+        except (OverflowError, TypeError, RecursionError) as exc:
+            raise LocalProtocolError(f"cannot encode XML-RPC response: {exc}") from exc
+        return False
 
 
 def encode_value_chunks(value: Any, limit: int | None = None) -> tuple[list[bytes], int]:
-    """One value's ``<value>...</value>`` exactly as the stdlib writes it inside any reply, as ``(chunks, size)``.
-
-    For big values encoded once and shared by the replies of many callers (``reply_parts``): chunks of about
-    ``VALUE_CHUNK`` bytes are written one by one, so the value is never joined or copied whole, and a thread
-    encoding it holds the GIL for one slice of a long string at a time. Past ``limit`` bytes encoding stops and
-    ``([], size so far)`` comes back (a size over the limit says so): memory never follows a value further.
+    """``ValueEncoder`` run to the end: ``(chunks, size)``; past ``limit``, ``([], size so far)``.
 
     Raises:
         LocalProtocolError: the value cannot be represented in XML-RPC.
     """
-    writer = _ChunkWriter(limit)
-    try:
-        _write_value(value, writer)
-        writer.flush()
-    except _OverLimit:
-        return [], writer.total
-    except (OverflowError, TypeError, RecursionError) as exc:
-        raise LocalProtocolError(f"cannot encode XML-RPC response: {exc}") from exc
-    return writer.chunks, writer.total
+    encoder = ValueEncoder(value, limit)
+    while encoder.step():
+        pass
+    return encoder.chunks, encoder.size
 
 
 def reply_parts(code: int, status: str) -> tuple[bytes, bytes]:
@@ -423,7 +472,7 @@ def _escape(text: str) -> str:
 
 #: Strings longer than this are escaped slice by slice: a thread encoding a 100 MB value then holds the GIL
 #: for one slice at a time, not for a whole-string ``replace`` (escaping is per character, so slices agree).
-_ESCAPE_SLICE = 1 << 20
+_ESCAPE_SLICE = 256 * 1024
 
 
 def _dump(value: Any, out: list[str]) -> bool:

@@ -5,16 +5,16 @@ No HTTP and no sockets: ``mrosd.master.httpserver`` hands over each complete bod
 codec is ``mrosd.xmlrpc``.
 
 Big replies (a getSystemState of long names, a getParam of a big namespace) cost what the client reads, once:
-their value is encoded once per change of state, off the event loop, and the encoded bytes are shared by every
-caller (``LargeReply``: each caller's own few bytes of status around the one shared value, written in slices as
-the client reads). A per-reply limit (``MAX_REPLY_SIZE``) and a budget of bytes held for replies in all
-(``REPLY_BUDGET``) bound the memory; beyond either the caller gets a fault saying which, and the master goes on.
+their value is encoded once per change of state, a chunk per turn of the event loop, and the encoded bytes are
+shared by every caller (``LargeReply``: each caller's own few bytes of status around the one shared value,
+written in slices as the client reads). A per-reply limit (``MAX_REPLY_SIZE``) and a budget of bytes held for
+replies in all (``REPLY_BUDGET``) bound the memory; beyond either the caller gets a fault saying which, and the
+master goes on.
 """
 
 from __future__ import annotations
 
 import asyncio
-import concurrent.futures
 import logging
 from collections.abc import Callable, Coroutine
 from typing import Any, cast
@@ -27,12 +27,12 @@ from mrosd.xmlrpc import (
     INCREMENTAL_DECODE_SIZE,
     MAX_REPLY_SIZE,
     Fault,
+    ValueEncoder,
     XmlRpcServer,
     decode_call,
     decode_call_async,
     encode_fault,
     encode_response,
-    encode_value_chunks,
     reply_parts,
 )
 
@@ -58,7 +58,7 @@ BIG_REPLY_ITEMS = 20_000
 REPLY_BUDGET = 256 * 1024 * 1024
 #: Fault code of a reply over ``MAX_REPLY_SIZE`` or ``REPLY_BUDGET`` (xmlrpc-epi: "application error").
 FAULT_REPLY_BUDGET = -32500
-#: Times a big value is re-read and re-encoded when the state changed while a thread encoded it.
+#: Times a big value is re-read and re-encoded when the state changed while it was being encoded.
 _ENCODE_ATTEMPTS = 3
 
 
@@ -184,7 +184,6 @@ class XmlRpcHttpHandler:
         #: it alive, so the id cannot be reused meanwhile).
         self._big: dict[int, tuple[Any, asyncio.Task[SharedBody]]] = {}
         self.budget = ReplyBudget(REPLY_BUDGET)
-        self._encoder: concurrent.futures.ThreadPoolExecutor | None = None
 
     def handle(self, body: bytes) -> bytes | Coroutine[Any, Any, Reply]:
         """The response body, or a coroutine producing it for calls that need the event loop."""
@@ -291,22 +290,30 @@ class XmlRpcHttpHandler:
         )
 
     async def _encode(self, handler: SyncHandler, params: tuple[Any, ...], value: Any) -> tuple[list[bytes], int]:
-        """``encode_value_chunks(value)`` in a worker thread; if the state changed meanwhile (the value may have been
-        edited under the thread), read the value again and retry, finally encoding on the loop."""
-        loop = asyncio.get_running_loop()
-        if self._encoder is None:
-            self._encoder = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="mrosd-master-encode")
+        """The value's encoded chunks, a chunk per turn of the event loop (each a millisecond or so of work).
+
+        Other calls run between chunks and may change the state: then the value (perhaps edited under us) is
+        read again and encoding starts over, at most ``_ENCODE_ATTEMPTS`` times, the last one in one go.
+        (A worker thread instead would make every loop wake-up wait for the GIL: getPid took 185 ms.)
+        """
+        version = self._state_version if self._state_version is not None else (lambda: None)
         for _ in range(_ENCODE_ATTEMPTS):
-            before = self._state_version() if self._state_version is not None else None
+            before = version()
+            encoder = ValueEncoder(value, MAX_REPLY_SIZE)
             try:
-                data = await loop.run_in_executor(self._encoder, encode_value_chunks, value, MAX_REPLY_SIZE)
-            except RuntimeError:  # a dict changed size under the thread
-                data = None
-            after = self._state_version() if self._state_version is not None else None
-            if data is not None and before == after:
-                return data
+                while encoder.step():
+                    await asyncio.sleep(0)
+                    if version() != before:
+                        break
+                else:
+                    return encoder.chunks, encoder.size
+            except RuntimeError:  # a dict changed size between two chunks
+                pass
             value = handler(*params)[2]
-        return encode_value_chunks(value, MAX_REPLY_SIZE)
+        encoder = ValueEncoder(value, MAX_REPLY_SIZE)
+        while encoder.step():
+            pass
+        return encoder.chunks, encoder.size
 
     def _forget_big(self) -> None:
         """The state changed: cached big bodies go (those still being written stay until their writers finish)."""
@@ -316,13 +323,10 @@ class XmlRpcHttpHandler:
         self._big.clear()
 
     def close(self) -> None:
-        """Drop cached big bodies, cancel encodings under way, stop the encoding thread."""
+        """Drop cached big bodies and cancel encodings under way."""
         for _, task in self._big.values():
             task.cancel()
         self._forget_big()
-        if self._encoder is not None:
-            self._encoder.shutdown(wait=False, cancel_futures=True)
-            self._encoder = None
 
     async def _slow(self, method: str, params: tuple[Any, ...]) -> Reply:
         try:
