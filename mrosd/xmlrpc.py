@@ -356,6 +356,11 @@ def encode_value_chunks(value: Any, limit: int | None = None) -> tuple[list[byte
     return encoder.chunks, encoder.size
 
 
+def response_parts() -> tuple[bytes, bytes]:
+    """``(prefix, suffix)``: ``prefix + b"".join(encode_value_chunks(v)[0]) + suffix`` is ``encode_response(v)``."""
+    return _RESPONSE_HEAD.encode(), _RESPONSE_TAIL.encode()
+
+
 def reply_parts(code: int, status: str) -> tuple[bytes, bytes]:
     """``(prefix, suffix)``: ``prefix + b"".join(encode_value_chunks(v)[0]) + suffix`` is
     ``encode_response([code, status, v])``."""

@@ -34,6 +34,7 @@ from mrosd.xmlrpc import (
     encode_fault,
     encode_response,
     reply_parts,
+    response_parts,
 )
 
 log = logging.getLogger(__name__)
@@ -214,7 +215,8 @@ class XmlRpcHttpHandler:
         try:
             reply = handler(*params)
             if method in BIG_VALUE_METHODS and _is_big(reply):
-                return self._big_reply(method, handler, params, reply)
+                code, status, value = reply
+                return self._big_reply(method, value, reply_parts(code, status), lambda: handler(*params)[2])
             out = encode_response(reply)
         except LocalProtocolError as exc:
             return encode_fault(FAULT_INTERNAL_ERROR, str(exc))
@@ -241,45 +243,54 @@ class XmlRpcHttpHandler:
         out = self._run(body, method, params)
         return out if type(out) is bytes else await cast(Coroutine[Any, Any, Reply], out)
 
-    async def _big_reply(self, method: str, handler: SyncHandler, params: tuple[Any, ...], reply: Any) -> Reply:
-        """A reply with a big value: the value encoded once per state (off the loop) and shared by all callers."""
-        code, status, value = reply
+    async def _big_reply(
+        self, method: str, value: Any, parts: tuple[bytes, bytes], reread: Callable[[], Any], *, share: bool = True
+    ) -> Reply:
+        """A reply with a big value: the value encoded once per state and shared by all callers.
+
+        ``parts`` go around the encoded value (``reply_parts``, or ``response_parts`` for a bare value);
+        ``reread`` gives the value again if the state changes while it is encoded. ``share``: the value is
+        an object the state hands to every caller until it changes (not one built for this call alone,
+        which would only hold its bytes in the budget until the next change).
+        """
         try:
-            shared = await self._shared_body(handler, params, value)
-            prefix, suffix = reply_parts(code, status)
+            if share:
+                shared = await self._shared_body(value, reread)
+            else:
+                shared = await self._build(None, value, reread)
         except _OverBudget as exc:
             _ratelog.warning("budget", "master: %s: %s", method, exc)
             return encode_fault(FAULT_REPLY_BUDGET, f"{method}: {exc}")
         except LocalProtocolError as exc:
             return encode_fault(FAULT_INTERNAL_ERROR, str(exc))
-        return LargeReply(prefix, shared, suffix)
+        return LargeReply(parts[0], shared, parts[1])
 
-    async def _shared_body(self, handler: SyncHandler, params: tuple[Any, ...], value: Any) -> SharedBody:
+    async def _shared_body(self, value: Any, reread: Callable[[], Any]) -> SharedBody:
         """The encoded value: built once (by a task of its own, so no caller's cancellation stops it), shared."""
         key = id(value)
         entry = self._big.get(key)
         if entry is None or entry[0] is not value:
             if self.budget.held + BIG_REPLY > self.budget.limit:
                 raise _OverBudget(self._busy_text())
-            task = asyncio.get_running_loop().create_task(self._build(key, handler, params, value))
+            task = asyncio.get_running_loop().create_task(self._build(key, value, reread))
             entry = (value, task)
             self._big[key] = entry
         return await asyncio.shield(entry[1])
 
-    async def _build(self, key: int, handler: SyncHandler, params: tuple[Any, ...], value: Any) -> SharedBody:
-        this = asyncio.current_task()
+    async def _build(self, key: int | None, value: Any, reread: Callable[[], Any]) -> SharedBody:
+        this = asyncio.current_task() if key is not None else None
         try:
-            chunks, size = await self._encode(handler, params, value)
+            chunks, size = await self._encode(value, reread)
             if size > MAX_REPLY_SIZE:
                 raise _OverBudget(_too_big_text())
             if self.budget.held + size > self.budget.limit:
                 raise _OverBudget(self._busy_text())
         except BaseException:
-            if self._big.get(key, (None, None))[1] is this:
+            if key is not None and self._big.get(key, (None, None))[1] is this:
                 del self._big[key]
             raise
         shared = SharedBody(chunks, size, self.budget)
-        if self._big.get(key, (None, None))[1] is this:
+        if key is not None and self._big.get(key, (None, None))[1] is this:
             shared.hold()  # the cache's hold, released by _forget_big; else the state changed meanwhile
         return shared
 
@@ -289,7 +300,7 @@ class XmlRpcHttpHandler:
             f" (REPLY_BUDGET {self.budget.limit >> 20} MiB); retry later"
         )
 
-    async def _encode(self, handler: SyncHandler, params: tuple[Any, ...], value: Any) -> tuple[list[bytes], int]:
+    async def _encode(self, value: Any, reread: Callable[[], Any]) -> tuple[list[bytes], int]:
         """The value's encoded chunks, a chunk per turn of the event loop (each a millisecond or so of work).
 
         Other calls run between chunks and may change the state: then the value (perhaps edited under us) is
@@ -309,7 +320,7 @@ class XmlRpcHttpHandler:
                     return encoder.chunks, encoder.size
             except RuntimeError:  # a dict changed size between two chunks
                 pass
-            value = handler(*params)[2]
+            value = reread()
         encoder = ValueEncoder(value, MAX_REPLY_SIZE)
         while encoder.step():
             pass
@@ -329,8 +340,17 @@ class XmlRpcHttpHandler:
         self._forget_big()
 
     async def _slow(self, method: str, params: tuple[Any, ...]) -> Reply:
+        """Calls that need the loop (waitSystemStateChange) and multicalls, whose results may be big too (a
+        multicall of N getParam of one big key is N times it): those go through the same budgets."""
         try:
-            return encode_response(await self.fallback.call(method, params))
+            result = await self.fallback.call(method, params)
+            if estimate_size(result) > BIG_REPLY:
+                if method == "waitSystemStateChange" and _is_big(result):
+                    # the graph's one snapshot per version (never edited): shared like getSystemState's
+                    code, status, value = result
+                    return await self._big_reply(method, value, reply_parts(code, status), lambda: value)
+                return await self._big_reply(method, result, response_parts(), lambda: result, share=False)
+            return encode_response(result)
         except Fault as exc:
             return encode_fault(exc.code, exc.message)
         except LocalProtocolError as exc:

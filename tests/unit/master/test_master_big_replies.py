@@ -106,3 +106,36 @@ def test_estimate_size() -> None:
     assert estimate_size("x" * (2 * BIG_REPLY)) > BIG_REPLY
     assert estimate_size(list(range(BIG_REPLY_ITEMS + 1))) > BIG_REPLY  # many items: big too
     assert estimate_size([["t" * 100, ["/n"]]] * 100) < BIG_REPLY
+
+
+def multicall_of(*calls: tuple[str, tuple[Any, ...]]) -> list[dict[str, Any]]:
+    return [{"methodName": m, "params": list(p)} for m, p in calls]
+
+
+async def test_a_multicall_of_big_values_goes_through_the_same_limits(
+    handler: XmlRpcHttpHandler, monkeypatch: Any
+) -> None:
+    await call(handler, "setParam", "/c", "/big", "m" * (2 * MIB))
+    calls = multicall_of(*[("getParam", ("/c", "/big"))] * 3)
+    out = await call(handler, "system.multicall", calls)
+    assert isinstance(out, LargeReply)
+    results = decode_response(out.to_bytes())
+    assert [r[0][2] for r in results] == ["m" * (2 * MIB)] * 3
+    out.release()
+    assert handler.budget.held == 0  # built for this call alone: not kept
+    monkeypatch.setattr(dispatch, "MAX_REPLY_SIZE", 5 * MIB)  # 3 x 2 MiB: one request amplified past it
+    with pytest.raises(Fault) as info:
+        decode_response(await call(handler, "system.multicall", calls))  # type: ignore[arg-type]
+    assert info.value.code == FAULT_REPLY_BUDGET and "MAX_REPLY_SIZE" in info.value.message
+
+
+async def test_wait_system_state_change_shares_one_snapshot(handler: XmlRpcHttpHandler) -> None:
+    for i in range(2):
+        await call(handler, "registerPublisher", "/n", f"/t{i}" + "w" * MIB, "std_msgs/String", "http://127.0.0.1:1/")
+    a = await call(handler, "waitSystemStateChange", "/a", -1, 1)
+    b = await call(handler, "waitSystemStateChange", "/b", -1, 1)
+    assert isinstance(a, LargeReply) and isinstance(b, LargeReply) and a.body is b.body
+    code, _, (_, (pubs, _, _), types) = decode_response(a.to_bytes())
+    assert code == 1 and len(pubs) == 2 and len(types) == 2
+    a.release()
+    b.release()
