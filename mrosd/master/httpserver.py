@@ -9,7 +9,9 @@ of every answer are ``mrosd.master.httpframing`` (sans IO); turning a body into 
 Pipelined requests are answered in order. Backpressure: a client that does not read its responses (transport
 write buffer full) is not read from until it does. Refused with a status and a closed connection: what
 ``httpframing.parse_head`` refuses, header blocks over ``MAX_HEADER_SIZE`` (431), peers outside the
-allow-list (403), and connections beyond the global or per-address cap (503).
+allow-list (403), and connections beyond the global cap or the cap per who (503: a remote address, or a local
+uid told apart by ``mrosd.master.peers``; the policy is ``mrosd.master.admission``). Big replies
+(``dispatch.LargeReply``) are written a slice at a time as the client reads.
 
 Resources: idle keep-alive connections are closed after ``idle_timeout`` (to 1.5x that); a started request
 must complete within ``REQUEST_TIMEOUT``; the accept loop backs off (50 ms doubling to 2 s) when the process
@@ -438,7 +440,8 @@ class HttpServer:
         handler: turns request bodies into response bodies.
         networks: allowed client networks (None: everyone).
         max_connections: open connections in all; clamped to RLIMIT_NOFILE minus ``FD_RESERVE`` at start.
-        max_connections_per_host: open connections from one peer address.
+        max_connections_per_host: open connections of one who: a remote address, or a local uid (the name is
+            kept for the callers and the config key ``[master] max_connections_per_host``).
         idle_timeout: seconds a kept-alive connection may stay idle (closed after 1x to 1.5x that).
     """
 

@@ -128,9 +128,10 @@ def fd_count(pid: int) -> int:
     return len(os.listdir(f"/proc/{pid}/fd"))
 
 
-def test_a_uid_flooding_from_loopback_does_not_lock_out_other_local_uids(procs: Processes) -> None:
+@pytest.mark.parametrize("loop", ["asyncio", "uvloop"])
+def test_a_uid_flooding_from_loopback_does_not_lock_out_other_local_uids(procs: Processes, loop: str) -> None:
     """The issue's attack at the default caps: 2048 + 200 idle connections from another uid."""
-    master = MasterProcess(procs, nofile=16384)
+    master = MasterProcess(procs, nofile=16384, loop=loop)
     start_flooder(procs, master.port, 2048 + 200)
     times = assert_local_nodes_served(master)
     fds = fd_count(master.proc.pid)
