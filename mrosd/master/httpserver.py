@@ -46,7 +46,7 @@ from mrosd.master.httpframing import (
     parse_short_head,
     status_response,
 )
-from mrosd.master.peers import Endpoint, PeerUids, is_local
+from mrosd.master.peers import Endpoint, PeerUids, is_local, peer_address
 from mrosd.xmlrpc import FAULT_INTERNAL_ERROR, encode_fault
 
 if TYPE_CHECKING:
@@ -86,14 +86,9 @@ def allowed(networks: list[Network] | None, host: str | None) -> bool:
     """Whether a peer address is inside one of ``networks`` (None allows everyone)."""
     if networks is None:
         return True
-    if not host:
+    addr = peer_address(host) if host else None
+    if addr is None:
         return False
-    try:
-        addr = ipaddress.ip_address(host.split("%", 1)[0])
-    except ValueError:
-        return False
-    if isinstance(addr, ipaddress.IPv6Address) and addr.ipv4_mapped is not None:
-        addr = addr.ipv4_mapped
     return any(addr in net for net in networks)
 
 

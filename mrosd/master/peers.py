@@ -50,15 +50,21 @@ _UID = struct.Struct("=I")
 Endpoint = tuple[str, int]
 
 
+def peer_address(host: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address | None:
+    """A peer's address as the kernel gave it (``::ffff:a.b.c.d`` as IPv4, no ``%scope``); None if unparsable."""
+    try:
+        addr = ipaddress.ip_address(host.split("%", 1)[0])
+    except ValueError:
+        return None
+    if isinstance(addr, ipaddress.IPv6Address) and addr.ipv4_mapped is not None:
+        return addr.ipv4_mapped
+    return addr
+
+
 def is_local(peer_host: str, our_host: str) -> bool:
     """Whether a connection comes from this host: a loopback peer, or one using our own address."""
-    try:
-        addr = ipaddress.ip_address(peer_host.split("%", 1)[0])
-    except ValueError:
-        return False
-    if isinstance(addr, ipaddress.IPv6Address) and addr.ipv4_mapped is not None:
-        addr = addr.ipv4_mapped
-    return addr.is_loopback or peer_host == our_host
+    addr = peer_address(peer_host)
+    return addr is not None and (addr.is_loopback or peer_host == our_host)
 
 
 def _family(host: str) -> int:
