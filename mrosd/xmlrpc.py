@@ -592,6 +592,8 @@ class XmlRpcServer:
             return web.Response(status=405, text="only POST is supported\n", headers={"Allow": "POST"})
         try:
             body = await request.read()
+        except ConnectionError:  # the peer went away mid-body (aiohttp would log a traceback per connection)
+            return web.Response(status=400, text="request cut short\n")
         except web.HTTPRequestEntityTooLarge:
             return _xml_response(encode_fault(FAULT_INVALID_REQUEST, f"request body exceeds {MAX_BODY_SIZE} bytes"))
         return _xml_response(await self.dispatch_body(body))

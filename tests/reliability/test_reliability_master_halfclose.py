@@ -9,6 +9,7 @@ The same holds for the nodes' slave API server (``XmlRpcServer``, aiohttp).
 from __future__ import annotations
 
 import asyncio
+import logging
 import socket
 
 import pytest
@@ -96,7 +97,8 @@ async def test_a_slave_api_server_executes_and_answers_a_half_closed_request(siz
     assert seen == [size]
 
 
-async def test_a_slave_api_server_closes_a_request_cut_short_by_eof() -> None:
+async def test_a_slave_api_server_closes_a_request_cut_short_by_eof(caplog: pytest.LogCaptureFixture) -> None:
+    """Closed unexecuted, and quietly: aiohttp logged a traceback for each such connection."""
     called: list[str] = []
 
     async def store(value: str) -> int:
@@ -109,3 +111,4 @@ async def test_a_slave_api_server_closes_a_request_cut_short_by_eof() -> None:
         assert reply == b"" and called == []
         _, body = split_response(await asyncio.to_thread(half_closed, server.port, request("store", "z")))
         assert decode_response(body) == 1
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING], caplog.text
