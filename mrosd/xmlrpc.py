@@ -34,9 +34,11 @@ from aiohttp import web
 from aiohttp.web_protocol import RequestHandler
 
 from mrosd.errors import LocalProtocolError, RemoteProtocolError, XmlRpcError, XmlRpcFault
+from mrosd.lograte import RateLimitedLog
 from mrosd.loop import close_server
 
 log = logging.getLogger(__name__)
+_ratelog = RateLimitedLog(log)
 
 #: Largest request or response body accepted. ROS parameter trees (robot_description URDFs,
 #: rosparam-loaded YAML) reach a few MB; 64 MiB leaves room while bounding memory per call.
@@ -690,6 +692,14 @@ class _HalfCloseHandler(RequestHandler):
             return None  # idle between requests: nothing to answer
         self.close()  # answer what was received whole, then close
         return True
+
+    def log_exception(self, *args: Any, **kw: Any) -> None:
+        """aiohttp logs a traceback for every malformed request (a missing Host header, bad framing): one line
+        each, at a bounded rate, since any peer can send them."""
+        exc = kw.get("exc_info")
+        text = args[0] % args[1:] if args and isinstance(args[0], str) else "error"
+        detail = str(exc).replace("\n", " ").strip() if isinstance(exc, BaseException) else ""
+        _ratelog.warning("http", "xmlrpc server: %s: %s", text, detail[:200] or type(exc).__name__)
 
 
 class _HalfCloseServer(web.Server):

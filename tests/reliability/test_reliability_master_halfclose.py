@@ -112,3 +112,20 @@ async def test_a_slave_api_server_closes_a_request_cut_short_by_eof(caplog: pyte
         _, body = split_response(await asyncio.to_thread(half_closed, server.port, request("store", "z")))
         assert decode_response(body) == 1
     assert not [r for r in caplog.records if r.levelno >= logging.WARNING], caplog.text
+
+
+async def test_malformed_requests_to_a_slave_api_are_logged_at_a_bounded_rate(caplog: pytest.LogCaptureFixture) -> None:
+    """aiohttp logged a traceback (about 15 lines) for each request without a Host header, for instance."""
+
+    async def ping() -> int:
+        return 1
+
+    async with XmlRpcServer({"ping": ping}, "127.0.0.1", 0) as server:
+        bad = request("ping").replace(b"Host: 127.0.0.1\r\n", b"")
+        for _ in range(200):
+            reply = await asyncio.to_thread(half_closed, server.port, bad)
+            assert reply.startswith(b"HTTP/1.") and b" 400 " in reply.split(b"\r\n", 1)[0]
+        _, body = split_response(await asyncio.to_thread(half_closed, server.port, request("ping")))
+        assert decode_response(body) == 1
+    lines = caplog.text.splitlines()
+    assert len(lines) <= 10, caplog.text[:2000]
