@@ -59,6 +59,9 @@ BIG_REPLY_ITEMS = 20_000
 REPLY_BUDGET = 256 * 1024 * 1024
 #: Fault code of a reply over ``MAX_REPLY_SIZE`` or ``REPLY_BUDGET`` (xmlrpc-epi: "application error").
 FAULT_REPLY_BUDGET = -32500
+#: Methods whose value is part of the parameter tree, which edits namespaces in place (the registry's values are
+#: built anew on each change).
+_EDITED_IN_PLACE = frozenset({"getParam", "subscribeParam"})
 #: Times a big value is re-read and re-encoded when the state changed while it was being encoded.
 _ENCODE_ATTEMPTS = 3
 
@@ -216,7 +219,8 @@ class XmlRpcHttpHandler:
             reply = handler(*params)
             if method in BIG_VALUE_METHODS and _is_big(reply):
                 code, status, value = reply
-                return self._big_reply(method, value, reply_parts(code, status), lambda: handler(*params)[2])
+                reread = (lambda: handler(*params)[2]) if method in _EDITED_IN_PLACE else None
+                return self._big_reply(method, value, reply_parts(code, status), reread)
             out = encode_response(reply)
         except LocalProtocolError as exc:
             return encode_fault(FAULT_INTERNAL_ERROR, str(exc))
@@ -244,12 +248,19 @@ class XmlRpcHttpHandler:
         return out if type(out) is bytes else await cast(Coroutine[Any, Any, Reply], out)
 
     async def _big_reply(
-        self, method: str, value: Any, parts: tuple[bytes, bytes], reread: Callable[[], Any], *, share: bool = True
+        self,
+        method: str,
+        value: Any,
+        parts: tuple[bytes, bytes],
+        reread: Callable[[], Any] | None,
+        *,
+        share: bool = True,
     ) -> Reply:
         """A reply with a big value: the value encoded once per state and shared by all callers.
 
         ``parts`` go around the encoded value (``reply_parts``, or ``response_parts`` for a bare value);
-        ``reread`` gives the value again if the state changes while it is encoded. ``share``: the value is
+        ``reread`` gives the value again if the state changes while it is encoded (None: the value is a
+        snapshot nobody edits, such as the registry's, so a change does not matter). ``share``: the value is
         an object the state hands to every caller until it changes (not one built for this call alone,
         which would only hold its bytes in the budget until the next change).
         """
@@ -265,7 +276,7 @@ class XmlRpcHttpHandler:
             return encode_fault(FAULT_INTERNAL_ERROR, str(exc))
         return LargeReply(parts[0], shared, parts[1])
 
-    async def _shared_body(self, value: Any, reread: Callable[[], Any]) -> SharedBody:
+    async def _shared_body(self, value: Any, reread: Callable[[], Any] | None) -> SharedBody:
         """The encoded value: built once (by a task of its own, so no caller's cancellation stops it), shared."""
         key = id(value)
         entry = self._big.get(key)
@@ -277,7 +288,7 @@ class XmlRpcHttpHandler:
             self._big[key] = entry
         return await asyncio.shield(entry[1])
 
-    async def _build(self, key: int | None, value: Any, reread: Callable[[], Any]) -> SharedBody:
+    async def _build(self, key: int | None, value: Any, reread: Callable[[], Any] | None) -> SharedBody:
         this = asyncio.current_task() if key is not None else None
         try:
             chunks, size = await self._encode(value, reread)
@@ -300,14 +311,15 @@ class XmlRpcHttpHandler:
             f" (REPLY_BUDGET {self.budget.limit >> 20} MiB); retry later"
         )
 
-    async def _encode(self, value: Any, reread: Callable[[], Any]) -> tuple[list[bytes], int]:
+    async def _encode(self, value: Any, reread: Callable[[], Any] | None) -> tuple[list[bytes], int]:
         """The value's encoded chunks, a chunk per turn of the event loop (each a millisecond or so of work).
 
-        Other calls run between chunks and may change the state: then the value (perhaps edited under us) is
-        read again and encoding starts over, at most ``_ENCODE_ATTEMPTS`` times, the last one in one go.
+        Other calls run between chunks. The registry's values are snapshots, never edited; a parameter tree's
+        namespace is edited in place, so when the state changes meanwhile its value is read again
+        (``reread``) and encoding starts over, at most ``_ENCODE_ATTEMPTS`` times, the last one in one go.
         (A worker thread instead would make every loop wake-up wait for the GIL: getPid took 185 ms.)
         """
-        version = self._state_version if self._state_version is not None else (lambda: None)
+        version = self._state_version if self._state_version is not None and reread is not None else _no_version
         for _ in range(_ENCODE_ATTEMPTS):
             before = version()
             encoder = ValueEncoder(value, MAX_REPLY_SIZE)
@@ -320,7 +332,8 @@ class XmlRpcHttpHandler:
                     return encoder.chunks, encoder.size
             except RuntimeError:  # a dict changed size between two chunks
                 pass
-            value = reread()
+            if reread is not None:
+                value = reread()
         encoder = ValueEncoder(value, MAX_REPLY_SIZE)
         while encoder.step():
             pass
@@ -348,7 +361,7 @@ class XmlRpcHttpHandler:
                 if method == "waitSystemStateChange" and _is_big(result):
                     # the graph's one snapshot per version (never edited): shared like getSystemState's
                     code, status, value = result
-                    return await self._big_reply(method, value, reply_parts(code, status), lambda: value)
+                    return await self._big_reply(method, value, reply_parts(code, status), None)
                 return await self._big_reply(method, result, response_parts(), lambda: result, share=False)
             return encode_response(result)
         except Fault as exc:
@@ -359,6 +372,10 @@ class XmlRpcHttpHandler:
 
 class _OverBudget(Exception):
     """A big reply refused for ``MAX_REPLY_SIZE`` or ``REPLY_BUDGET``; the message goes to the caller."""
+
+
+def _no_version() -> None:
+    return None
 
 
 def _too_big_text() -> str:

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any
+import asyncio
+from typing import Any, cast
 
 import pytest
 
@@ -139,3 +140,35 @@ async def test_wait_system_state_change_shares_one_snapshot(handler: XmlRpcHttpH
     assert code == 1 and len(pubs) == 2 and len(types) == 2
     a.release()
     b.release()
+
+
+async def test_a_namespace_edited_while_it_is_encoded_is_answered_whole(handler: XmlRpcHttpHandler) -> None:
+    """setParam edits a namespace in place between two chunks: the reply is the new namespace, never a mix."""
+    await call(handler, "setParam", "/c", "/ns", {"a": "a" * (2 * MIB), "b": "b" * (2 * MIB)})
+    pending = handler.handle(encode_call("getParam", ("/r", "/ns")))
+    assert not isinstance(pending, bytes)
+    task = asyncio.ensure_future(pending)
+    for _ in range(3):  # a few chunks in
+        await asyncio.sleep(0)
+    assert not task.done()
+    await call(handler, "setParam", "/c", "/ns/c", "new")
+    await call(handler, "setParam", "/c", "/ns/a", "A")
+    out = await task
+    assert isinstance(out, LargeReply)
+    assert decode_response(out.to_bytes()) == [1, "Parameter [/ns]", {"a": "A", "b": "b" * (2 * MIB), "c": "new"}]
+    out.release()
+
+
+async def test_a_graph_snapshot_is_not_encoded_again_when_the_graph_changes(handler: XmlRpcHttpHandler) -> None:
+    """The registry's values are never edited: registrations during the encoding do not restart it."""
+    for i in range(3):
+        await call(handler, "registerPublisher", "/n", f"/t{i}" + "g" * MIB, "std_msgs/String", "http://127.0.0.1:1/")
+    task = asyncio.ensure_future(cast(Any, handler.handle(encode_call("getSystemState", ("/r",)))))
+    for i in range(20):  # registrations all along
+        await asyncio.sleep(0)
+        await call(handler, "registerSubscriber", f"/s{i}", "/other", "std_msgs/String", "http://127.0.0.1:2/")
+    out = await task
+    assert isinstance(out, LargeReply)
+    pubs, subs, _ = decode_response(out.to_bytes())[2]
+    assert len(pubs) == 3 and subs == []  # the state as it was asked for, whole
+    out.release()
