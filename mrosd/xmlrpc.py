@@ -26,20 +26,28 @@ import logging
 import re
 import xml.parsers.expat
 import xmlrpc.client
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Awaitable, Callable, Iterator, Mapping
 from typing import Any
 
 import aiohttp
 from aiohttp import web
+from aiohttp.web_protocol import RequestHandler
 
 from mrosd.errors import LocalProtocolError, RemoteProtocolError, XmlRpcError, XmlRpcFault
+from mrosd.lograte import RateLimitedLog
 from mrosd.loop import close_server
 
 log = logging.getLogger(__name__)
+_ratelog = RateLimitedLog(log)
 
 #: Largest request or response body accepted. ROS parameter trees (robot_description URDFs,
 #: rosparam-loaded YAML) reach a few MB; 64 MiB leaves room while bounding memory per call.
 MAX_BODY_SIZE = 64 * 1024 * 1024
+
+#: Largest reply the master sends (beyond: a fault naming this budget) and the largest response our client
+#: reads: a whole parameter tree or a big graph may exceed a request's MAX_BODY_SIZE, and our own client
+#: must read any reply our master may legally send.
+MAX_REPLY_SIZE = 128 * 1024 * 1024
 
 #: Default timeout for one outgoing call, connect included.
 DEFAULT_TIMEOUT = 10.0
@@ -202,6 +210,168 @@ def encode_fault(code: int, message: str) -> bytes:
     return xmlrpc.client.dumps(xmlrpc.client.Fault(code, message), methodresponse=True).encode()
 
 
+_PARAMS_HEAD = "<params>\n<param>\n"
+_PARAMS_TAIL = "</param>\n</params>\n"
+
+#: ``encode_value_chunks`` cuts its output into bytes objects of about this size.
+VALUE_CHUNK = 256 * 1024
+
+
+class _OverLimit(Exception):
+    """Raised inside ``_ChunkWriter`` once its output passed its limit: the rest is not encoded."""
+
+
+class _ChunkWriter:
+    """Collects text pieces into bytes chunks of about ``VALUE_CHUNK``: no single join or copy of a whole value."""
+
+    __slots__ = ("_limit", "_pending", "_size", "chunks", "total")
+
+    def __init__(self, limit: int | None) -> None:
+        self.chunks: list[bytes] = []
+        self.total = 0
+        self._limit = limit
+        self._pending: list[str] = []
+        self._size = 0
+
+    def write(self, text: str) -> bool:
+        """Add a piece; True when that completed a chunk (a good moment to let other work run)."""
+        self._pending.append(text)
+        self._size += len(text)
+        if self._size >= VALUE_CHUNK:
+            self.flush()
+            return True
+        return False
+
+    def flush(self) -> None:
+        if self._pending:
+            chunk = "".join(self._pending).encode()
+            self.chunks.append(chunk)
+            self.total += len(chunk)
+            self._pending = []
+            self._size = 0
+            if self._limit is not None and self.total > self._limit:
+                raise _OverLimit
+
+
+def _write_value(value: Any, w: _ChunkWriter) -> Iterator[None]:
+    """The stdlib Marshaller's output for ``value``, piece by piece (its own code for any other type); yields
+    after each completed chunk."""
+    kind = type(value)
+    if kind is str:
+        if w.write("<value><string>"):
+            yield
+        for i in range(0, len(value), _ESCAPE_SLICE):
+            if w.write(_escape(value[i : i + _ESCAPE_SLICE])):
+                yield
+        if w.write("</string></value>\n"):
+            yield
+    elif kind is bool:
+        if w.write(f"<value><boolean>{int(value)}</boolean></value>\n"):
+            yield
+    elif kind is int:
+        if not _INT_MIN <= value <= _INT_MAX:
+            raise OverflowError("int exceeds XML-RPC limits")
+        if w.write(f"<value><int>{value}</int></value>\n"):
+            yield
+    elif kind is float:
+        if w.write(f"<value><double>{value!r}</double></value>\n"):
+            yield
+    elif value is None:
+        if w.write("<value><nil/></value>"):
+            yield
+    elif kind is list or kind is tuple:
+        w.write("<value><array><data>\n")
+        for item in value:
+            yield from _write_value(item, w)
+        if w.write("</data></array></value>\n"):
+            yield
+    elif kind is dict:
+        w.write("<value><struct>\n")
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise TypeError("dictionary key must be string")
+            w.write(f"<member>\n<name>{_escape(key)}</name>\n")
+            yield from _write_value(item, w)
+            if w.write("</member>\n"):
+                yield
+        if w.write("</struct></value>\n"):
+            yield
+    else:  # bytes, datetime, Binary, subclasses: the stdlib's own rules
+        text = xmlrpc.client.dumps((value,), allow_none=True)
+        if w.write(text[len(_PARAMS_HEAD) : len(text) - len(_PARAMS_TAIL)]):
+            yield
+
+
+class ValueEncoder:
+    """Encodes one value a chunk per ``step()``, so an event loop can run other work in between.
+
+    The result is the value's ``<value>...</value>`` exactly as the stdlib writes it inside any reply, as
+    ``chunks`` of about ``VALUE_CHUNK`` bytes (``size`` in all): a big value encoded once and spliced into the
+    replies of many callers (``reply_parts``) is never joined or copied whole. Past ``limit`` bytes encoding
+    stops with ``over_limit`` set (memory never follows a value further).
+    """
+
+    __slots__ = ("_steps", "_writer", "over_limit")
+
+    def __init__(self, value: Any, limit: int | None = None) -> None:
+        self._writer = _ChunkWriter(limit)
+        self._steps = _write_value(value, self._writer)
+        self.over_limit = False
+
+    @property
+    def chunks(self) -> list[bytes]:
+        return self._writer.chunks
+
+    @property
+    def size(self) -> int:
+        return self._writer.total
+
+    def step(self) -> bool:
+        """Encode about one more chunk; False once done (or over the limit).
+
+        Raises:
+            LocalProtocolError: the value cannot be represented in XML-RPC.
+            RuntimeError: a dict or list of the value changed size while it was being encoded.
+        """
+        try:
+            next(self._steps)
+            return True
+        except StopIteration:
+            self._writer.flush()
+        except _OverLimit:
+            self.over_limit = True
+            self._writer.chunks.clear()
+        except (OverflowError, TypeError, RecursionError) as exc:
+            raise LocalProtocolError(f"cannot encode XML-RPC response: {exc}") from exc
+        return False
+
+
+def encode_value_chunks(value: Any, limit: int | None = None) -> tuple[list[bytes], int]:
+    """``ValueEncoder`` run to the end: ``(chunks, size)``; past ``limit``, ``([], size so far)``.
+
+    Raises:
+        LocalProtocolError: the value cannot be represented in XML-RPC.
+    """
+    encoder = ValueEncoder(value, limit)
+    while encoder.step():
+        pass
+    return encoder.chunks, encoder.size
+
+
+def response_parts() -> tuple[bytes, bytes]:
+    """``(prefix, suffix)``: ``prefix + b"".join(encode_value_chunks(v)[0]) + suffix`` is ``encode_response(v)``."""
+    return _RESPONSE_HEAD.encode(), _RESPONSE_TAIL.encode()
+
+
+def reply_parts(code: int, status: str) -> tuple[bytes, bytes]:
+    """``(prefix, suffix)``: ``prefix + b"".join(encode_value_chunks(v)[0]) + suffix`` is
+    ``encode_response([code, status, v])``."""
+    head = [_RESPONSE_HEAD, "<value><array><data>\n"]
+    if not (_dump(code, head) and _dump(status, head)):
+        raise LocalProtocolError(f"cannot encode reply status {code!r}, {status!r}")
+    return "".join(head).encode(), ("</data></array></value>\n" + _RESPONSE_TAIL).encode()
+
+
 def decode_response(body: bytes) -> Any:
     """Parse a methodResponse body.
 
@@ -209,7 +379,8 @@ def decode_response(body: bytes) -> Any:
         Fault: the peer answered with a fault.
         RemoteProtocolError: the body is not a well-formed methodResponse, or it carries a DTD.
     """
-    _check_size(body, "response")
+    if len(body) > MAX_REPLY_SIZE:
+        raise RemoteProtocolError(f"XML-RPC response of {len(body)} bytes exceeds MAX_REPLY_SIZE ({MAX_REPLY_SIZE})")
     try:
         params, _ = _loads(body)
     except xmlrpc.client.Fault as exc:
@@ -306,8 +477,18 @@ def _escape(text: str) -> str:
     return text
 
 
+#: Strings longer than this are escaped slice by slice: a thread encoding a 100 MB value then holds the GIL
+#: for one slice at a time, not for a whole-string ``replace`` (escaping is per character, so slices agree).
+_ESCAPE_SLICE = 256 * 1024
+
+
 def _dump(value: Any, out: list[str]) -> bool:
     if isinstance(value, str):
+        if len(value) > _ESCAPE_SLICE:
+            out.append("<value><string>")
+            out.extend(_escape(value[i : i + _ESCAPE_SLICE]) for i in range(0, len(value), _ESCAPE_SLICE))
+            out.append("</string></value>\n")
+            return True
         out.append(f"<value><string>{_escape(value)}</string></value>\n")
     elif value is True or value is False:
         out.append(f"<value><boolean>{int(value)}</boolean></value>\n")
@@ -369,15 +550,14 @@ class XmlRpcServer:
         self._name = name
         self._backlog = backlog
         self._reuse_address = reuse_address
-        self._runner: web.AppRunner | None = None
+        self._runner: web.ServerRunner | None = None
         self._site: web.TCPSite | None = None
         self.port = 0
 
     async def start(self) -> None:
         """Bind and start serving; ``self.port`` holds the bound port afterwards."""
-        app = web.Application(client_max_size=MAX_BODY_SIZE)
-        app.router.add_route("POST", "/{tail:.*}", self._handle_http)
-        self._runner = web.AppRunner(app, access_log=None, handle_signals=False, shutdown_timeout=_SHUTDOWN_TIMEOUT)
+        server = _HalfCloseServer(self._handle_http, request_factory=_make_request, access_log=None)
+        self._runner = web.ServerRunner(server, handle_signals=False, shutdown_timeout=_SHUTDOWN_TIMEOUT)
         await self._runner.setup()
         self._site = web.TCPSite(
             self._runner,
@@ -387,8 +567,8 @@ class XmlRpcServer:
             reuse_address=self._reuse_address,
         )
         await self._site.start()
-        server = self._site._server
-        sockets = getattr(server, "sockets", None) or []
+        listener = self._site._server
+        sockets = getattr(listener, "sockets", None) or []
         self.port = sockets[0].getsockname()[1] if sockets else self._port
 
     async def aclose(self) -> None:
@@ -409,9 +589,13 @@ class XmlRpcServer:
     async def __aexit__(self, *exc_info: object) -> None:
         await self.aclose()
 
-    async def _handle_http(self, request: web.Request) -> web.Response:
+    async def _handle_http(self, request: web.BaseRequest) -> web.Response:
+        if request.method != "POST":
+            return web.Response(status=405, text="only POST is supported\n", headers={"Allow": "POST"})
         try:
             body = await request.read()
+        except ConnectionError:  # the peer went away mid-body (aiohttp would log a traceback per connection)
+            return web.Response(status=400, text="request cut short\n")
         except web.HTTPRequestEntityTooLarge:
             return _xml_response(encode_fault(FAULT_INVALID_REQUEST, f"request body exceeds {MAX_BODY_SIZE} bytes"))
         return _xml_response(await self.dispatch_body(body))
@@ -479,6 +663,63 @@ class XmlRpcServer:
         return results
 
 
+class _HalfCloseHandler(RequestHandler):
+    """aiohttp's connection protocol, except that a request followed by the peer's EOF is still answered.
+
+    A client may send its request and shut its write side (``shutdown(SHUT_WR)``) before reading the answer;
+    rosmaster and rospy's servers execute and answer it. aiohttp closes the transport on EOF, cancelling a
+    request it has received whole. Here, when every received request is whole, the write side stays open,
+    they are answered in order, then the connection closes; a request cut short by the EOF can never be
+    answered, so the connection closes at once as before.
+    """
+
+    __slots__ = ("last_body",)
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        #: The body of the request handed to the handler last (set by ``_make_request``): between aiohttp taking
+        #: a request off its queue and starting its handler, no other attribute shows it.
+        self.last_body: aiohttp.StreamReader | None = None
+
+    def eof_received(self) -> bool | None:  # type: ignore[override]  # asyncio.Protocol allows True
+        bodies = [payload for _, payload in self._messages]
+        if self.last_body is not None:
+            bodies.append(self.last_body)
+        if not all(body.is_eof() for body in bodies):
+            return None  # a request cut short: close at once, as aiohttp does
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            return None  # idle between requests: nothing to answer
+        self.close()  # answer what was received whole, then close
+        return True
+
+    def log_exception(self, *args: Any, **kw: Any) -> None:
+        """aiohttp logs a traceback for every malformed request (a missing Host header, bad framing): one line
+        each, at a bounded rate, since any peer can send them."""
+        exc = kw.get("exc_info")
+        text = args[0] % args[1:] if args and isinstance(args[0], str) else "error"
+        detail = str(exc).replace("\n", " ").strip() if isinstance(exc, BaseException) else ""
+        _ratelog.warning("http", "xmlrpc server: %s: %s", text, detail[:200] or type(exc).__name__)
+
+
+class _HalfCloseServer(web.Server):
+    """aiohttp's low-level server building ``_HalfCloseHandler`` protocols."""
+
+    def __call__(self) -> RequestHandler:
+        return _HalfCloseHandler(self, loop=self._loop, **self._kwargs)
+
+
+def _make_request(
+    message: Any, payload: aiohttp.StreamReader, protocol: RequestHandler, writer: Any, task: asyncio.Task[None]
+) -> web.BaseRequest:
+    """A request whose body may be as large as ``MAX_BODY_SIZE`` (aiohttp's default is 1 MiB)."""
+    if isinstance(protocol, _HalfCloseHandler):
+        protocol.last_body = payload
+    return web.BaseRequest(
+        message, payload, protocol, writer, task, asyncio.get_running_loop(), client_max_size=MAX_BODY_SIZE
+    )
+
+
 def _xml_response(body: bytes) -> web.Response:
     return web.Response(body=body, content_type="text/xml", charset="utf-8")
 
@@ -491,16 +732,16 @@ _LARGE_REQUEST = 1024 * 1024
 
 
 async def _read_body(content: aiohttp.StreamReader) -> bytes | None:
-    """The whole response body (every read until EOF, not just the first chunk); None beyond MAX_BODY_SIZE."""
+    """The whole response body (every read until EOF, not just the first chunk); None beyond MAX_REPLY_SIZE."""
     chunks: list[bytes] = []
     size = 0
     while True:
-        chunk = await content.read(MAX_BODY_SIZE + 1 - size)
+        chunk = await content.read(MAX_REPLY_SIZE + 1 - size)
         if not chunk:
             return b"".join(chunks)
         chunks.append(chunk)
         size += len(chunk)
-        if size > MAX_BODY_SIZE:
+        if size > MAX_REPLY_SIZE:
             return None
 
 
@@ -541,11 +782,17 @@ class XmlRpcClient:
                 async with session.post(uri, data=data_out) as resp:
                     if resp.status != 200:
                         raise XmlRpcError(f"{method} at {uri}: HTTP status {resp.status}")
-                    if resp.content_length is not None and resp.content_length > MAX_BODY_SIZE:
-                        raise XmlRpcError(f"{method} at {uri}: response of {resp.content_length} bytes is too big")
+                    if resp.content_length is not None and resp.content_length > MAX_REPLY_SIZE:
+                        raise XmlRpcError(
+                            f"{method} at {uri}: response of {resp.content_length} bytes exceeds the"
+                            f" {MAX_REPLY_SIZE >> 20} MiB any mrosd master sends (MAX_REPLY_SIZE)"
+                        )
                     data = await _read_body(resp.content)
                     if data is None:
-                        raise XmlRpcError(f"{method} at {uri}: response exceeds {MAX_BODY_SIZE} bytes")
+                        raise XmlRpcError(
+                            f"{method} at {uri}: response exceeds the {MAX_REPLY_SIZE >> 20} MiB any mrosd master"
+                            " sends (MAX_REPLY_SIZE)"
+                        )
         except TimeoutError as exc:
             raise XmlRpcError(f"{method} at {uri}: no answer within {limit:g} s") from exc
         except (aiohttp.ClientError, OSError, ValueError) as exc:

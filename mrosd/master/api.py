@@ -252,6 +252,7 @@ class MasterApi:
         self.methods["waitSystemStateChange"] = self.wait_system_state_change
         self._graph_changed: asyncio.Future[None] | None = None
         self._watchers: dict[str, int] = {}
+        self._snapshot: tuple[int, list[Any]] | None = None
 
     def state_version(self) -> tuple[int, int]:
         """Changes whenever the registry or the parameter tree may have changed."""
@@ -362,12 +363,21 @@ class MasterApi:
         return 1, "current system state", self.registry.system_state()
 
     def graph_snapshot(self) -> list[Any]:
-        """``[version, getSystemState value, getTopicTypes value]`` (the version fits an XML-RPC int)."""
-        return [
+        """``[version, getSystemState value, getTopicTypes value]`` (the version fits an XML-RPC int).
+
+        The same object until the registry changes (callers must not edit it), so a big one is encoded
+        once for every waiter (``mrosd.master.dispatch``).
+        """
+        memo = self._snapshot
+        if memo is not None and memo[0] == self.registry.version:
+            return memo[1]
+        snapshot = [
             self.registry.version & 0x7FFFFFFF,
             self.registry.system_state(),
             [[t, ty] for t, ty in self.registry.topic_types.items()],
         ]
+        self._snapshot = (self.registry.version, snapshot)
+        return snapshot
 
     async def wait_system_state_change(self, *args: Any) -> Reply:
         """mrosd extension ``waitSystemStateChange(caller_id, since_version, timeout)``: a long poll.

@@ -50,6 +50,9 @@ def status_response(status: int, text: bytes) -> bytes:
 #: The answer to ``Expect: 100-continue``, written once the head is accepted.
 CONTINUE_RESPONSE = b"HTTP/1.1 100 Continue\r\n\r\n"
 
+#: The head of a successful response whose body is written after it: ``OK_HEAD % (length, connection)``.
+OK_HEAD = b"HTTP/1.1 200 OK\r\nContent-Type: text/xml\r\nContent-Length: %d\r\nConnection: %s\r\n\r\n"
+
 #: A successful response: ``OK_RESPONSE % (len(body), b"keep-alive" or b"close", body)``.
 OK_RESPONSE = b"HTTP/1.1 200 OK\r\nContent-Type: text/xml\r\nContent-Length: %d\r\nConnection: %s\r\n\r\n%s"
 

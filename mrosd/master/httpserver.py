@@ -9,7 +9,9 @@ of every answer are ``mrosd.master.httpframing`` (sans IO); turning a body into 
 Pipelined requests are answered in order. Backpressure: a client that does not read its responses (transport
 write buffer full) is not read from until it does. Refused with a status and a closed connection: what
 ``httpframing.parse_head`` refuses, header blocks over ``MAX_HEADER_SIZE`` (431), peers outside the
-allow-list (403), and connections beyond the global or per-address cap (503).
+allow-list (403), and connections beyond the global cap or the cap per who (503: a remote address, or a local
+uid told apart by ``mrosd.master.peers``; the policy is ``mrosd.master.admission``). Big replies
+(``dispatch.LargeReply``) are written a slice at a time as the client reads.
 
 Resources: idle keep-alive connections are closed after ``idle_timeout`` (to 1.5x that); a started request
 must complete within ``REQUEST_TIMEOUT``; the accept loop backs off (50 ms doubling to 2 s) when the process
@@ -32,15 +34,19 @@ from typing import TYPE_CHECKING, Any, cast
 
 from mrosd.errors import HttpRefused
 from mrosd.lograte import RateLimitedLog
+from mrosd.master.admission import Admission
+from mrosd.master.dispatch import LargeReply, Reply
 from mrosd.master.httpframing import (
     CACHED_HEAD_SIZE,
     CONTINUE_RESPONSE,
     MAX_HEADER_SIZE,
+    OK_HEAD,
     OK_RESPONSE,
     parse_head,
     parse_short_head,
     status_response,
 )
+from mrosd.master.peers import Endpoint, PeerUids, is_local, peer_address
 from mrosd.xmlrpc import FAULT_INTERNAL_ERROR, encode_fault
 
 if TYPE_CHECKING:
@@ -52,8 +58,12 @@ _ratelog = RateLimitedLog(log)
 #: Largest body a client outside the allow-list may send before its 403 (it is read, never handled).
 MAX_REFUSED_BYTES = 64 * 1024
 
-#: Time a client has to complete a request once its first byte arrived (slowloris defence).
+#: Time a client has to complete a request once its first byte arrived (slowloris defence), and the longest a
+#: big reply may wait for its reader to take more (a reader that stops holds the reply's share of the budget).
 REQUEST_TIMEOUT = 30.0
+
+#: A big reply (``LargeReply``) is handed to the transport this many bytes at a time, as the client reads.
+WRITE_SLICE = 256 * 1024
 
 #: Defaults of ``HttpServer``/``Master``: open connections in all, from one peer address, and the idle time
 #: after which a kept-alive connection with nothing pending is closed (rospy and roscpp reconnect).
@@ -76,14 +86,9 @@ def allowed(networks: list[Network] | None, host: str | None) -> bool:
     """Whether a peer address is inside one of ``networks`` (None allows everyone)."""
     if networks is None:
         return True
-    if not host:
+    addr = peer_address(host) if host else None
+    if addr is None:
         return False
-    try:
-        addr = ipaddress.ip_address(host.split("%", 1)[0])
-    except ValueError:
-        return False
-    if isinstance(addr, ipaddress.IPv6Address) and addr.ipv4_mapped is not None:
-        addr = addr.ipv4_mapped
     return any(addr in net for net in networks)
 
 
@@ -101,19 +106,39 @@ class _Request:
 class HttpProtocol(asyncio.Protocol):
     """One client connection: parse requests, answer them in order."""
 
-    def __init__(self, handler: XmlRpcHttpHandler, server: HttpServer, host: str, refused: bool) -> None:
+    def __init__(
+        self,
+        handler: XmlRpcHttpHandler,
+        server: HttpServer,
+        host: str,
+        refused: bool,
+        *,
+        peer: Endpoint = ("", 0),
+        ours: Endpoint = ("", 0),
+    ) -> None:
         self._handler = handler
         self._server = server
         self.host = host
+        #: The two ends as ``(host, port)``: the key to the peer's socket in the kernel's tables.
+        self.peer = peer
+        self.ours = ours
         self._refused = refused
         self._buf = bytearray()
         self._transport: asyncio.Transport | None = None
         self._request: _Request | None = None
         self._busy = False
         self._closed = False
+        self._eof = False
         self._reading_paused = False
         self._timer: asyncio.TimerHandle | None = None
-        self._task: asyncio.Task[bytes] | None = None
+        self._task: asyncio.Task[Reply] | None = None
+        #: A big reply being written, where it stands, and when its reader last took some of it.
+        self._out: LargeReply | None = None
+        self._out_chunk = 0
+        self._out_pos = 0
+        self._out_keep_alive = False
+        self._out_progress = 0.0
+        self._write_paused = False
         #: Bumped on every read; the server's idle sweep compares it between sweeps.
         self.activity = 0
         self.idle_sweeps = 0
@@ -121,6 +146,9 @@ class HttpProtocol(asyncio.Protocol):
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self._transport = cast(asyncio.Transport, transport)  # uvloop's transports are not subclasses
+        if self._closed:  # shed before its transport existed
+            transport.close()
+            return
         if self._refused:
             # Answered once its request is in (closing at once races the client's send into a broken pipe
             # instead of a readable 403); MAX_REFUSED_BYTES bounds what such a client may send first.
@@ -135,22 +163,42 @@ class HttpProtocol(asyncio.Protocol):
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._closed = True
+        self._end_stream()
         self._buf.clear()
         self._disarm()
         if self._task is not None:
             self._task.cancel()
         self._server.forget(self)
 
+    def eof_received(self) -> bool | None:
+        """The peer shut its write side: a call still running is answered, then the connection closes.
+
+        Clients may send a request and ``shutdown(SHUT_WR)`` before reading (rosmaster answers them). Calls
+        answered within the read that brought them are done already; a slow one (a big body decoded in
+        slices) is still running: keep the write side open for it. Bytes left over after it can only be a
+        request cut short. Nothing running: close now (returning None lets the transport close).
+        """
+        if not self._busy or self._closed:
+            return None
+        self._eof = True
+        return True
+
     @property
     def idle(self) -> bool:
         """Nothing pending: no partial request, no call running."""
         return not self._buf and not self._busy and self._request is None
 
+    @property
+    def sheddable(self) -> bool:
+        """No call running: closing it loses no answer (it is idle, or its request is still arriving)."""
+        return not self._busy and not self._closed
+
     def close(self) -> None:
         """Close quietly (an idle connection: any response now would be mistaken for the next call's)."""
-        if self._transport is not None and not self._closed:
-            self._transport.close()
+        if not self._closed:
             self._closed = True
+            if self._transport is not None:
+                self._transport.close()
 
     def abort(self) -> None:
         if self._task is not None:
@@ -195,13 +243,21 @@ class HttpProtocol(asyncio.Protocol):
         self._fail(408, b"request not completed in time\n")
 
     def pause_writing(self) -> None:
-        # The client does not read its responses: stop reading its requests until it does.
+        # The client does not read its responses: stop reading its requests (and writing a big reply) until it does.
+        self._write_paused = True
         if self._transport is not None and not self._closed:
             self._transport.pause_reading()
 
     def resume_writing(self) -> None:
+        self._write_paused = False
         if self._transport is not None and not self._closed and not self._reading_paused:
             self._transport.resume_reading()
+        if self._out is not None:
+            self._pump()
+
+    def stalled(self, now: float) -> bool:
+        """A big reply whose reader took nothing for ``REQUEST_TIMEOUT`` seconds."""
+        return self._out is not None and now - self._out_progress > REQUEST_TIMEOUT
 
     def _fail(self, status: int, text: bytes) -> None:
         if self._transport is None or self._closed:
@@ -282,18 +338,80 @@ class HttpProtocol(asyncio.Protocol):
                 self._task = task
         return pos
 
-    def _finished(self, task: asyncio.Task[bytes], *, keep_alive: bool) -> None:
+    def _finished(self, task: asyncio.Task[Reply], *, keep_alive: bool) -> None:
         self._task = None
+        if task.cancelled():
+            self._next()
+            return
+        exc = task.exception()
+        out = encode_fault(FAULT_INTERNAL_ERROR, f"internal error: {exc!r}") if exc else task.result()
+        if type(out) is LargeReply:
+            self._start_stream(out, keep_alive)
+            return
+        self._respond(cast(bytes, out), keep_alive)
+        self._next()
+
+    def _next(self) -> None:
+        """The call in progress is answered: go on with what the client sent meanwhile."""
         self._busy = False
         if self._reading_paused and self._transport is not None and not self._closed:
             self._reading_paused = False
             self._transport.resume_reading()
-        if task.cancelled():
-            return
-        exc = task.exception()
-        out = encode_fault(FAULT_INTERNAL_ERROR, f"internal error: {exc!r}") if exc else task.result()
-        self._respond(out, keep_alive)
         self._process()
+        if self._eof and not self._busy:
+            self.close()
+
+    def _start_stream(self, reply: LargeReply, keep_alive: bool) -> None:
+        """Write a big reply a slice at a time as the client reads (the shared value is never copied whole)."""
+        if self._transport is None or self._closed:
+            reply.release()
+            self._busy = False
+            return
+        self._out = reply
+        self._out_chunk = 0
+        self._out_pos = 0
+        self._out_keep_alive = keep_alive
+        self._out_progress = asyncio.get_running_loop().time()
+        conn = b"keep-alive" if keep_alive else b"close"
+        self._transport.write(OK_HEAD % (len(reply), conn) + reply.prefix)
+        self._pump()
+
+    def _pump(self) -> None:
+        reply, transport = self._out, self._transport
+        if reply is None or transport is None:
+            return
+        self._out_progress = asyncio.get_running_loop().time()
+        chunks = reply.body.chunks
+        while not self._write_paused:
+            if self._closed:
+                self._end_stream()
+                return
+            if self._out_chunk >= len(chunks):
+                transport.write(reply.suffix)
+                self._end_stream()
+                if not self._out_keep_alive:
+                    transport.close()
+                    self._closed = True
+                    return
+                self._next()
+                return
+            chunk = chunks[self._out_chunk]
+            pos = self._out_pos
+            if pos == 0 and len(chunk) <= WRITE_SLICE:
+                piece: bytes | memoryview = chunk
+                self._out_chunk += 1
+            else:
+                piece = memoryview(chunk)[pos : pos + WRITE_SLICE]
+                self._out_pos = pos + len(piece)
+                if self._out_pos >= len(chunk):
+                    self._out_chunk += 1
+                    self._out_pos = 0
+            transport.write(piece)  # may call pause_writing() at once, ending this loop
+
+    def _end_stream(self) -> None:
+        if self._out is not None:
+            self._out.release()
+            self._out = None
 
     def _respond(self, body: bytes, keep_alive: bool) -> None:
         if self._transport is None or self._closed:
@@ -317,7 +435,8 @@ class HttpServer:
         handler: turns request bodies into response bodies.
         networks: allowed client networks (None: everyone).
         max_connections: open connections in all; clamped to RLIMIT_NOFILE minus ``FD_RESERVE`` at start.
-        max_connections_per_host: open connections from one peer address.
+        max_connections_per_host: open connections of one who: a remote address, or a local uid (the name is
+            kept for the callers and the config key ``[master] max_connections_per_host``).
         idle_timeout: seconds a kept-alive connection may stay idle (closed after 1x to 1.5x that).
     """
 
@@ -338,7 +457,8 @@ class HttpServer:
         self.max_connections_per_host = max_connections_per_host
         self.idle_timeout = idle_timeout
         self._live: set[HttpProtocol] = set()
-        self._per_host: dict[str, int] = {}
+        self._admission: Admission[HttpProtocol] = Admission(max_connections, max_connections_per_host)
+        self._peers = PeerUids()
         self._pending: set[asyncio.Task[Any]] = set()
         self._socks: list[socket.socket] = []
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -346,8 +466,10 @@ class HttpServer:
         self._resume: asyncio.TimerHandle | None = None
         self._sweeper: asyncio.TimerHandle | None = None
         self._cap = max_connections
-        #: Connections refused for a cap, and accept back-offs for lack of file descriptors (for tests and stats).
+        #: Connections refused for a cap, closed to make room for another client's, and accept back-offs for
+        #: lack of file descriptors (for tests and stats).
         self.refused_connections = 0
+        self.shed_connections = 0
         self.accept_backoffs = 0
         self.port = 0
 
@@ -380,6 +502,7 @@ class HttpServer:
         self._socks = socks
         self._loop = loop
         self._cap = max(1, min(self.max_connections, _nofile_limit() - FD_RESERVE))
+        self._admission = Admission(self._cap, self.max_connections_per_host)
         if self._cap < self.max_connections:
             log.warning(
                 "master: at most %d connections (RLIMIT_NOFILE %d); raise the limit for %d",
@@ -443,11 +566,29 @@ class HttpServer:
 
     def _adopt(self, conn: socket.socket, addr: Any) -> None:
         host = str(addr[0]) if isinstance(addr, tuple) and addr else ""
-        count = self._per_host.get(host, 0)
-        if len(self._live) >= self._cap or count >= self.max_connections_per_host:
+        peer: Endpoint = (host, int(addr[1])) if isinstance(addr, tuple) and len(addr) > 1 else (host, 0)
+        try:
+            name = conn.getsockname()
+            ours: Endpoint = (str(name[0]), int(name[1]))
+        except OSError:
+            ours = ("", 0)
+        local = is_local(host, ours[0])
+        refused = not allowed(self._networks, host)
+        proto = HttpProtocol(self._handler, self, host, refused, peer=peer, ours=ours)
+        admission = self._admission
+        uid = None
+        if admission.needs_identity(local):
+            # Only now is it worth asking the kernel who is who: first the local connections admitted
+            # without a uid (each once), then the newcomer.
+            for other in admission.unidentified():
+                admission.identify(other, self._peers.uid(other.peer, other.ours))
+            if local:
+                uid = self._peers.uid(peer, ours)
+        decision = admission.admit(proto, host, local, uid)
+        if not decision.admitted:
             self.refused_connections += 1
-            which = "all clients" if len(self._live) >= self._cap else host
-            _ratelog.warning("cap", "master: refusing a connection from %s: connection cap reached for %s", host, which)
+            who = f"{host} (uid {uid})" if uid is not None else host
+            _ratelog.warning("cap", "master: refusing a connection from %s: %s", who, decision.reason)
             try:
                 conn.setblocking(False)
                 conn.send(status_response(503, b"too many connections\n"))
@@ -455,11 +596,20 @@ class HttpServer:
                 pass
             conn.close()
             return
+        shed = decision.shed
+        if shed is not None:
+            self.shed_connections += 1
+            self._live.discard(shed)
+            _ratelog.warning(
+                "shed",
+                "master: all %d connection slots taken; closing the oldest idle connection of %s to admit %s",
+                self._cap,
+                decision.shed_from,
+                host if uid is None else f"{host} (uid {uid})",
+            )
+            shed.close()
         conn.setblocking(False)
-        refused = not allowed(self._networks, host)
-        proto = HttpProtocol(self._handler, self, host, refused)
         self._live.add(proto)
-        self._per_host[host] = count + 1
         assert self._loop is not None
         task = self._loop.create_task(self._connect(conn, proto))
         self._pending.add(task)
@@ -476,19 +626,19 @@ class HttpServer:
 
     def forget(self, proto: HttpProtocol) -> None:
         """Called once a connection is gone: its slot is free again."""
-        if proto in self._live:
-            self._live.discard(proto)
-            left = self._per_host.get(proto.host, 1) - 1
-            if left > 0:
-                self._per_host[proto.host] = left
-            else:
-                self._per_host.pop(proto.host, None)
+        self._live.discard(proto)
+        self._admission.forget(proto)
 
     def _sweep(self) -> None:
         """Close connections idle since the sweep before last (sweeps run every ``idle_timeout / 2``)."""
         if self._loop is None:
             return
+        now = self._loop.time()
         for proto in list(self._live):
+            if proto.stalled(now):
+                _ratelog.log(logging.INFO, "stalled", "master: closing %s: it stopped reading a big reply", proto.host)
+                proto.abort()
+                continue
             if proto.activity != proto.seen_activity or not proto.idle:
                 proto.seen_activity = proto.activity
                 proto.idle_sweeps = 0
@@ -514,5 +664,6 @@ class HttpServer:
         for proto in list(self._live):
             proto.abort()
         self._live.clear()
-        self._per_host.clear()
+        self._admission = Admission(self._cap, self.max_connections_per_host)
+        self._peers.close()
         await asyncio.sleep(0)  # let the aborted transports report connection_lost

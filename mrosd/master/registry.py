@@ -94,6 +94,7 @@ class Registry:
         #: Bumped by every method that may change the registry (a repeated identical registration
         #: does not); replies computed from the registry stay valid while it is unchanged.
         self.version = 0
+        self._system_state: tuple[int, list[list[list[Any]]]] | None = None
 
     # --- nodes -------------------------------------------------------------------------------
 
@@ -309,12 +310,21 @@ class Registry:
         return [[t, self.topic_types.get(t, ANYTYPE)] for t in self.publishers if t.startswith(subgraph)]
 
     def system_state(self) -> list[list[list[Any]]]:
-        """``[publishers, subscribers, services]`` as rosmaster's getSystemState lists them."""
-        return [
+        """``[publishers, subscribers, services]`` as rosmaster's getSystemState lists them.
+
+        The same object until ``version`` changes (callers must not edit it): a big state is then encoded
+        once and shared by every caller (``mrosd.master.dispatch`` keys shared replies on the value).
+        """
+        memo = self._system_state
+        if memo is not None and memo[0] == self.version:
+            return memo[1]
+        state = [
             [[t, list(nodes)] for t, nodes in self.publishers.items()],
             [[t, list(nodes)] for t, nodes in self.subscribers.items()],
             [[s, [e.node]] for s, e in self.services.items()],
         ]
+        self._system_state = (self.version, state)
+        return state
 
 
 def _remove(table: dict[str, dict[str, str]], key: str, node: str) -> None:

@@ -73,7 +73,7 @@ class Master:
         notify_queue: most callbacks queued per node (oldest dropped beyond).
         max_connections: open client connections in all (beyond: HTTP 503 and close); clamped at start to
             RLIMIT_NOFILE minus a reserve.
-        max_connections_per_host: open client connections from one peer address.
+        max_connections_per_host: open client connections of one remote address or one local uid.
         idle_timeout: seconds after which an idle kept-alive client connection is closed (1x to 1.5x).
         cleanup_interval: seconds between sweeps removing nodes whose slave API refuses connections
             (confirmed by getPid); 0 turns the sweep off, as rosmaster keeps dead nodes.
@@ -134,6 +134,7 @@ class Master:
     async def aclose(self) -> None:
         """Stop serving, drop queued callbacks, close connections."""
         await self._server.aclose()
+        self._handler.close()
         await self.notifier.aclose()
         await self._client.aclose()
 
