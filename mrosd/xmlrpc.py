@@ -682,7 +682,12 @@ class _HalfCloseHandler(RequestHandler):
         self.last_body: aiohttp.StreamReader | None = None
 
     def eof_received(self) -> bool | None:  # type: ignore[override]  # asyncio.Protocol allows True
-        bodies = [payload for _, payload in self._messages]
+        # ``_messages`` and ``_waiter`` are aiohttp's own (checked against the version pinned in [dev]); an
+        # aiohttp without them gets its plain behaviour (close on EOF), never an AttributeError per connection.
+        messages = getattr(self, "_messages", None)
+        if messages is None or not hasattr(self, "_waiter"):
+            return super().eof_received()  # type: ignore[no-any-return]
+        bodies = [payload for _, payload in messages]
         if self.last_body is not None:
             bodies.append(self.last_body)
         if not all(body.is_eof() for body in bodies):
