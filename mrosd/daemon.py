@@ -232,15 +232,15 @@ class Daemon:
 
     async def _start_master(self) -> None:
         from mrosd.master import Master
+        from mrosd.master.httpserver import MAX_CONNECTIONS, MAX_CONNECTIONS_PER_HOST
 
         allow = list(self.cfg.master.allow) or None
         options = part_options(self.cfg.master)
         if self.budgets is not None:  # the budget caps the master; one address never gets all of it
-            cap = min(options.get("max_connections", self.budgets.master), self.budgets.master)
+            cap = min(options.get("max_connections", MAX_CONNECTIONS), self.budgets.master)
             options["max_connections"] = cap
-            options["max_connections_per_host"] = min(
-                options.get("max_connections_per_host", cap), max(1, cap * 3 // 4)
-            )
+            per_host = options.get("max_connections_per_host", MAX_CONNECTIONS_PER_HOST)
+            options["max_connections_per_host"] = min(per_host, max(1, cap * 3 // 4))
         master = Master(self.cfg.master.host, self.cfg.master.port, allow=allow, **options)
         await master.start()
         self.master = master

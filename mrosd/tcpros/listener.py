@@ -45,6 +45,13 @@ _EXHAUSTED = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM}
 PAUSE_MIN = 0.05
 PAUSE_MAX = 1.0
 
+#: Pause after every ACCEPT_BATCH accepts that had to shed a waiting connection (a cap was full: a flood,
+#: most likely). A flooder that reconnects whatever it loses otherwise keeps the node accepting and shedding
+#: at full speed (half a CPU on asyncio or uvloop); this bounds it to ACCEPT_BATCH per pause (1600/s) while the
+#: kernel's queue (1024 long), served in order, still reaches a legitimate peer behind a full queue of flood
+#: connections in well under a second. Accepts that shed nothing are never slowed.
+FLOOD_PAUSE = 0.01
+
 
 def fd_reserve(soft_limit: int) -> int:
     """Descriptors an accept loop leaves free for the rest of the process (slave API, master calls, files)."""
@@ -84,6 +91,7 @@ class TcprosListener:
         self._pause = PAUSE_MIN
         self._watermark = 0
         self._connecting: set[asyncio.Task[None]] = set()
+        self._flood_sheds = 0
         #: shortages seen (EMFILE/ENFILE or the watermark), for tests and stats
         self.shortages = 0
 
@@ -155,6 +163,8 @@ class TcprosListener:
         if sock is None:
             return
         for _ in range(ACCEPT_BATCH):
+            if not self._reading:  # paused by what the last connection caused
+                return
             try:
                 conn, addr = sock.accept()
             except (BlockingIOError, InterruptedError):
@@ -164,13 +174,13 @@ class TcprosListener:
                 continue
             except OSError as exc:
                 if exc.errno in _EXHAUSTED:
-                    self._shortage(f"accept failed: {exc.strerror}", None)
+                    self._shortage(f"accept failed: {exc.strerror}")
                 else:
                     rate_log.warning("accept", "%s: TCPROS accept failed: %s", self.name, exc)
                     self._pause_for(PAUSE_MAX)
                 return
             if self._watermark and conn.fileno() >= self._watermark:
-                self._shortage(f"descriptor {conn.fileno()} of {self._watermark + fd_reserve(self._watermark)}", conn)
+                self._shortage(f"descriptor {conn.fileno()} is within the reserve", conn, addr)
                 return
             self._admit(conn, addr)
 
@@ -182,6 +192,10 @@ class TcprosListener:
         verdict = self.admission.admit(proto, host, loop.time())
         for victim in verdict.shed:
             self._shed(victim, "too many connections waiting for a header; the oldest goes first")
+        if verdict.shed:
+            self._flood_sheds += 1
+            if self._flood_sheds % ACCEPT_BATCH == 0:
+                self._pause_for(FLOOD_PAUSE)
         if not verdict.admitted:
             conn.close()
             rate_log.warning("full", "%s: refusing TCPROS connections: %d open", self.name, self.admission.connections)
@@ -203,27 +217,34 @@ class TcprosListener:
             if not isinstance(exc, (OSError, asyncio.CancelledError)):
                 raise
 
-    def _shortage(self, why: str, conn: socket.socket | None) -> None:
-        """Out of descriptors (or about to be): pause accepting, shed the oldest header-less connections."""
+    def _shortage(self, why: str, conn: socket.socket | None = None, addr: object = None) -> None:
+        """Out of descriptors (or about to be): pause accepting, shed the oldest header-less connections.
+
+        ``conn`` (accepted at the watermark) is admitted when others made room for it, else closed: the
+        descriptors below the limit are the node's own reserve.
+        """
         self.shortages += 1
         shed = self.admission.shed_oldest()
-        for victim in shed:
-            self._shed(victim, "out of descriptors", quiet=True)
-        if conn is not None:
-            if shed:
-                self._admit(conn, conn.getpeername() if conn.family != socket.AF_UNIX else "?")
-            else:
-                conn.close()  # nobody to shed: the reserve is for the node's own work
+        # Shedding frees descriptors a loop turn later: a short pause. With nobody to shed, only our own
+        # connections can free them: wait longer each time, up to PAUSE_MAX.
+        delay = PAUSE_MIN if shed else self._pause
+        self._pause = PAUSE_MIN if shed else min(self._pause * 2, PAUSE_MAX)
         rate_log.warning(
             "shortage",
             "%s: TCPROS listener out of descriptors (%s): paused %.2f s, shed %d header-less connection(s)",
             self.name,
             why,
-            self._pause,
+            delay,
             len(shed),
         )
-        self._pause_for(self._pause)
-        self._pause = min(self._pause * 2, PAUSE_MAX)
+        self._pause_for(delay)  # before admitting: the admission's own short pause must not replace it
+        for victim in shed:
+            self._shed(victim, "out of descriptors", quiet=True)
+        if conn is not None:
+            if shed:
+                self._admit(conn, addr)
+            else:
+                conn.close()
 
     def _pause_for(self, delay: float) -> None:
         if self._loop is None or self._resume is not None:

@@ -17,49 +17,74 @@ from typing import Any
 
 from tests.rosenv import Processes
 
-#: argv: port count payload_hex seconds reconnect(0/1). Opens ``count`` connections, sends ``payload`` on each
-#: and holds them; with reconnect, a connection the target closes is opened again at once. Prints
-#: ``connected <n>`` once the first round is open, then one JSON line of counts when ``seconds`` are up.
+#: argv: port count payload_hex seconds reconnect(0/1). Opens ``count`` connections (all at once, non-blocking),
+#: sends ``payload`` on each and holds them; with reconnect, a connection the target closes is opened again at
+#: once. Prints ``connected <n>`` once the first round is connected (or 30 s passed), then one JSON line of
+#: counts when ``seconds`` are up.
 FLOOD = r"""
-import json, resource, selectors, socket, sys, time
+import errno, json, resource, selectors, socket, sys, time
 port, count, payload, seconds, reconnect = (
     int(sys.argv[1]), int(sys.argv[2]), bytes.fromhex(sys.argv[3]), float(sys.argv[4]), sys.argv[5] == "1")
 _, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
 resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
 sel = selectors.DefaultSelector()
 stats = {"opened": 0, "failed": 0, "dropped": 0}
+connecting = 0
 def open_one():
+    # non-blocking: one connect waiting for the target's accept queue must not hold up the others
+    global connecting
     s = socket.socket()
-    s.settimeout(1.0)
-    try:
-        s.connect(("127.0.0.1", port))
-        if payload:
-            s.send(payload)
-    except OSError:
+    s.setblocking(False)
+    err = s.connect_ex(("127.0.0.1", port))
+    if err not in (0, errno.EINPROGRESS):
         s.close()
         stats["failed"] += 1
         return
-    s.setblocking(False)
-    sel.register(s, selectors.EVENT_READ)
+    sel.register(s, selectors.EVENT_WRITE, "connecting")
+    connecting += 1
+def connected(s):
+    global connecting
+    connecting -= 1
+    if s.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR) != 0:
+        sel.unregister(s)
+        s.close()
+        stats["failed"] += 1
+        return
+    try:
+        if payload:
+            s.send(payload)
+    except OSError:
+        pass
+    sel.modify(s, selectors.EVENT_READ, "open")
     stats["opened"] += 1
-for _ in range(count):
-    open_one()
-print("connected", stats["opened"], flush=True)
-deadline = time.monotonic() + seconds
-while time.monotonic() < deadline:
-    for key, _ in sel.select(0.1):
+def lost(s):
+    sel.unregister(s)
+    s.close()
+    stats["dropped"] += 1
+    if reconnect:
+        open_one()
+def turn(timeout):
+    for key, _ in sel.select(timeout):
         s = key.fileobj
+        if key.data == "connecting":
+            connected(s)
+            continue
         try:
             data = s.recv(65536)
         except OSError:
             data = b""
         if not data:
-            sel.unregister(s)
-            s.close()
-            stats["dropped"] += 1
-            if reconnect:
-                open_one()
-stats["held"] = len(sel.get_map())
+            lost(s)
+for _ in range(count):
+    open_one()
+first = time.monotonic() + 30.0
+while connecting and time.monotonic() < first:
+    turn(0.1)
+print("connected", stats["opened"], flush=True)
+deadline = time.monotonic() + seconds
+while time.monotonic() < deadline:
+    turn(0.1)
+stats["held"] = sum(1 for key in sel.get_map().values() if key.data == "open")
 print(json.dumps(stats), flush=True)
 """
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 import mrosd
-from mrosd.msg import get_message_class
+from mrosd.msg import get_message_class, get_service_class
 from tests.reliability.floods import cpu_seconds, flood_result, open_fds, rss_kib, start_flood, start_talker
 from tests.reliability.relnodes import node_env, start_master
 from tests.rosenv import Processes
@@ -52,6 +52,15 @@ async def _receives(uri: str, topic: str, name: str, count: int, timeout: float)
     return len(got)
 
 
+async def _service_answers(uri: str, service: str) -> int:
+    """Call ``service`` (roscpp/GetLoggers, which every node offers) with a fresh node: loggers listed."""
+    srv: object = get_service_class("roscpp/GetLoggers")
+    async with mrosd.Node("legit_caller", master_uri=uri, host="127.0.0.1", argv=[], rosout=False) as node:
+        proxy = node.service_proxy(service, srv)
+        reply = await proxy.call(srv._request_class(), timeout=10.0)  # type: ignore[attr-defined]
+    return len(reply.loggers)
+
+
 def _log_lines(path: Path) -> int:
     return len(path.read_bytes().splitlines())
 
@@ -70,6 +79,7 @@ async def test_half_open_headers_cost_what_they_send(procs: Processes, tmp_path:
     # receives, the node has accepted and read every half-open connection.
     started = time.monotonic()
     assert await _receives(uri, "/half_open", "legit", 5, 15.0) == 5, "no messages during the flood"
+    assert await _service_answers(uri, "/flood_talker/get_loggers") > 0  # the service side shares the listener
     await asyncio.sleep(0.5)
     grown = rss_kib(talker.pid) - before
     fds = open_fds(talker.pid)
