@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     from mrosd.ixm.server import IxmServer
     from mrosd.master import Master
     from mrosd.rosout import RosoutAggregator
+    from mrosd.tcpros.admission import AdmissionLimits
     from mrosd.xmlrpc import XmlRpcClient
 
 log = logging.getLogger("mrosd")
@@ -285,7 +286,7 @@ class Daemon:
             return
         from mrosd.ixm.bridge import IxmBridge
 
-        bridge = IxmBridge(self.cfg.ixm.socket, self.master_uri, bridges)
+        bridge = IxmBridge(self.cfg.ixm.socket, self.master_uri, bridges, admission=self._tcpros_admission())
         await bridge.start()
         self.bridge = bridge
         self._parts.append(("ixm-bridge", bridge))
@@ -293,21 +294,24 @@ class Daemon:
     async def _start_rosout(self) -> None:
         from mrosd.rosout import RosoutAggregator
 
-        admission = None
-        if self.budgets is not None:  # half of the in-daemon nodes' TCPROS budget (bridges share the rest)
-            from mrosd.tcpros.admission import AdmissionLimits
-
-            cap = max(1, self.budgets.tcpros // 2)
-            admission = AdmissionLimits(
-                max_connections=cap,
-                max_pending=max(1, min(256, cap // 2)),
-                max_pending_per_address=max(1, min(128, cap // 4)),
-            )
-        agg = RosoutAggregator(self.master_uri, admission=admission)
+        agg = RosoutAggregator(self.master_uri, admission=self._tcpros_admission())
         await agg.start()
         self.rosout = agg
         self._parts.append(("rosout", agg))
         log.info("rosout aggregator running (/rosout -> /rosout_agg)")
+
+    def _tcpros_admission(self) -> AdmissionLimits | None:
+        """Inbound TCPROS caps of one in-daemon node (rosout aggregator, bridges): half the TCPROS budget each."""
+        if self.budgets is None:
+            return None
+        from mrosd.tcpros.admission import AdmissionLimits
+
+        cap = max(1, self.budgets.tcpros // 2)
+        return AdmissionLimits(
+            max_connections=cap,
+            max_pending=max(1, min(256, cap // 2)),
+            max_pending_per_address=max(1, min(128, cap // 4)),
+        )
 
     def status_line(self) -> str:
         """The one-line status for ``systemctl status``: ``running: ...`` or ``degraded: ...; ixm failed: why``."""
