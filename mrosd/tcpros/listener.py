@@ -58,6 +58,12 @@ def fd_reserve(soft_limit: int) -> int:
     return min(64, max(8, soft_limit // 16))
 
 
+def _watermark() -> int:
+    """The lowest descriptor number that means "within the reserve" (0: no limit to watch)."""
+    soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+    return 0 if soft == resource.RLIM_INFINITY else soft - fd_reserve(soft)
+
+
 class AdmittedConnection(asyncio.BaseProtocol):
     """What the listener asks of the protocols it creates, beyond asyncio's protocol interface."""
 
@@ -111,8 +117,7 @@ class TcprosListener:
         self._sock = sock
         self._loop = asyncio.get_running_loop()
         self.port = int(sock.getsockname()[1])
-        soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
-        self._watermark = 0 if soft == resource.RLIM_INFINITY else soft - fd_reserve(soft)
+        self._watermark = _watermark()
         self._start_reading()
         return self.port
 
@@ -176,7 +181,7 @@ class TcprosListener:
                 if exc.errno in _EXHAUSTED:
                     self._shortage(f"accept failed: {exc.strerror}")
                 else:
-                    rate_log.warning("accept", "%s: TCPROS accept failed: %s", self.name, exc)
+                    rate_log.warning(self.name + ":accept", "%s: TCPROS accept failed: %s", self.name, exc)
                     self._pause_for(PAUSE_MAX)
                 return
             if self._watermark and conn.fileno() >= self._watermark:
@@ -198,7 +203,9 @@ class TcprosListener:
                 self._pause_for(FLOOD_PAUSE)
         if not verdict.admitted:
             conn.close()
-            rate_log.warning("full", "%s: refusing TCPROS connections: %d open", self.name, self.admission.connections)
+            rate_log.warning(
+                self.name + ":full", "%s: refusing TCPROS connections: %d open", self.name, self.admission.connections
+            )
             return
         conn.setblocking(False)
         task = loop.create_task(self._connect(conn, proto))
@@ -224,13 +231,14 @@ class TcprosListener:
         descriptors below the limit are the node's own reserve.
         """
         self.shortages += 1
+        self._watermark = _watermark()  # the limit may have been raised since start()
         shed = self.admission.shed_oldest()
         # Shedding frees descriptors a loop turn later: a short pause. With nobody to shed, only our own
         # connections can free them: wait longer each time, up to PAUSE_MAX.
         delay = PAUSE_MIN if shed else self._pause
         self._pause = PAUSE_MIN if shed else min(self._pause * 2, PAUSE_MAX)
         rate_log.warning(
-            "shortage",
+            self.name + ":shortage",
             "%s: TCPROS listener out of descriptors (%s): paused %.2f s, shed %d header-less connection(s)",
             self.name,
             why,
@@ -259,7 +267,7 @@ class TcprosListener:
     def _shed(self, conn: AdmittedConnection, reason: str, *, quiet: bool = False) -> None:
         log.debug("%s: shedding a TCPROS connection: %s", self.name, reason)
         if not quiet:
-            rate_log.warning("shed", "%s: dropping TCPROS connections: %s", self.name, reason)
+            rate_log.warning(self.name + ":shed", "%s: dropping TCPROS connections: %s", self.name, reason)
         with contextlib.suppress(Exception):
             conn.shed(reason)
 
@@ -278,7 +286,7 @@ class TcprosListener:
         expired = self.admission.expired(self._loop.time())
         if expired:
             rate_log.warning(
-                "deadline",
+                self.name + ":deadline",
                 "%s: closing %d TCPROS connection(s) that sent no complete header within %.1f s",
                 self.name,
                 len(expired),
