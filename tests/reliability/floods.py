@@ -148,22 +148,3 @@ def flood_result(proc: subprocess.Popen[bytes], timeout: float) -> dict[str, Any
     out, _ = proc.communicate(timeout=timeout)
     result: dict[str, Any] = json.loads(out.decode().strip().splitlines()[-1])
     return result
-
-
-def rss_kib(pid: int) -> int:
-    """A process's resident set in KiB, from /proc."""
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1])
-    raise AssertionError(f"no VmRSS for {pid}")
-
-
-def cpu_seconds(pid: int) -> float:
-    """User plus system CPU time a process has used so far."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def open_fds(pid: int) -> int:
-    """How many descriptors a process holds."""
-    return len(os.listdir(f"/proc/{pid}/fd"))

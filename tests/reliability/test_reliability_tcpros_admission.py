@@ -18,7 +18,9 @@ import pytest
 
 import mrosd
 from mrosd.msg import get_message_class, get_service_class
-from tests.reliability.floods import cpu_seconds, flood_result, open_fds, rss_kib, start_flood, start_talker
+from tests.integration.ixm.hostile import cpu_seconds, rss_kib
+from tests.integration.ixm.hostile import fd_count as open_fds
+from tests.reliability.floods import flood_result, start_flood, start_talker
 from tests.reliability.relnodes import node_env, start_master
 from tests.rosenv import Processes
 
