@@ -7,11 +7,14 @@ with the descriptor limit and event loop (``MROSD_LOOP``) the test gives it, log
 
 from __future__ import annotations
 
+import http.client
 import json
 import os
 import subprocess
 import sys
 import time
+import urllib.parse
+import xmlrpc.client
 from pathlib import Path
 from typing import Any
 
@@ -148,3 +151,19 @@ def flood_result(proc: subprocess.Popen[bytes], timeout: float) -> dict[str, Any
     out, _ = proc.communicate(timeout=timeout)
     result: dict[str, Any] = json.loads(out.decode().strip().splitlines()[-1])
     return result
+
+
+def get_pid(uri: str, timeout: float) -> tuple[int, float]:
+    """getPid on a fresh connection: (its code, or -9 when it failed; seconds taken), bounded by ``timeout``."""
+    started = time.monotonic()
+    parsed = urllib.parse.urlsplit(uri)
+    conn = http.client.HTTPConnection(parsed.hostname or "", parsed.port, timeout=timeout)
+    try:
+        conn.request("POST", "/", xmlrpc.client.dumps(("/probe",), "getPid"), {"Content-Type": "text/xml"})
+        reply = conn.getresponse()
+        code = xmlrpc.client.loads(reply.read())[0][0][0] if reply.status == 200 else -reply.status
+    except (OSError, xmlrpc.client.Error):
+        code = -9
+    finally:
+        conn.close()
+    return int(code), time.monotonic() - started

@@ -7,19 +7,17 @@ to 512/512 and the next client was told the IXM daemon is out of file descriptor
 
 from __future__ import annotations
 
-import http.client
 import os
 import socket
 import subprocess
 import sys
 import time
-import urllib.parse
-import xmlrpc.client
 from pathlib import Path
 
 import pytest
 
 from tests.integration.ixm.hostile import Child, fd_count, nobody, shared_dir
+from tests.reliability.floods import get_pid
 from tests.reliability.test_reliability_ixm_exhaustion import flood, normal_client_works
 from tests.rosenv import Processes, free_port
 
@@ -39,26 +37,10 @@ def _start_daemon(procs: Processes, path: str, port: int, log: Path) -> subproce
     with open(log, "wb") as err:
         daemon = procs.start([sys.executable, "-c", code], env, stdout=subprocess.DEVNULL, stderr=err.fileno())
     deadline = time.monotonic() + 30
-    while not os.path.exists(path) or _get_pid(f"http://127.0.0.1:{port}/", 1.0)[0] != 1:
+    while not os.path.exists(path) or get_pid(f"http://127.0.0.1:{port}/", 1.0)[0] != 1:
         assert daemon.poll() is None and time.monotonic() < deadline, log.read_text()[-2000:]
         time.sleep(0.1)
     return daemon
-
-
-def _get_pid(uri: str, timeout: float) -> tuple[int, float]:
-    """getPid on a fresh connection: (its code, or -9 when it failed; seconds taken), bounded by ``timeout``."""
-    started = time.monotonic()
-    parsed = urllib.parse.urlsplit(uri)
-    conn = http.client.HTTPConnection(parsed.hostname or "", parsed.port, timeout=timeout)
-    try:
-        conn.request("POST", "/", xmlrpc.client.dumps(("/probe",), "getPid"), {"Content-Type": "text/xml"})
-        reply = conn.getresponse()
-        code = xmlrpc.client.loads(reply.read())[0][0][0] if reply.status == 200 else -reply.status
-    except (OSError, xmlrpc.client.Error):
-        code = -9
-    finally:
-        conn.close()
-    return int(code), time.monotonic() - started
 
 
 def _idle_master_connections(port: int, count: int) -> list[socket.socket]:
@@ -93,7 +75,7 @@ def test_an_ixm_share_and_600_idle_master_connections_leave_another_uid_served(
             held = child.line()
             idle = _idle_master_connections(port, IDLE_MASTER)
             time.sleep(0.5)
-            answers = [_get_pid(uri, 3.0) for _ in range(8)]
+            answers = [get_pid(uri, 3.0) for _ in range(8)]
             normal = normal_client_works(path)
             fds = fd_count(daemon.pid)
             child.go()

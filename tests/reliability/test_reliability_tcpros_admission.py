@@ -12,6 +12,7 @@ import asyncio
 import resource
 import struct
 import time
+import xmlrpc.client
 from pathlib import Path
 
 import pytest
@@ -20,7 +21,7 @@ import mrosd
 from mrosd.msg import get_message_class, get_service_class
 from tests.integration.ixm.hostile import cpu_seconds, rss_kib
 from tests.integration.ixm.hostile import fd_count as open_fds
-from tests.reliability.floods import flood_result, start_flood, start_talker
+from tests.reliability.floods import flood_result, get_pid, start_flood, start_talker
 from tests.reliability.relnodes import node_env, start_master
 from tests.rosenv import Processes
 
@@ -125,12 +126,17 @@ async def _idle_flood(procs: Processes, tmp_path: Path, loop: str, nofile: int, 
     started = time.monotonic()
     cpu = cpu_seconds(talker.pid)
     got = await _receives(uri, "/idle_flood", "legit", 20, 10.0)
+    with xmlrpc.client.ServerProxy(uri) as master:
+        _, _, slave_uri = master.lookupNode("/probe", "/flood_talker")
+    answers = [await asyncio.to_thread(get_pid, slave_uri, 3.0) for _ in range(5)]
     held = open_fds(talker.pid)
     result = flood_result(flood, seconds + 20.0)
     elapsed = time.monotonic() - started
     used = cpu_seconds(talker.pid) - cpu
     lines = _log_lines(log_path)
     print(f"{loop}, nofile {nofile}: got {got}, {lines} lines, CPU {used:.1f} s in {elapsed:.1f} s, {result}")
+    print(f"  the node's slave API during the flood: {[(code, round(t, 4)) for code, t in answers]}")
+    assert all(code == 1 and took < 1.0 for code, took in answers), answers  # the reserve serves it
     assert got == 20, f"a new subscriber got {got} messages during the flood ({result}, {held} fds)"
     assert talker.poll() is None, log_path.read_text()[-2000:]
     assert lines <= LINES_PER_MINUTE * elapsed / 60, f"{lines} log lines in {elapsed:.1f} s"
