@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 from mrosd.config import Config, load_config, part_options
 from mrosd.errors import ConfigError, MrosError
+from mrosd.fdbudget import FdBudgets, fd_budgets
 from mrosd.loop import event_loop_factory
 from mrosd.sdnotify import Notifier, watchdog_interval
 
@@ -46,6 +47,7 @@ if TYPE_CHECKING:
     from mrosd.ixm.server import IxmServer
     from mrosd.master import Master
     from mrosd.rosout import RosoutAggregator
+    from mrosd.tcpros.admission import AdmissionLimits
     from mrosd.xmlrpc import XmlRpcClient
 
 log = logging.getLogger("mrosd")
@@ -104,13 +106,8 @@ def reason(exc: BaseException) -> str:
     return " ".join(text.split()) or type(exc).__name__
 
 
-def raise_nofile_limit() -> int:
-    """Raise the soft RLIMIT_NOFILE to the hard limit (capped at the kernel's ``nr_open``); return the result.
-
-    Every client connection and every IXM key costs the daemon descriptors; distributions still start
-    services with a soft limit of 1024 although the hard limit allows far more.
-    """
-    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+def _nofile_target(soft: int, hard: int) -> int:
+    """The soft RLIMIT_NOFILE the daemon runs with: the hard limit, capped at the kernel's ``nr_open``."""
     target = hard
     if hard == resource.RLIM_INFINITY:
         try:
@@ -118,6 +115,25 @@ def raise_nofile_limit() -> int:
                 target = int(f.read())
         except (OSError, ValueError):
             target = max(soft, 65536) if soft != resource.RLIM_INFINITY else soft
+    return target
+
+
+def planned_budgets() -> FdBudgets:
+    """The descriptor budgets the daemon would run with, from the limit it would raise itself to."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    target = _nofile_target(soft, hard)
+    limit = soft if soft == resource.RLIM_INFINITY or soft >= target else target
+    return fd_budgets(1 << 20 if limit == resource.RLIM_INFINITY else limit)
+
+
+def raise_nofile_limit() -> int:
+    """Raise the soft RLIMIT_NOFILE to the hard limit (capped at the kernel's ``nr_open``); return the result.
+
+    Every client connection and every IXM key costs the daemon descriptors; distributions still start
+    services with a soft limit of 1024 although the hard limit allows far more.
+    """
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    target = _nofile_target(soft, hard)
     if soft == resource.RLIM_INFINITY or soft >= target:
         log.info("open files: %s", "unlimited" if soft == resource.RLIM_INFINITY else soft)
         return soft
@@ -174,6 +190,8 @@ class Daemon:
         self.bridge: IxmBridge | None = None
         self.rosout: RosoutAggregator | None = None
         self.master_uri = ""
+        #: each part's share of RLIMIT_NOFILE, given to it as its cap (``mrosd.fdbudget``); set by ``start()``
+        self.budgets: FdBudgets | None = None
         #: part name -> why it did not start (the daemon runs degraded without it)
         self.failed: dict[str, str] = {}
         self._parts: list[tuple[str, Any]] = []
@@ -186,6 +204,8 @@ class Daemon:
             OSError: the master's socket could not be bound (port in use, permission).
             MrosError: the master does not answer, or (``strict``) another part refused to start.
         """
+        soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+        self.budgets = fd_budgets(1 << 20 if soft == resource.RLIM_INFINITY else soft)
         try:
             await self._start_master()
             await self._wait_master_answers()
@@ -213,9 +233,16 @@ class Daemon:
 
     async def _start_master(self) -> None:
         from mrosd.master import Master
+        from mrosd.master.httpserver import MAX_CONNECTIONS, MAX_CONNECTIONS_PER_HOST
 
         allow = list(self.cfg.master.allow) or None
-        master = Master(self.cfg.master.host, self.cfg.master.port, allow=allow, **part_options(self.cfg.master))
+        options = part_options(self.cfg.master)
+        if self.budgets is not None:  # the budget caps the master; one address never gets all of it
+            cap = min(options.get("max_connections", MAX_CONNECTIONS), self.budgets.master)
+            options["max_connections"] = cap
+            per_host = options.get("max_connections_per_host", MAX_CONNECTIONS_PER_HOST)
+            options["max_connections_per_host"] = min(per_host, max(1, cap * 3 // 4))
+        master = Master(self.cfg.master.host, self.cfg.master.port, allow=allow, **options)
         await master.start()
         self.master = master
         self._parts.append(("master", master))
@@ -240,7 +267,14 @@ class Daemon:
         from mrosd.ixm.server import IxmServer
 
         rules = load_ixm_rules(self.cfg.ixm.rules, self.cfg.source)
-        server = IxmServer(self.cfg.ixm.socket, rules, **part_options(self.cfg.ixm))
+        options = part_options(self.cfg.ixm)
+        if self.budgets is not None:  # IXM's own split of a limit keeps 3/4 of it: hand it 4/3 of its budget
+            from mrosd.ixm.resources import Limits
+
+            shares = Limits.for_fd_limit(self.budgets.ixm * 4 // 3)
+            for name in Limits.__struct_fields__:
+                options.setdefault(name, getattr(shares, name))
+        server = IxmServer(self.cfg.ixm.socket, rules, **options)
         await server.start()  # creates and checks the socket's directory
         self.ixm = server
         self._parts.append(("ixm", server))
@@ -252,7 +286,7 @@ class Daemon:
             return
         from mrosd.ixm.bridge import IxmBridge
 
-        bridge = IxmBridge(self.cfg.ixm.socket, self.master_uri, bridges)
+        bridge = IxmBridge(self.cfg.ixm.socket, self.master_uri, bridges, admission=self._tcpros_admission())
         await bridge.start()
         self.bridge = bridge
         self._parts.append(("ixm-bridge", bridge))
@@ -260,11 +294,24 @@ class Daemon:
     async def _start_rosout(self) -> None:
         from mrosd.rosout import RosoutAggregator
 
-        agg = RosoutAggregator(self.master_uri)
+        agg = RosoutAggregator(self.master_uri, admission=self._tcpros_admission())
         await agg.start()
         self.rosout = agg
         self._parts.append(("rosout", agg))
         log.info("rosout aggregator running (/rosout -> /rosout_agg)")
+
+    def _tcpros_admission(self) -> AdmissionLimits | None:
+        """Inbound TCPROS caps of one in-daemon node (rosout aggregator, bridges): half the TCPROS budget each."""
+        if self.budgets is None:
+            return None
+        from mrosd.tcpros.admission import AdmissionLimits
+
+        cap = max(1, self.budgets.tcpros // 2)
+        return AdmissionLimits(
+            max_connections=cap,
+            max_pending=max(1, min(256, cap // 2)),
+            max_pending_per_address=max(1, min(128, cap // 4)),
+        )
 
     def status_line(self) -> str:
         """The one-line status for ``systemctl status``: ``running: ...`` or ``degraded: ...; ixm failed: why``."""
@@ -529,6 +576,11 @@ def build_parser() -> argparse.ArgumentParser:
         "else /etc/mrosd/mrosd.toml when it exists, else built-in defaults)",
     )
     parser.add_argument("--check-config", action="store_true", help="validate the configuration, print it and exit")
+    parser.add_argument(
+        "--check",
+        action="store_true",
+        help="--check-config, then the descriptor budget of each part (derived from RLIMIT_NOFILE) and exit",
+    )
     parser.add_argument("--master-only", action="store_true", help="run only the master and parameter server")
     parser.add_argument(
         "--strict", action="store_true", help="exit 1 when IXM, a bridge or rosout cannot start (default: run degraded)"
@@ -556,11 +608,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg.master.port = args.port
     if args.log_level:
         cfg.log.level = args.log_level
-    if args.check_config:
+    if args.check_config or args.check:
         import msgspec
 
         print(f"configuration OK ({cfg.source or 'built-in defaults'})")
         print(msgspec.json.format(msgspec.json.encode(cfg), indent=2).decode())
+        if args.check:
+            print("\n".join(planned_budgets().lines()))
         return _exit(EXIT_OK, argv)
     setup_logging(cfg.log.level)
     raise_nofile_limit()  # before any part sizes its caps from it

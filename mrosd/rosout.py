@@ -26,6 +26,7 @@ from typing import Any
 
 from mrosd.msg import get_message_class
 from mrosd.tcpros import Node, Publisher
+from mrosd.tcpros.admission import AdmissionLimits
 
 log = logging.getLogger(__name__)
 
@@ -55,10 +56,13 @@ class RosoutAggregator:
 
     Args:
         master_uri: the master to register with (the daemon passes its own).
+        admission: caps on the node's inbound TCPROS connections (the daemon's TCPROS descriptor budget).
     """
 
-    def __init__(self, master_uri: str) -> None:
+    def __init__(self, master_uri: str, *, admission: AdmissionLimits | None = None) -> None:
         self.master_uri = master_uri
+        #: caps on the aggregator node's inbound TCPROS connections (the daemon passes its budget)
+        self.admission = admission
         self.forwarded = 0
         self._node: Node | None = None
         self._pub: Publisher | None = None
@@ -70,7 +74,7 @@ class RosoutAggregator:
             MrosError: the master refused a registration.
         """
         log_cls = get_message_class("rosgraph_msgs/Log")
-        node = Node(NODE_NAME, master_uri=self.master_uri, argv=[], rosout=False)
+        node = Node(NODE_NAME, master_uri=self.master_uri, argv=[], rosout=False, admission=self.admission)
         await node.__aenter__()
         self._node = node
         try:

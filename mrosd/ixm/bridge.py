@@ -82,9 +82,16 @@ class IxmBridge:
     """Runs every configured bridge; ``start()``/``aclose()``, an async context manager."""
 
     def __init__(
-        self, socket_path: str, master_uri: str, bridges: list[Bridge], node_name: str = "/mrosd_ixm_bridge"
+        self,
+        socket_path: str,
+        master_uri: str,
+        bridges: list[Bridge],
+        node_name: str = "/mrosd_ixm_bridge",
+        admission: Any = None,
     ) -> None:
         self.socket_path = socket_path
+        #: the node's ``AdmissionLimits`` (inbound TCPROS caps: the daemon's budget), or None for the defaults
+        self.admission = admission
         self.master_uri = master_uri
         self.bridges = bridges
         self.node_name = node_name
@@ -106,7 +113,7 @@ class IxmBridge:
 
         try:
             self._ixm = await AsyncIxmClient(self.socket_path, name="ixm-bridge").connect()
-            self._node = Node(self.node_name, master_uri=self.master_uri)
+            self._node = Node(self.node_name, master_uri=self.master_uri, admission=self.admission)
             await self._node.start()
             for bridge in self.bridges:
                 cls = get_message_class(bridge.type)

@@ -18,10 +18,12 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from mrosd.errors import LocalProtocolError, MasterError, MasterUnreachableError, MrosError
-from mrosd.loop import close_server
+from mrosd.lograte import RateLimitedLog
 from mrosd.master.client import MasterClient
 from mrosd.msg import get_message_class
 from mrosd.names import NodeNames, parse_argv
+from mrosd.tcpros.admission import AdmissionLimits
+from mrosd.tcpros.listener import AdmittedConnection, TcprosListener
 from mrosd.tcpros.publisher import DEFAULT_QUEUE_SIZE, Publisher, PublisherProtocol
 from mrosd.tcpros.rosout import QUEUE_SIZE as ROSOUT_QUEUE_SIZE
 from mrosd.tcpros.rosout import ROSOUT_LOGGER, RosoutHandler, logger_service_handlers, node_logger
@@ -29,11 +31,14 @@ from mrosd.tcpros.service import Service, ServiceProtocol, ServiceProxy
 from mrosd.tcpros.slave import SlaveApi
 from mrosd.tcpros.sockopts import enable_keepalive
 from mrosd.tcpros.subscriber import Subscriber
+from mrosd.wire.framing import MAX_FRAME_SIZE, FrameDecoder
 from mrosd.wire.handshake import error_header
 from mrosd.wire.header import ConnectionHeader, encode_header
 from mrosd.xmlrpc import XmlRpcClient, XmlRpcServer
 
 log = logging.getLogger(__name__)
+#: Refusals a peer can provoke at will (a wrong topic, a bad header): reported, not echoed per connection.
+refusals = RateLimitedLog(log, period=10.0, burst=5)
 
 DEFAULT_MASTER_URI = "http://localhost:11311/"
 ROSOUT_TOPIC = "/rosout"
@@ -62,18 +67,28 @@ def _default_host() -> str:
     return name
 
 
-class InboundProtocol(ServiceProtocol, PublisherProtocol):
-    """A connection accepted by the node's TCPROS server, routed by its header to a publisher or service."""
+class InboundProtocol(ServiceProtocol, PublisherProtocol, AdmittedConnection):
+    """A connection accepted by the node's TCPROS server, routed by its header to a publisher or service.
+
+    Until its header is complete it is only a candidate: the node's listener (``TcprosListener``) may shed
+    it (too many waiting, over the header byte budget, past the header deadline, out of descriptors), and
+    it reports how many header bytes it holds so that memory follows what peers send.
+    """
 
     def __init__(self, node: Node) -> None:
         super().__init__()
         self.node = node
+        self.decoder = FrameDecoder(MAX_FRAME_SIZE, header_max_size=node.admission_limits.max_header_size)
+        self._shed_reason = ""
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         super().connection_made(transport)
         # Tracked until it ends, whatever becomes of it: a peer that never sends a header (or one accepted
         # while the node closes) belongs to no publisher or service, and the node must still close it.
         self.node._inbound.add(self)
+        if self._shed_reason:  # shed between accept and now
+            self.transport.abort()  # type: ignore[union-attr]
+            return
         sock = transport.get_extra_info("socket")
         if sock is not None:
             try:
@@ -81,12 +96,27 @@ class InboundProtocol(ServiceProtocol, PublisherProtocol):
             except OSError as exc:
                 log.debug("%s: no TCP keepalive on %s: %s", self.node.name, self.peer, exc)
 
+    def shed(self, reason: str) -> None:
+        """The listener drops this connection (it still owes its header): close it without a word."""
+        self._shed_reason = reason
+        if self.transport is not None:
+            self.transport.abort()
+
+    def buffer_updated(self, nbytes: int) -> None:
+        super().buffer_updated(nbytes)
+        if self.header is None and self.transport is not None and not self.transport.is_closing():
+            listener = self.node._listener
+            if listener is not None:
+                listener.header_bytes(self, self.decoder.buffered)
+
     def _refuse(self, reason: str) -> None:
-        log.warning("%s: refusing TCPROS connection from %s: %s", self.node.name, self.peer, reason)
+        refusals.warning("refuse", "%s: refusing TCPROS connection from %s: %s", self.node.name, self.peer, reason)
         self.write(encode_header(error_header(reason)))
         self.close()
 
     def header_received(self, header: ConnectionHeader) -> None:
+        if self.node._listener is not None:
+            self.node._listener.header_done(self)
         if header.service is not None:
             service = self.node.services.get(header.service)
             if service is None:
@@ -104,6 +134,8 @@ class InboundProtocol(ServiceProtocol, PublisherProtocol):
 
     def connection_closed(self, exc: BaseException | None) -> None:
         self.node._inbound.discard(self)
+        if self.node._listener is not None:
+            self.node._listener.closed(self)
         ServiceProtocol.connection_closed(self, exc)
         PublisherProtocol.connection_closed(self, exc)
 
@@ -121,6 +153,7 @@ class Node:
         watchdog_interval: seconds between the checks that the master still knows this node (0 disables).
         rosout: publish the ``rosout`` logger's records (``node.log`` included) on /rosout, as rospy does.
         logger_services: offer ``~get_loggers`` and ``~set_logger_level``, as rospy and roscpp nodes do.
+        admission: caps on inbound TCPROS connections and the header deadline (docs/tcpros.md, "Admission").
     """
 
     def __init__(
@@ -134,6 +167,7 @@ class Node:
         watchdog_interval: float = WATCHDOG_INTERVAL,
         rosout: bool = True,
         logger_services: bool = True,
+        admission: AdmissionLimits | None = None,
     ) -> None:
         env = os.environ if environ is None else environ
         args = list(sys.argv[1:] if argv is None else argv)
@@ -168,7 +202,8 @@ class Node:
         self.master = MasterClient(self.master_uri, self.name, self.xmlrpc, timeout=MASTER_TIMEOUT)
         self.uri = ""
         self.tcpros_port = 0
-        self._server: asyncio.Server | None = None
+        self.admission_limits = admission or AdmissionLimits()
+        self._listener: TcprosListener | None = None
         #: every accepted TCPROS connection still open (closed by aclose(): asyncio's Server.close() does not)
         self._inbound: set[InboundProtocol] = set()
         self._slave: XmlRpcServer | None = None
@@ -192,8 +227,8 @@ class Node:
         """
         loop = asyncio.get_running_loop()
         try:
-            self._server = await loop.create_server(lambda: InboundProtocol(self), self._bind_host, 0, backlog=1024)
-            self.tcpros_port = int(self._server.sockets[0].getsockname()[1])
+            self._listener = TcprosListener(lambda: InboundProtocol(self), self.admission_limits, self.name)
+            self.tcpros_port = self._listener.start(self._bind_host, 0, backlog=1024)
             self._slave = XmlRpcServer(
                 SlaveApi(self).methods(), host=self._bind_host, port=0, name=f"slave {self.name}"
             )
@@ -248,9 +283,9 @@ class Node:
         await self._close_servers()
 
     async def _close_servers(self) -> None:
-        if self._server is not None:
-            await close_server(self._server)  # the connections it accepted last join _inbound first
-            self._server = None
+        if self._listener is not None:
+            await self._listener.aclose()  # the connections it accepted last join _inbound first
+            self._listener = None
         if self._inbound:
             for proto in list(self._inbound):
                 transport = proto.transport

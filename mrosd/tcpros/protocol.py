@@ -20,11 +20,14 @@ from collections.abc import Sequence
 from typing import Any, cast
 
 from mrosd.errors import RemoteProtocolError
+from mrosd.lograte import RateLimitedLog
 from mrosd.spin import loop_spinner
 from mrosd.wire.framing import MAX_FRAME_SIZE, FrameDecoder
 from mrosd.wire.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header
 
 log = logging.getLogger(__name__)
+#: A peer decides how often its connections fail (a garbage header each time): a few lines per interval.
+aborts = RateLimitedLog(log, period=10.0, burst=5)
 
 #: Transport write buffer above which a connection counts as slow and the publisher queues instead of
 #: writing (asyncio's pause_writing). 1 MiB keeps a burst of small messages in the kernel's hands while
@@ -186,7 +189,7 @@ class TcprosProtocol(asyncio.BufferedProtocol):
 
     def abort(self, reason: str) -> None:
         """Close this connection at once, logging why."""
-        log.warning("closing TCPROS connection: %s", reason)
+        aborts.warning("abort", "closing TCPROS connection: %s", reason)
         if self.transport is not None:
             self.transport.abort()
 

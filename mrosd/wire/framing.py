@@ -57,6 +57,11 @@ GROWTH = 16
 #: first use, per connection). Large bodies bypass it, so it only bounds how many small frames one read takes.
 RECV_BUFFER_SIZE = 64 * 1024
 
+#: Size of the receive buffer lent while the connection header is still incomplete (``header_max_size``).
+#: Until a peer has identified itself it gets this much and no more: its header bytes are kept as they
+#: arrive (memory follows bytes received), and the big receive buffer is allocated only after the header.
+HEADER_RECV_SIZE = 4 * 1024
+
 #: Compact the buffer once this many consumed bytes sit at its front (amortises the memmove).
 _COMPACT_AT = 64 * 1024
 
@@ -305,7 +310,9 @@ class FrameDecoder:
                 large = self._large = _grown(large, filled, self._capacity_for(filled))
             return memoryview(large)[filled:]
         if self._recv is None:
-            self._recv = bytearray(RECV_BUFFER_SIZE)
+            self._recv = bytearray(HEADER_RECV_SIZE if self._then_max is not None else RECV_BUFFER_SIZE)
+        elif self._then_max is None and len(self._recv) < RECV_BUFFER_SIZE:
+            self._recv = bytearray(RECV_BUFFER_SIZE)  # the header is done: full-size reads from now on
         return memoryview(self._recv)
 
     def received(self, nbytes: int) -> memoryview:
@@ -334,7 +341,30 @@ class FrameDecoder:
             return [frame]
         if self._recv is None:
             raise RuntimeError("buffer_updated() without get_buffer()")
+        if self._then_max is not None:
+            return self._feed_header(memoryview(self._recv)[:nbytes])
         return self.feed_frames(memoryview(self._recv)[:nbytes])
+
+    def _feed_header(self, data: memoryview) -> list[bytes | bytearray]:
+        """Received bytes while the connection header is incomplete: kept as they come (no buffer sized by
+        the claimed length, no large-frame path), the claim judged by ``header_max_size`` as soon as its 4
+        bytes are here; appending keeps a header that arrives in many small reads linear."""
+        buf = self._buf
+        buf += data
+        if len(buf) < 4:
+            return []
+        (length,) = _U32.unpack_from(buf, 0)
+        if length > self.max_size:
+            raise RemoteProtocolError(f"frame of {length} bytes announced, the limit is {self.max_size}")
+        end = 4 + length
+        if len(buf) < end:
+            return []
+        with memoryview(buf) as view:
+            header = bytes(view[4:end])
+            rest = bytes(view[end:])
+        buf.clear()
+        self._first_out()
+        return [header, *self.feed_frames(rest)] if rest else [header]
 
     def maybe_next_frame(self) -> bytes | None:
         """The next complete frame body, or None while incomplete.

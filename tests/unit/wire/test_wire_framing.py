@@ -398,3 +398,46 @@ def test_the_ok_byte_mode_and_the_frame_methods_are_not_mixed() -> None:
     dec.feed(encode_frame(b"x", ok=True))
     with pytest.raises(RuntimeError, match="feed_responses"):
         dec.maybe_next_frame()
+
+
+# --- the connection header phase (header_max_size): memory follows what the peer sent --------------------
+
+
+def test_a_claimed_header_costs_only_what_arrived() -> None:
+    """A 4 MiB header claim and one byte of it: a small fixed receive buffer and the 5 bytes, nothing more."""
+    from mrosd.wire.framing import HEADER_RECV_SIZE
+
+    dec = FrameDecoder(MAX_FRAME_SIZE, header_max_size=4 * 1024 * 1024)
+    buf = dec.get_buffer()
+    assert len(buf) == HEADER_RECV_SIZE
+    stream = struct.pack("<I", 4 * 1024 * 1024) + b"x"
+    buf[: len(stream)] = stream
+    del buf
+    assert dec.buffer_updated(len(stream)) == []
+    assert dec.buffered == len(stream)
+    assert len(dec.get_buffer()) == HEADER_RECV_SIZE  # no buffer sized by the claim
+
+
+def test_the_header_claim_is_judged_before_anything_is_kept() -> None:
+    dec = FrameDecoder(MAX_FRAME_SIZE, header_max_size=1000)
+    buf = dec.get_buffer()
+    buf[:5] = struct.pack("<I", 1001) + b"x"
+    del buf
+    with pytest.raises(RemoteProtocolError):
+        dec.buffer_updated(5)
+
+
+@settings(deadline=None, max_examples=50)
+@given(
+    st.integers(0, 20_000),
+    st.lists(st.sampled_from([0, 5, 70_000]), max_size=3),
+    st.lists(st.integers(1, 9000), min_size=1, max_size=6),
+)
+def test_a_header_in_any_pieces_then_frames_decode_as_sent(header_size: int, sizes: list[int], cuts: list[int]) -> None:
+    header = bytes(range(256)) * (header_size // 256) + b"h" * (header_size % 256)
+    bodies = [bytes([i % 251]) * size for i, size in enumerate(sizes)]
+    stream = encode_frame(header) + b"".join(encode_frame(b) for b in bodies)
+    dec = FrameDecoder(MAX_FRAME_SIZE, header_max_size=64 * 1024)
+    got = _receive_in_place(dec, stream, cuts)
+    assert [bytes(f) for f in got] == [header, *bodies]
+    assert dec.max_size == MAX_FRAME_SIZE
