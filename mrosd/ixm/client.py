@@ -4,11 +4,12 @@ Both are thin shells around the sans-IO ``ClientConnection`` (framing, descripto
 only move bytes and descriptors over the Unix socket and wait; keys (``mrosd.ixm.keys``) read and write
 shared memory without the daemon, which is only involved at open and close.
 
-Wake-ups without polling (the paper's open point): each reader creates an eventfd and gives it to the
-daemon at open; the daemon hands every writer of the key the current readers' eventfds (SCM_RIGHTS) and
-counts those pushes in a page the writer maps read-only. A write is: take the writers' ``flock``,
-seqlock-copy the value, release, then one 8-byte ``write`` to each reader's eventfd. A reader blocks in
-``poll`` (or the event loop) on its own eventfd. Readers never block the writer: a reader that does not
+Wake-ups without polling (the paper's open point): each reader creates a pipe and gives its write end to
+the daemon at open; the daemon hands every writer of the key the current readers' write ends (SCM_RIGHTS)
+and counts those pushes in a page the writer maps read-only. A write is: take the writers' ``flock``,
+seqlock-copy the value, release, then one 1-byte ``RWF_NOWAIT`` write into each reader's pipe, which no
+holder of the pipe can make blocking (``mrosd.ixm.channel``). A reader blocks in ``poll`` (or the event
+loop) on its own read end. Readers never block the writer: a reader that does not
 keep up simply sees the latest value (IXM keys hold the latest value, not a queue).
 
 Before anything else a client checks who serves the socket (SO_PEERCRED): root, its own uid, or a uid in
@@ -116,7 +117,7 @@ class IxmKey(KeyBase):
         if spin.window_ns:
             # Watch the shared sequence counter for the window, yielding the CPU at each step: when the
             # writer is runnable on this same CPU it runs at once instead of after our window. The writer's
-            # eventfd signal that comes with a write caught here is drained by the next blocking wait.
+            # wake-up that comes with a write caught here is drained by the next blocking wait.
             end = _now_ns() + spin.window_ns
             while _now_ns() < end:
                 if fresh():
@@ -290,12 +291,14 @@ class IxmClient:
             IxmPermissionError: the daemon's rules refuse this process the mode.
             IxmError: a bad type or size, a type different from the existing key's, a cap, or no daemon.
         """
-        request, efd = open_request(key, type, count, max_size, mode)
+        request, efd, sent = open_request(key, type, count, max_size, mode)
         try:
-            reply = self._request(request, [efd] if efd is not None else None)
+            reply = self._request(request, sent)
         except BaseException:
             close_all([efd])
             raise
+        finally:
+            close_all(sent)  # the daemon and the writers hold the write end, never us
         state = self._conn.opened(reply, efd)
         state.refresh_targets = self._drain_pushes
         handle = IxmKey(self, state)
@@ -524,12 +527,14 @@ class AsyncIxmClient:
         mode: Mode = "r",
     ) -> AsyncIxmKey:
         """IxmInit; see ``IxmClient.open``."""
-        request, efd = open_request(key, type, count, max_size, mode)
+        request, efd, sent = open_request(key, type, count, max_size, mode)
         try:
-            reply = await self._request(request, [efd] if efd is not None else None)
+            reply = await self._request(request, sent)
         except BaseException:
             close_all([efd])
             raise
+        finally:
+            close_all(sent)  # the daemon and the writers hold the write end, never us
         state = self._conn.opened(reply, efd)
         state.refresh_targets = self._on_readable
         handle = AsyncIxmKey(self, state)

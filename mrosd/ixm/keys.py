@@ -1,7 +1,7 @@
 """One open IXM key in this process: its mapping, the seqlocked read and write, the wake-ups it sends.
 
 This module owns what a key does without the daemon: writing (IxmWrite: ``flock`` between writers, the
-seqlock copy, then one 8-byte ``write`` to each reader's eventfd) and reading (IxmRead). A writer checks
+seqlock copy, then one non-blocking wake-up into each reader's pipe) and reading (IxmRead). A writer checks
 after each write whether the daemon pushed a new list of readers to wake: the daemon counts its pushes in
 the connection's notice page (mapped read-only here) and the connection counts those it applied; only
 when the two differ does the writer read its socket.
@@ -13,18 +13,17 @@ import contextlib
 import fcntl
 import mmap
 import os
-import sys
 from collections.abc import Callable, Iterator
 from typing import Any
 
 from mrosd.errors import IxmError
+from mrosd.ixm.channel import drain, wake
 from mrosd.ixm.layout import SegmentLayout
 from mrosd.ixm.protocol import Opened
 from mrosd.ixm.types import IxmType, codec
 
 __all__ = ["KeyBase", "KeyState", "Pushes"]
 
-_ONE = (1).to_bytes(8, sys.byteorder)
 _NEVER = memoryview(bytearray(8)).cast("Q")
 
 
@@ -55,7 +54,8 @@ class Pushes:
 
 
 class KeyState:
-    """One open key: the mapping, the codec, the reader's eventfd, the writer's list of eventfds to signal."""
+    """One open key: the mapping, the codec, the reader's wake-up pipe (read end), the writer's list of
+    readers' pipes (write ends) to wake."""
 
     def __init__(
         self, opened: Opened, fd: int, wake_fd: int | None, pushes: Pushes | None = None, lock_fd: int | None = None
@@ -112,17 +112,14 @@ class KeyState:
         pushes = self.pushes
         if pushes.sent[0] != pushes.applied:
             # checked after the data is in place: a reader whose open completed before this point is
-            # already announced by the daemon, and its eventfd is in our socket buffer
+            # already announced by the daemon, and its wake-up pipe is in our socket buffer
             self.refresh_targets()
         self.signal()
         return seq
 
     def signal(self) -> None:
         for target in self.targets:
-            try:
-                os.write(target, _ONE)
-            except (BlockingIOError, OSError):
-                pass  # a reader that never reads its eventfd only misses wake-ups it would coalesce anyway
+            wake(target)  # never blocks; a full pipe is a wake-up pending, a reader gone leaves with the next list
 
     @contextlib.contextmanager
     def writing(self) -> Iterator[memoryview]:
@@ -181,8 +178,7 @@ class KeyState:
 
     def drain_wake(self) -> None:
         if self.wake_fd is not None:
-            with contextlib.suppress(BlockingIOError, OSError):
-                os.read(self.wake_fd, 8)
+            drain(self.wake_fd)
 
     def close(self) -> None:
         if self.closed:

@@ -38,7 +38,7 @@ class Limits(msgspec.Struct, frozen=True, kw_only=True):
     @classmethod
     def for_fd_limit(cls, soft_limit: int, **given: int | None) -> Limits:
         """Defaults that keep IXM within 3/4 of ``soft_limit`` (a connection costs one descriptor, a key held
-        up to three: a reader's eventfd and, for its creator, the segment and the writers' lock), leaving the
+        up to three: a reader's wake-up pipe and, for its creator, the segment and the writers' lock), leaving the
         rest to the master; values in ``given`` (not None) are taken as they are."""
         budget = max(64, soft_limit * 3 // 4)
         clients = min(4096, budget // 4)
@@ -73,7 +73,7 @@ def reopen(fd: int, write: bool) -> int:
 
 
 class Segment:
-    """One key's memfd (the daemon's descriptor, never mapped here) and its readers' eventfds."""
+    """One key's memfd (the daemon's descriptor, never mapped here) and its readers' wake-up pipes (write ends)."""
 
     def __init__(self, info: SegmentInfo) -> None:
         t = info.type
@@ -82,11 +82,11 @@ class Segment:
         self.info = info
         #: the writers' lock file, created at the first open for writing
         self.lock_fd: int | None = None
-        #: reader connection -> the daemon's copy of its eventfd
+        #: reader connection -> the daemon's copy of its wake-up pipe's write end
         self.wake_fds: dict[int, int] = {}
 
     def fds_to_wake(self, writer: int) -> list[int]:
-        """The reader eventfds the writer connection ``writer`` signals (its own excluded), in a stable order."""
+        """The readers' wake-up pipes the writer connection ``writer`` signals (its own excluded), in a stable order."""
         return [fd for conn, fd in sorted(self.wake_fds.items()) if conn != writer]
 
     def open_fd(self, write: bool) -> int:

@@ -3,7 +3,7 @@
 This module owns the I/O around the pure ``Registry``: accepting clients, learning who they are from the
 kernel (SO_PEERCRED, /proc), creating segments, handing them out as file descriptors (SCM_RIGHTS; read-only
 descriptors to readers, so that their mappings cannot be written), and telling writers which reader
-eventfds to signal. It is not in the data path: writes and reads go straight to shared memory, and wake-ups
+wake-up pipes to write. It is not in the data path: writes and reads go straight to shared memory, and wake-ups
 go straight from writer to reader.
 
 Segments are sealed memfds: sized once, their header written with ``pwrite``, made 0600 (a reader's
@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from mrosd.errors import IxmError, IxmPermissionError, MrosError, RemoteProtocolError
-from mrosd.ixm.channel import MAX_FDS_PER_MESSAGE, FdReader, is_eventfd, send_frame
+from mrosd.ixm.channel import MAX_FDS_PER_MESSAGE, FdReader, is_wake_pipe, send_frame
 from mrosd.ixm.protocol import (
     MAX_REQUEST_SIZE,
     Close,
@@ -71,9 +71,14 @@ log = logging.getLogger("mrosd.ixm")
 SHM_PREFIX = "mrosd-ixm-"
 #: Bytes queued for one client before it is considered stuck and disconnected.
 MAX_OUTBOX = 32 << 20
-#: Reader eventfds one writer can be handed (one sendmsg); more readers still read, unwoken ones poll-free
-#: wake-ups are refused at open with a clear error.
+#: Reader wake-up pipes one writer can be handed (one sendmsg): a key's woken-reader slots. An open beyond
+#: them is refused with a clear error.
 MAX_WAKE_READERS = MAX_FDS_PER_MESSAGE
+#: A uid may hold at most 1/WAKE_SHARES of a key's woken-reader slots (63 of 253): one uid then leaves at
+#: least 190 to the others, and a key is full only once five uids hold their share, which a user without
+#: root cannot make up on its own.
+WAKE_SHARES = 4
+WAKE_SLOTS_PER_UID = MAX_WAKE_READERS // WAKE_SHARES
 _PEERCRED = struct.Struct("3i")
 _OUT_OF_FDS = (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM)
 _BACKOFF_MIN, _BACKOFF_MAX = 0.02, 0.25
@@ -419,17 +424,17 @@ class IxmServer:
         wake_fd = client.reader.take_fds(1)[0] if req.wake else None
         try:
             if wake_fd is not None:
-                if not is_eventfd(wake_fd):
-                    raise IxmError("the wake-up descriptor sent with open is not an eventfd")
+                if not is_wake_pipe(wake_fd):
+                    raise IxmError(
+                        "the wake-up descriptor sent with open is not the write end of a pipe "
+                        "(a client older than this daemon sends an eventfd: upgrade it)"
+                    )
+                # writers write it with RWF_NOWAIT, whatever its flags; this covers kernels without that
                 flags = fcntl.fcntl(wake_fd, fcntl.F_GETFL)
                 fcntl.fcntl(wake_fd, fcntl.F_SETFL, flags | os.O_NONBLOCK)
                 if "r" not in req.mode:
-                    raise IxmError("a wake-up eventfd only makes sense when opening for reading")
-                existing = self.registry.segments.get(req.key)
-                if existing is not None and len(existing.readers) >= MAX_WAKE_READERS:
-                    raise IxmError(
-                        f"{req.key} already has {MAX_WAKE_READERS} woken readers, the most one writer can signal"
-                    )
+                    raise IxmError("a wake-up pipe only makes sense when opening for reading")
+                self._check_wake_slots(req.key, client.peer.uid)
             info, effects = self.registry.open(client.id, req.key, req.type, req.count, req.max_size, req.mode)
         except IxmPermissionError as exc:
             self._close_fd(wake_fd)
@@ -481,6 +486,24 @@ class IxmServer:
             notice=notice is not None,
         )
         self._send(client, reply, fds=[*fds, *wake], close_after=fds)
+
+    def _check_wake_slots(self, key: str, uid: int) -> None:
+        """Refuse a woken reader of ``key`` when the key has no slot left or ``uid`` holds its share.
+
+        Raises:
+            IxmError: the message says which limit and how many slots the caller's uid holds.
+        """
+        seg = self._segments.get(key)
+        if seg is None:
+            return
+        if len(seg.wake_fds) >= MAX_WAKE_READERS:
+            raise IxmError(f"{key} already has {MAX_WAKE_READERS} woken readers, the most one writer can signal")
+        mine = sum(1 for conn in seg.wake_fds if (c := self._clients.get(conn)) is not None and c.peer.uid == uid)
+        if mine >= WAKE_SLOTS_PER_UID:
+            raise IxmError(
+                f"uid {uid} already has {mine} woken readers of {key}, its share ({WAKE_SLOTS_PER_UID} of "
+                f"{MAX_WAKE_READERS}); close some"
+            )
 
     @staticmethod
     def _close_fd(fd: int | None) -> None:

@@ -2,7 +2,8 @@
 
 A publisher listens on an abstract Unix socket (no file to leave behind, scoped to the network namespace);
 each subscriber connects to it and the two exchange ``mrosd.shm.control`` messages, descriptors attached
-(the subscriber's eventfd, the publisher's rings). ``ControlChannel`` frames and unframes those messages;
+(the publisher's rings, acknowledgement pages and wake-up socket pairs). ``ControlChannel`` frames and
+unframes those messages;
 the functions here are the socket chores both ends share: the abstract name, connecting without blocking,
 the peer's credentials from the kernel, closing descriptors received.
 """
@@ -15,7 +16,6 @@ import errno
 import os
 import socket
 import struct
-import sys
 from collections.abc import Iterable
 
 from mrosd.ixm.channel import FdReader, send_frame
@@ -23,7 +23,6 @@ from mrosd.shm import control
 
 __all__ = [
     "ATTACH_TIMEOUT",
-    "ONE",
     "ControlChannel",
     "abstract_name",
     "close_fds",
@@ -35,8 +34,6 @@ __all__ = [
 ATTACH_TIMEOUT = 10.0
 
 _PEERCRED = struct.Struct("3i")
-#: what a wake-up writes to an eventfd
-ONE = (1).to_bytes(8, sys.byteorder)
 
 
 def abstract_name(address: str) -> str:
