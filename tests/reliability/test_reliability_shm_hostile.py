@@ -1,10 +1,10 @@
-"""Hostile peers of the shared-memory transport: the kernel and the checks keep every other party safe.
-
-A subscriber cannot resize or write the ring (sealed memfd, read-only descriptor, F_SEAL_FUTURE_WRITE even
+"""Hostile peers of the shared-memory transport: the kernel and the checks keep every other party safe. A
+subscriber cannot resize or write the ring (sealed memfd, read-only descriptor, F_SEAL_FUTURE_WRITE even
 against reopening it read-write through /proc); a publisher that sends an unsealed or oversized file, lies
 about lengths or heads, or speaks garbage ends only its own connection, with one line, and never makes the
-subscriber read out of bounds; a subscriber that sends garbage, or nothing at all, is closed and the publisher serves the others. A subscriber that lies in its acknowledgement page, or stops
-reading, costs only itself: the publisher never waits for it beyond its queue, and the others are served.
+subscriber read out of bounds; a subscriber that sends garbage, or nothing at all, is closed and the publisher
+serves the others. A subscriber that lies in its acknowledgement page, or stops reading, costs only itself:
+the publisher never waits for it beyond its queue, and the others are served.
 """
 
 from __future__ import annotations
