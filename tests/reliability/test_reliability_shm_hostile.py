@@ -1,5 +1,6 @@
-"""Hostile peers of the shared-memory transport: the kernel and the checks keep every other party safe. A
-subscriber cannot resize or write the ring (sealed memfd, read-only descriptor, F_SEAL_FUTURE_WRITE even
+"""Hostile peers of the shared-memory transport: the kernel and the checks keep every other party safe.
+
+A subscriber cannot resize or write the ring (sealed memfd, read-only descriptor, F_SEAL_FUTURE_WRITE even
 against reopening it read-write through /proc); a publisher that sends an unsealed or oversized file, lies
 about lengths or heads, or speaks garbage ends only its own connection, with one line, and never makes the
 subscriber read out of bounds; a subscriber that sends garbage, or nothing at all, is closed and the publisher
