@@ -47,28 +47,22 @@ def peer_credentials(sock: socket.socket) -> tuple[int, int]:
     return pid, uid
 
 
-def _settle(future: asyncio.Future[None]) -> None:
-    if not future.done():
-        future.set_result(None)
-
-
 async def connect_unix(sock: socket.socket, address: str) -> None:
-    """Connect a non-blocking Unix socket (by hand: uvloop's sock_connect does not take abstract names)."""
-    try:
-        sock.connect(address)
-        return
-    except (BlockingIOError, InterruptedError):
-        pass  # the listener's backlog is full: wait until it takes us
-    loop = asyncio.get_running_loop()
-    ready: asyncio.Future[None] = loop.create_future()
-    loop.add_writer(sock.fileno(), _settle, ready)
-    try:
-        await ready
-    finally:
-        loop.remove_writer(sock.fileno())
-    err = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
-    if err:
-        raise OSError(err, os.strerror(err))
+    """Connect a non-blocking Unix socket (by hand: uvloop's sock_connect does not take abstract names).
+
+    A Unix socket's connect never completes later: EAGAIN means the listener's backlog is full and nothing
+    was started (waiting for the socket to become writable would return an unconnected socket). So it tries
+    again, 1 ms apart doubling to 50 ms, until the caller's timeout: a peer flooding the listener with
+    connections delays us, it does not make us attach to nothing.
+    """
+    delay = 0.001
+    while True:
+        try:
+            sock.connect(address)
+            return
+        except (BlockingIOError, InterruptedError):
+            await asyncio.sleep(delay)
+            delay = min(0.05, delay * 2)
 
 
 def close_fds(fds: Iterable[int]) -> None:

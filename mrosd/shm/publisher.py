@@ -334,7 +334,7 @@ class ShmPublisherEndpoint:
 
     def _on_progress(self, link: ShmSubscriberLink) -> None:
         if not drain_socket(link.wake):
-            self._drop(link, "it closed its wake-up channel")
+            self._drop(link, "")  # its end closed: it went away (its control socket says so too, maybe later)
             return
         if self.backlog and not self.closed:
             self._recheck_delay = 0.0

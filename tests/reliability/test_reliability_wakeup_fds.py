@@ -400,3 +400,58 @@ async def test_a_subscriber_that_blocks_its_wakeups_cannot_stop_the_publisher(pr
     assert alive
     assert before > 30
     assert after > 60, after
+
+
+# the shared-memory control socket: a peer that connects and closes in a loop (issue 24, item 7) ----------
+
+LOGGING_PUBLISHER = PUBLISHER.replace(
+    "import asyncio, sys\n", "import asyncio, logging, sys\nlogging.basicConfig(level='INFO', stream=sys.stderr)\n"
+)
+
+
+def connect_and_close(address: str, seconds: float) -> Callable[[Any], dict[str, Any]]:
+    def run(report: Any) -> dict[str, Any]:
+        report({"ready": True})
+        n = 0
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            with contextlib.suppress(OSError):
+                s.connect("\0" + address[1:])
+                n += 1
+            s.close()
+        return {"connections": n}
+
+    return run
+
+
+def start_logging_publisher(procs: Processes, log_path: Path, trusted_uid: int) -> subprocess.Popen[bytes]:
+    with open(log_path, "wb") as err:
+        return procs.our_python(["-c", LOGGING_PUBLISHER, str(trusted_uid)], dict(os.environ), stderr=err.fileno())
+
+
+@pytest.mark.parametrize("trusted", [False, True], ids=["untrusted-uid", "trusted-uid"])
+async def test_a_peer_that_connects_and_closes_in_a_loop_cannot_flood_the_log(
+    procs: Processes, tmp_path: Path, trusted: bool
+) -> None:
+    attacker = nobody()
+    log_path = tmp_path / "publisher.log"
+    pub = start_logging_publisher(procs, log_path, attacker.pw_uid if trusted else 0)
+    words = next(iter_lines_until(pub, 1, 20.0)).split()
+    address, token = words[1], words[2]
+    hostile = Child(attacker, connect_and_close(address, 3.0))
+    try:
+        await asyncio.to_thread(hostile.line)
+        hostile.go()
+        during = await count_messages(address, token, 3.0)
+        result = await asyncio.to_thread(hostile.line, 10.0)
+    finally:
+        hostile.close()
+    alive = pub.poll() is None
+    Processes.stop(pub)
+    lines = log_path.read_text().splitlines()
+    print(f"{result}; publisher log: {len(lines)} lines; legit subscriber {during / 3:.0f}/s", file=sys.stderr)
+    assert alive
+    assert result["connections"] > 1000, result
+    assert len(lines) <= 50, lines[:10]  # 1000 lines per minute is 50 in 3 s
+    assert during / 3 > 60, during
