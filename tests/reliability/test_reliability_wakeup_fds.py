@@ -455,3 +455,55 @@ async def test_a_peer_that_connects_and_closes_in_a_loop_cannot_flood_the_log(
     assert result["connections"] > 1000, result
     assert len(lines) <= 50, lines[:10]  # 1000 lines per minute is 50 in 3 s
     assert during / 3 > 60, during
+
+
+# woken-reader slots of an IXM key (issue 24, item 6) ------------------------------------------------------
+
+
+def many_readers(path: str, key: str, count: int) -> Callable[[Any], dict[str, Any]]:
+    def run(report: Any) -> dict[str, Any]:
+        import resource
+
+        hard = resource.getrlimit(resource.RLIMIT_NOFILE)[1]
+        resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, 8192), hard))
+        clients, errors = [], []
+        for _ in range(count):
+            try:
+                c = IxmClient(path, name="hog")
+                clients.append(c)
+                c.open(key)
+            except IxmError as exc:
+                errors.append(str(exc))
+        report({"opened": count - len(errors), "errors": errors[-1:]})
+        for c in clients:
+            c.close()
+        return {}
+
+    return run
+
+
+def test_one_uid_cannot_take_every_woken_reader_slot_of_a_key(procs: Processes) -> None:
+    from mrosd.ixm.server import MAX_WAKE_READERS
+
+    attacker, other = nobody(), third_user()
+    with shared_dir() as tmp:
+        path = os.path.join(tmp, "ixm.sock")
+        start_daemon(procs, path)
+        with IxmClient(path, name="creator") as ixm:
+            ixm.open("/popular", "float64", mode="w").write(1.0)
+            hog = Child(attacker, many_readers(path, "/popular", MAX_WAKE_READERS))
+            late = None
+            try:
+                taken = hog.line(timeout=120)  # it holds what it got until go()
+                late = Child(other, many_readers(path, "/popular", 3))
+                got = late.line()
+                hog.go()
+                late.go()
+            finally:
+                hog.close()
+                if late is not None:
+                    late.close()
+    print(f"one uid: {taken['opened']} slots ({taken['errors']}); another uid: {got}", file=sys.stderr)
+    assert got["opened"] == 3, got  # the other uid still gets readers woken
+    assert taken["opened"] < MAX_WAKE_READERS // 2, taken
+    assert "share" in taken["errors"][0], taken
