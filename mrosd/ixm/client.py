@@ -44,7 +44,7 @@ from mrosd.config import default_ixm_socket
 from mrosd.errors import IxmError, RemoteProtocolError
 from mrosd.ixm.channel import recv_with_fds, send_frame
 from mrosd.ixm.connection import ClientConnection, check_daemon, close_all, error_from, open_request, trusted_uids
-from mrosd.ixm.keys import KeyBase, KeyState
+from mrosd.ixm.keys import ASYNC_LOCK_WAIT, KeyBase, KeyState
 from mrosd.ixm.protocol import Close, Error, Hello, List, Listing, Reply, Request
 from mrosd.spin import AdaptiveSpin, default_max_ns, loop_spinner
 
@@ -364,6 +364,7 @@ class AsyncIxmKey(KeyBase):
         self._state = state
         self._event = asyncio.Event()
         self._poke = loop_spinner(client._loop).poke
+        state.lock_wait = ASYNC_LOCK_WAIT  # a write runs in the loop: never wait long for another writer
         if state.wake_fd is not None:
             client._loop.add_reader(state.wake_fd, self._on_wake)
 

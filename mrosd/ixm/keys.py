@@ -13,6 +13,7 @@ import contextlib
 import fcntl
 import mmap
 import os
+import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -25,6 +26,11 @@ from mrosd.ixm.types import IxmType, codec
 __all__ = ["KeyBase", "KeyState", "Pushes"]
 
 _NEVER = memoryview(bytearray(8)).cast("Q")
+#: Seconds a write waits for the writers' lock while another writer holds it, then fails: a writer that
+#: holds it for good (stopped, hostile) must not hold every other writer of the key for good. An asyncio
+#: key's write runs in the event loop, so it waits far less (the daemon's bridges write this way).
+LOCK_WAIT = 0.5
+ASYNC_LOCK_WAIT = 0.005
 
 
 class Pushes:
@@ -95,6 +101,8 @@ class KeyState:
         self.refresh_targets: Callable[[], None] = lambda: None
         self.last_seq = 0
         self.closed = False
+        #: see LOCK_WAIT
+        self.lock_wait = LOCK_WAIT
 
     # writing ---------------------------------------------------------------------------------------------
 
@@ -102,7 +110,7 @@ class KeyState:
         if not self.writable:
             raise IxmError(f"{self.key} is open for reading only (mode {self.mode!r})")
         fd = self.lock_fd
-        fcntl.flock(fd, fcntl.LOCK_EX)
+        self._lock()
         try:
             seq = self.layout.write(data)
         finally:
@@ -117,6 +125,35 @@ class KeyState:
         self.signal()
         return seq
 
+    def _lock(self) -> None:
+        """Take the writers' lock, waiting at most ``lock_wait`` seconds (yielding, then sleeping briefly).
+
+        Raises:
+            IxmError: another writer held it all that time; the value is not written.
+        """
+        fd = self.lock_fd
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return
+        except BlockingIOError:
+            pass
+        deadline = time.monotonic() + self.lock_wait
+        tries = 0
+        while True:
+            tries += 1
+            if tries < 64:
+                os.sched_yield()  # an honest writer holds it for one copy: usually microseconds
+            else:
+                time.sleep(min(0.002, self.lock_wait / 8))
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                return
+            except BlockingIOError:
+                if time.monotonic() >= deadline:
+                    raise IxmError(
+                        f"{self.key}: another writer has held the key's lock for {self.lock_wait} s; not written"
+                    ) from None
+
     def signal(self) -> None:
         for target in self.targets:
             wake(target)  # never blocks; a full pipe is a wake-up pending, a reader gone leaves with the next list
@@ -128,7 +165,7 @@ class KeyState:
         if not self.type.is_raw_array:
             raise IxmError(f"{self.key} holds {self.type.describe()}: zero-copy views are for numeric arrays")
         fmt = self.type.fmt
-        fcntl.flock(self.lock_fd, fcntl.LOCK_EX)
+        self._lock()
         try:
             layout = self.layout
             seq = layout.begin_write()
