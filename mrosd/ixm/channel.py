@@ -187,13 +187,19 @@ def wake(fd: int) -> bool:
     return True
 
 
-def drain(fd: int) -> None:
-    """Empty the read end of a wake pipe (our own, non-blocking description)."""
+def drain(fd: int) -> bool:
+    """Empty the read end of a wake pipe (our own, non-blocking description); False at end of file: every
+    write end is closed (the daemon, which keeps one while we are a reader, is gone), so no one will wake us
+    and the descriptor would stay readable for ever."""
     try:
-        while len(os.read(fd, _DRAIN)) == _DRAIN:
-            pass
+        while True:
+            got = len(os.read(fd, _DRAIN))
+            if got == 0:
+                return False
+            if got < _DRAIN:
+                return True
     except OSError:
-        pass
+        return True
 
 
 def is_wake_pipe(fd: int) -> bool:

@@ -55,6 +55,8 @@ __all__ = ["DEFAULT_TIMEOUT", "AsyncIxmClient", "AsyncIxmKey", "IxmClient", "Ixm
 
 #: Bound on one request/reply exchange with the daemon.
 DEFAULT_TIMEOUT = 5.0
+#: How often a reader no one can wake any more (its daemon is gone) looks at the key's counter, in ms.
+_ORPHAN_POLL_MS = 10
 _GONE = (errno.EPIPE, errno.ECONNRESET)
 
 Mode = Literal["r", "w", "rw"]
@@ -83,6 +85,8 @@ class IxmKey(KeyBase):
         self._client = client
         self._state = state
         self._poll: select.poll | None = None
+        #: every write end of our wake-up pipe is closed (the daemon is gone): poll the counter instead
+        self._orphaned = False
         #: spin-then-block (mrosd.spin): how long ``wait`` watches the sequence counter before sleeping
         self._spin = AdaptiveSpin(default_max_ns())
         if state.wake_fd is not None:
@@ -130,11 +134,18 @@ class IxmKey(KeyBase):
                 spin.blocked(_now_ns() - blocked)
                 return
             remaining = -1 if deadline is None else max(0, int((deadline - time.monotonic()) * 1000))
-            if not self._poll.poll(remaining) and deadline is not None and time.monotonic() >= deadline:
+            if self._orphaned:  # no one can wake us: look at the counter every few milliseconds instead
+                remaining = _ORPHAN_POLL_MS if remaining < 0 else min(remaining, _ORPHAN_POLL_MS)
+                time.sleep(remaining / 1000)
+                ready = False
+            else:
+                ready = bool(self._poll.poll(remaining))
+            if not ready and deadline is not None and time.monotonic() >= deadline:
                 if fresh():
                     return
                 raise TimeoutError(f"no write to {st.key} within {timeout} s")
-            st.drain_wake()
+            if ready and not st.drain_wake():
+                self._orphaned = True
 
     def __iter__(self) -> Iterator[Any]:
         """Each new value as it is written (latest-value semantics: a slow loop skips values)."""
@@ -363,13 +374,18 @@ class AsyncIxmKey(KeyBase):
         self._client = client
         self._state = state
         self._event = asyncio.Event()
+        #: see IxmKey._orphaned
+        self._orphaned = False
         self._poke = loop_spinner(client._loop).poke
         state.lock_wait = ASYNC_LOCK_WAIT  # a write runs in the loop: never wait long for another writer
         if state.wake_fd is not None:
             client._loop.add_reader(state.wake_fd, self._on_wake)
 
     def _on_wake(self) -> None:
-        self._state.drain_wake()
+        if not self._state.drain_wake() and self._state.wake_fd is not None:
+            # no one can wake us any more, and the pipe would stay readable: stop watching it, look instead
+            self._client._loop.remove_reader(self._state.wake_fd)
+            self._orphaned = True
         self._poke()
         self._event.set()
 
@@ -384,12 +400,17 @@ class AsyncIxmKey(KeyBase):
             raise IxmError(f"{st.key} is open for writing only; open it with mode 'r' or 'rw' to wait")
         async with asyncio.timeout(timeout):
             while True:
+                if st.closed:  # the client lost its daemon (it closes every key then) or the key was closed
+                    raise self._client._failure or IxmError(f"{st.key} is closed")
                 if st.fresh():
                     return st.read()
                 self._event.clear()
                 if st.fresh():
                     return st.read()
-                await self._event.wait()
+                if self._orphaned:
+                    await asyncio.sleep(_ORPHAN_POLL_MS / 1000)
+                else:
+                    await self._event.wait()
 
     def __aiter__(self) -> AsyncIterator[Any]:
         return self._iterate()
@@ -403,7 +424,7 @@ class AsyncIxmKey(KeyBase):
         st = self._state
         if st.closed:
             return
-        if st.wake_fd is not None:
+        if st.wake_fd is not None and not self._orphaned:
             self._client._loop.remove_reader(st.wake_fd)
         st.close()
         await self._client._forget(self)

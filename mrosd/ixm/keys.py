@@ -213,9 +213,9 @@ class KeyState:
         seq = self.layout.seq
         return seq != self.last_seq and not seq & 1
 
-    def drain_wake(self) -> None:
-        if self.wake_fd is not None:
-            drain(self.wake_fd)
+    def drain_wake(self) -> bool:
+        """Consume pending wake-ups; False once no one can wake us any more (see ``drain``)."""
+        return self.wake_fd is None or drain(self.wake_fd)
 
     def close(self) -> None:
         if self.closed:

@@ -236,7 +236,7 @@ class ShmSubscriberConnection:
 
     def _on_wake(self) -> None:
         if self._wake is not None and not drain_socket(self._wake):
-            self._end("the publisher closed its wake-up channel")
+            self._end("")  # the publisher went away (its control socket says so too, maybe later)
             return
         self._poke()
         if self._on_frame is not None:

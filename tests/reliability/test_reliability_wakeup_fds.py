@@ -524,3 +524,46 @@ def test_one_uid_cannot_take_every_woken_reader_slot_of_a_key(procs: Processes) 
     assert got["opened"] == 3, got  # the other uid still gets readers woken
     assert taken["opened"] < MAX_WAKE_READERS // 2, taken
     assert "share" in taken["errors"][0], taken
+
+
+def test_a_reader_whose_daemon_died_waits_without_spinning(procs: Processes) -> None:
+    """The daemon keeps a write end of each reader's pipe: when it dies with no writer left, the pipe reads
+    end-of-file, readable for ever; a reader must not spin on it, and still sees writes made through memory."""
+    with shared_dir() as tmp:
+        path = os.path.join(tmp, "ixm.sock")
+        daemon = start_daemon(procs, path)
+        with IxmClient(path, name="orphan") as ixm:
+            key = ixm.open("/orphan", "float64", mode="rw")
+            key.write(1.0)
+            key.read()
+            daemon.kill()
+            daemon.wait(5)
+            cpu = time.process_time()
+            with pytest.raises(TimeoutError):
+                key.wait(timeout=1.0)
+            spent = time.process_time() - cpu
+            key.write(2.0)  # through shared memory: the mapping outlives the daemon
+            assert key.read() == 2.0
+    print(f"CPU while waiting 1 s for an orphaned key: {spent:.3f} s", file=sys.stderr)
+    assert spent < 0.3, spent
+
+
+async def test_an_async_reader_whose_daemon_died_is_told_so_without_spinning(procs: Processes) -> None:
+    """The asyncio client sees its socket close and closes its keys: a wait says the daemon is lost."""
+    from mrosd.ixm import AsyncIxmClient
+
+    with shared_dir() as tmp:
+        path = os.path.join(tmp, "ixm.sock")
+        daemon = start_daemon(procs, path)
+        async with AsyncIxmClient(path, name="orphan") as ixm:
+            key = await ixm.open("/orphan", "float64", mode="rw")
+            key.write(1.0)
+            key.read()
+            daemon.kill()
+            await asyncio.to_thread(daemon.wait, 5)
+            cpu = time.process_time()
+            with pytest.raises(IxmError, match="IXM daemon"):
+                await key.wait(timeout=1.0)
+            spent = time.process_time() - cpu
+    print(f"CPU while waiting for a key whose daemon died (asyncio): {spent:.3f} s", file=sys.stderr)
+    assert spent < 0.3, spent
