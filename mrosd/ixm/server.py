@@ -438,7 +438,15 @@ class IxmServer:
             info, effects = self.registry.open(client.id, req.key, req.type, req.count, req.max_size, req.mode)
         except IxmPermissionError as exc:
             self._close_fd(wake_fd)
-            log.info("IXM: refused %s of %s to pid %d uid %d", req.mode, req.key, client.peer.pid, client.peer.uid)
+            self._ratelog.log(  # a client can ask again and again: one line per uid and 10 s, with a count
+                logging.INFO,
+                f"refused-{client.peer.uid}",
+                "IXM: refused %s of %s to pid %d uid %d",
+                req.mode,
+                req.key,
+                client.peer.pid,
+                client.peer.uid,
+            )
             self._send(client, Error("permission", str(exc)))
             return
         except MrosError as exc:

@@ -162,6 +162,21 @@ def hostile_reader(path: str, key: str) -> Callable[[Any], dict[str, Any]]:
     return run
 
 
+def hostile_writer(path: str, key: str) -> Callable[[Any], dict[str, Any]]:
+    """A writer (the rules let anyone write) that does the same to the readers' wake-up descriptors it is
+    handed: the write end the other writers share."""
+
+    def run(report: Any) -> dict[str, Any]:
+        before = open_fds()
+        with IxmClient(path, name="hostile-writer") as ixm:
+            k = ixm.open(key, "float64", mode="w")
+            done = sabotage({ixm._sock.fileno(), k._state.fd, k._state.lock_fd, *before})
+            report({"sabotaged": done})
+            return {"ok": True}
+
+    return run
+
+
 def counting_writer(path: str, key: str, seconds: float) -> Callable[[Any], dict[str, Any]]:
     def run(report: Any) -> dict[str, Any]:
         with IxmClient(path, name="writer") as ixm:
@@ -178,7 +193,10 @@ def counting_writer(path: str, key: str, seconds: float) -> Callable[[Any], dict
     return run
 
 
-def test_a_reader_that_blocks_and_fills_its_wakeup_cannot_stop_a_writer_of_a_third_uid(procs: Processes) -> None:
+@pytest.mark.parametrize("attack", [hostile_reader, hostile_writer], ids=["reader", "writer"])
+def test_a_peer_that_blocks_and_fills_a_wakeup_cannot_stop_a_writer_of_a_third_uid(
+    procs: Processes, attack: Any
+) -> None:
     attacker, writer_user = nobody(), third_user()
     with shared_dir() as tmp:
         config = Path(tmp) / "mrosd.toml"
@@ -189,7 +207,7 @@ def test_a_reader_that_blocks_and_fills_its_wakeup_cannot_stop_a_writer_of_a_thi
             ixm.open("/shared", "float64", mode="w").write(0.5)
             legit = reader.open("/shared", "float64", mode="r")
             legit.read()
-            hostile = Child(attacker, hostile_reader(path, "/shared"))
+            hostile = Child(attacker, attack(path, "/shared"))
             writer = Child(writer_user, counting_writer(path, "/shared", 3.0))
             try:
                 sabotaged = hostile.line()
