@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from mrosd.errors import IxmError, IxmPermissionError, MrosError, RemoteProtocolError
-from mrosd.ixm.channel import MAX_FDS_PER_MESSAGE, FdReader, is_wake_pipe, send_frame
+from mrosd.ixm.channel import FdReader, is_wake_pipe, send_frame
 from mrosd.ixm.protocol import (
     MAX_REQUEST_SIZE,
     Close,
@@ -58,7 +58,7 @@ from mrosd.ixm.protocol import (
     encode,
 )
 from mrosd.ixm.registry import CreateSegment, Effect, ReadersChanged, Registry, UnlinkSegment
-from mrosd.ixm.resources import Limits, NoticePage, Segment
+from mrosd.ixm.resources import Limits, NoticePage, Segment, wake_slot_refusal
 from mrosd.ixm.rules import AccessRules, Peer, names_of, parse_rules
 from mrosd.ixm.rundir import prepare_socket_dir
 from mrosd.lograte import RateLimitedLog
@@ -71,14 +71,7 @@ log = logging.getLogger("mrosd.ixm")
 SHM_PREFIX = "mrosd-ixm-"
 #: Bytes queued for one client before it is considered stuck and disconnected.
 MAX_OUTBOX = 32 << 20
-#: Reader wake-up pipes one writer can be handed (one sendmsg): a key's woken-reader slots. An open beyond
-#: them is refused with a clear error.
-MAX_WAKE_READERS = MAX_FDS_PER_MESSAGE
-#: A uid may hold at most 1/WAKE_SHARES of a key's woken-reader slots (63 of 253): one uid then leaves at
-#: least 190 to the others, and a key is full only once five uids hold their share, which a user without
-#: root cannot make up on its own.
-WAKE_SHARES = 4
-WAKE_SLOTS_PER_UID = MAX_WAKE_READERS // WAKE_SHARES
+
 _PEERCRED = struct.Struct("3i")
 _OUT_OF_FDS = (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM)
 _BACKOFF_MIN, _BACKOFF_MAX = 0.02, 0.25
@@ -496,22 +489,14 @@ class IxmServer:
         self._send(client, reply, fds=[*fds, *wake], close_after=fds)
 
     def _check_wake_slots(self, key: str, uid: int) -> None:
-        """Refuse a woken reader of ``key`` when the key has no slot left or ``uid`` holds its share.
-
-        Raises:
-            IxmError: the message says which limit and how many slots the caller's uid holds.
-        """
+        """Raises: IxmError: ``key`` has no woken-reader slot left, or ``uid`` holds its share of them."""
         seg = self._segments.get(key)
         if seg is None:
             return
-        if len(seg.wake_fds) >= MAX_WAKE_READERS:
-            raise IxmError(f"{key} already has {MAX_WAKE_READERS} woken readers, the most one writer can signal")
-        mine = sum(1 for conn in seg.wake_fds if (c := self._clients.get(conn)) is not None and c.peer.uid == uid)
-        if mine >= WAKE_SLOTS_PER_UID:
-            raise IxmError(
-                f"uid {uid} already has {mine} woken readers of {key}, its share ({WAKE_SLOTS_PER_UID} of "
-                f"{MAX_WAKE_READERS}); close some"
-            )
+        holders = (c.peer.uid for conn in seg.wake_fds if (c := self._clients.get(conn)) is not None)
+        refusal = wake_slot_refusal(key, holders, uid)
+        if refusal:
+            raise IxmError(refusal)
 
     @staticmethod
     def _close_fd(fd: int | None) -> None:

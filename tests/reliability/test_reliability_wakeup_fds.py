@@ -518,7 +518,7 @@ def many_readers(path: str, key: str, count: int) -> Callable[[Any], dict[str, A
 
 
 def test_one_uid_cannot_take_every_woken_reader_slot_of_a_key(procs: Processes) -> None:
-    from mrosd.ixm.server import MAX_WAKE_READERS
+    from mrosd.ixm.resources import MAX_WAKE_READERS
 
     attacker, other = nobody(), third_user()
     with shared_dir() as tmp:
