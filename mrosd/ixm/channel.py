@@ -35,6 +35,7 @@ __all__ = [
     "is_wake_socket",
     "recv_with_fds",
     "send_frame",
+    "small_send_buffer",
     "wake",
     "wake_pipe",
     "wake_socket",
@@ -212,6 +213,16 @@ def is_wake_pipe(fd: int) -> bool:
         )
     except OSError:
         return False
+
+
+def small_send_buffer(sock: socket.socket) -> None:
+    """Keep few wake-ups in flight on our end of a pair: each send queues a buffer in the kernel until the
+    peer reads it, so a peer that never reads would otherwise pin the default send buffer (~200 KiB) of
+    ours; with a small one, the sends beyond a few find it full, which means a wake-up is already pending."""
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, _DRAIN)
+    except OSError:
+        pass
 
 
 def wake_socket(sock: socket.socket) -> bool:

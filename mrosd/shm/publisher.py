@@ -38,7 +38,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
-from mrosd.ixm.channel import drain_socket, wake_socket
+from mrosd.ixm.channel import drain_socket, small_send_buffer, wake_socket
 from mrosd.lograte import RateLimitedLog
 from mrosd.msg.runtime import is_immutable
 from mrosd.shm import control
@@ -139,6 +139,7 @@ class ShmSubscriberLink:
         except OSError:
             self.ack.close()
             raise
+        small_send_buffer(self.wake)
         #: no longer waited for (it fell too far behind) until it catches up
         self.lagging = False
 

@@ -22,7 +22,7 @@ from collections.abc import Callable
 from typing import Any
 
 from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
-from mrosd.ixm.channel import drain_socket, is_wake_socket, wake_socket
+from mrosd.ixm.channel import drain_socket, is_wake_socket, small_send_buffer, wake_socket
 from mrosd.msg.runtime import FramePool
 from mrosd.shm import control
 from mrosd.shm.channel import (
@@ -206,6 +206,7 @@ class ShmSubscriberConnection:
         if not is_wake_socket(self._wake, uid):
             close_fds([ring_fd, ack_fd])
             raise RemoteProtocolError("the shared-memory publisher's wake-up descriptor is not its own socket pair")
+        small_send_buffer(self._wake)
         try:
             self._ack = MappedAck(ack_fd)
         except BaseException:
