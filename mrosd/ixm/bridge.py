@@ -30,10 +30,13 @@ import msgspec
 
 from mrosd.errors import ConfigError, MrosError
 from mrosd.ixm.client import AsyncIxmClient, AsyncIxmKey
+from mrosd.lograte import RateLimitedLog
 
 __all__ = ["Bridge", "IxmBridge", "parse_bridges"]
 
 log = logging.getLogger("mrosd.ixm.bridge")
+#: a writer of the key or a subscriber can make every message fail: one line per kind and 10 s, with a count
+_ratelog = RateLimitedLog(log)
 
 
 class Bridge(msgspec.Struct, frozen=True, kw_only=True):
@@ -142,15 +145,19 @@ class IxmBridge:
             try:
                 await pub.publish(msg)
             except MrosError as exc:
-                log.warning("IXM bridge %s -> %s: publish failed: %s", bridge.key, bridge.topic, exc)
+                _ratelog.warning(
+                    f"pub-{bridge.key}", "IXM bridge %s -> %s: publish failed: %s", bridge.key, bridge.topic, exc
+                )
 
     @staticmethod
     def _writer(bridge: Bridge, key: AsyncIxmKey) -> Any:
         def write(msg: Any) -> None:
             try:
                 key.write(msg)
-            except MrosError as exc:  # e.g. larger than max_size: drop this message, keep the bridge
-                log.warning("IXM bridge %s <- %s: message dropped: %s", bridge.key, bridge.topic, exc)
+            except MrosError as exc:  # larger than max_size, another writer holding the lock: drop this message
+                _ratelog.warning(
+                    f"drop-{bridge.key}", "IXM bridge %s <- %s: message dropped: %s", bridge.key, bridge.topic, exc
+                )
 
         return write
 

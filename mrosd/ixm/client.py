@@ -4,11 +4,12 @@ Both are thin shells around the sans-IO ``ClientConnection`` (framing, descripto
 only move bytes and descriptors over the Unix socket and wait; keys (``mrosd.ixm.keys``) read and write
 shared memory without the daemon, which is only involved at open and close.
 
-Wake-ups without polling (the paper's open point): each reader creates an eventfd and gives it to the
-daemon at open; the daemon hands every writer of the key the current readers' eventfds (SCM_RIGHTS) and
-counts those pushes in a page the writer maps read-only. A write is: take the writers' ``flock``,
-seqlock-copy the value, release, then one 8-byte ``write`` to each reader's eventfd. A reader blocks in
-``poll`` (or the event loop) on its own eventfd. Readers never block the writer: a reader that does not
+Wake-ups without polling (the paper's open point): each reader creates a pipe and gives its write end to
+the daemon at open; the daemon hands every writer of the key the current readers' write ends (SCM_RIGHTS)
+and counts those pushes in a page the writer maps read-only. A write is: take the writers' ``flock``,
+seqlock-copy the value, release, then one 1-byte ``RWF_NOWAIT`` write into each reader's pipe, which no
+holder of the pipe can make blocking (``mrosd.ixm.channel``). A reader blocks in ``poll`` (or the event
+loop) on its own read end. Readers never block the writer: a reader that does not
 keep up simply sees the latest value (IXM keys hold the latest value, not a queue).
 
 Before anything else a client checks who serves the socket (SO_PEERCRED): root, its own uid, or a uid in
@@ -43,7 +44,7 @@ from mrosd.config import default_ixm_socket
 from mrosd.errors import IxmError, RemoteProtocolError
 from mrosd.ixm.channel import recv_with_fds, send_frame
 from mrosd.ixm.connection import ClientConnection, check_daemon, close_all, error_from, open_request, trusted_uids
-from mrosd.ixm.keys import KeyBase, KeyState
+from mrosd.ixm.keys import ASYNC_LOCK_WAIT, KeyBase, KeyState
 from mrosd.ixm.protocol import Close, Error, Hello, List, Listing, Reply, Request
 from mrosd.spin import AdaptiveSpin, default_max_ns, loop_spinner
 
@@ -54,6 +55,8 @@ __all__ = ["DEFAULT_TIMEOUT", "AsyncIxmClient", "AsyncIxmKey", "IxmClient", "Ixm
 
 #: Bound on one request/reply exchange with the daemon.
 DEFAULT_TIMEOUT = 5.0
+#: How often a reader no one can wake any more (its daemon is gone) looks at the key's counter, in ms.
+_ORPHAN_POLL_MS = 10
 _GONE = (errno.EPIPE, errno.ECONNRESET)
 
 Mode = Literal["r", "w", "rw"]
@@ -82,6 +85,8 @@ class IxmKey(KeyBase):
         self._client = client
         self._state = state
         self._poll: select.poll | None = None
+        #: every write end of our wake-up pipe is closed (the daemon is gone): poll the counter instead
+        self._orphaned = False
         #: spin-then-block (mrosd.spin): how long ``wait`` watches the sequence counter before sleeping
         self._spin = AdaptiveSpin(default_max_ns())
         if state.wake_fd is not None:
@@ -116,7 +121,7 @@ class IxmKey(KeyBase):
         if spin.window_ns:
             # Watch the shared sequence counter for the window, yielding the CPU at each step: when the
             # writer is runnable on this same CPU it runs at once instead of after our window. The writer's
-            # eventfd signal that comes with a write caught here is drained by the next blocking wait.
+            # wake-up that comes with a write caught here is drained by the next blocking wait.
             end = _now_ns() + spin.window_ns
             while _now_ns() < end:
                 if fresh():
@@ -129,11 +134,18 @@ class IxmKey(KeyBase):
                 spin.blocked(_now_ns() - blocked)
                 return
             remaining = -1 if deadline is None else max(0, int((deadline - time.monotonic()) * 1000))
-            if not self._poll.poll(remaining) and deadline is not None and time.monotonic() >= deadline:
+            if self._orphaned:  # no one can wake us: look at the counter every few milliseconds instead
+                remaining = _ORPHAN_POLL_MS if remaining < 0 else min(remaining, _ORPHAN_POLL_MS)
+                time.sleep(remaining / 1000)
+                ready = False
+            else:
+                ready = bool(self._poll.poll(remaining))
+            if not ready and deadline is not None and time.monotonic() >= deadline:
                 if fresh():
                     return
                 raise TimeoutError(f"no write to {st.key} within {timeout} s")
-            st.drain_wake()
+            if ready and not st.drain_wake():
+                self._orphaned = True
 
     def __iter__(self) -> Iterator[Any]:
         """Each new value as it is written (latest-value semantics: a slow loop skips values)."""
@@ -290,12 +302,14 @@ class IxmClient:
             IxmPermissionError: the daemon's rules refuse this process the mode.
             IxmError: a bad type or size, a type different from the existing key's, a cap, or no daemon.
         """
-        request, efd = open_request(key, type, count, max_size, mode)
+        request, efd, sent = open_request(key, type, count, max_size, mode)
         try:
-            reply = self._request(request, [efd] if efd is not None else None)
+            reply = self._request(request, sent)
         except BaseException:
             close_all([efd])
             raise
+        finally:
+            close_all(sent)  # the daemon and the writers hold the write end, never us
         state = self._conn.opened(reply, efd)
         state.refresh_targets = self._drain_pushes
         handle = IxmKey(self, state)
@@ -360,12 +374,18 @@ class AsyncIxmKey(KeyBase):
         self._client = client
         self._state = state
         self._event = asyncio.Event()
+        #: see IxmKey._orphaned
+        self._orphaned = False
         self._poke = loop_spinner(client._loop).poke
+        state.lock_wait = ASYNC_LOCK_WAIT  # a write runs in the loop: never wait long for another writer
         if state.wake_fd is not None:
             client._loop.add_reader(state.wake_fd, self._on_wake)
 
     def _on_wake(self) -> None:
-        self._state.drain_wake()
+        if not self._state.drain_wake() and self._state.wake_fd is not None:
+            # no one can wake us any more, and the pipe would stay readable: stop watching it, look instead
+            self._client._loop.remove_reader(self._state.wake_fd)
+            self._orphaned = True
         self._poke()
         self._event.set()
 
@@ -380,12 +400,17 @@ class AsyncIxmKey(KeyBase):
             raise IxmError(f"{st.key} is open for writing only; open it with mode 'r' or 'rw' to wait")
         async with asyncio.timeout(timeout):
             while True:
+                if st.closed:  # the client lost its daemon (it closes every key then) or the key was closed
+                    raise self._client._failure or IxmError(f"{st.key} is closed")
                 if st.fresh():
                     return st.read()
                 self._event.clear()
                 if st.fresh():
                     return st.read()
-                await self._event.wait()
+                if self._orphaned:
+                    await asyncio.sleep(_ORPHAN_POLL_MS / 1000)
+                else:
+                    await self._event.wait()
 
     def __aiter__(self) -> AsyncIterator[Any]:
         return self._iterate()
@@ -399,7 +424,7 @@ class AsyncIxmKey(KeyBase):
         st = self._state
         if st.closed:
             return
-        if st.wake_fd is not None:
+        if st.wake_fd is not None and not self._orphaned:
             self._client._loop.remove_reader(st.wake_fd)
         st.close()
         await self._client._forget(self)
@@ -524,12 +549,14 @@ class AsyncIxmClient:
         mode: Mode = "r",
     ) -> AsyncIxmKey:
         """IxmInit; see ``IxmClient.open``."""
-        request, efd = open_request(key, type, count, max_size, mode)
+        request, efd, sent = open_request(key, type, count, max_size, mode)
         try:
-            reply = await self._request(request, [efd] if efd is not None else None)
+            reply = await self._request(request, sent)
         except BaseException:
             close_all([efd])
             raise
+        finally:
+            close_all(sent)  # the daemon and the writers hold the write end, never us
         state = self._conn.opened(reply, efd)
         state.refresh_targets = self._on_readable
         handle = AsyncIxmKey(self, state)

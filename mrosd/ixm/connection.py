@@ -18,7 +18,7 @@ from collections import deque
 from collections.abc import Iterable
 
 from mrosd.errors import IxmError, IxmPermissionError, RemoteProtocolError
-from mrosd.ixm.channel import MAX_PENDING_FDS
+from mrosd.ixm.channel import MAX_PENDING_FDS, wake_pipe
 from mrosd.ixm.keys import KeyState, Pushes
 from mrosd.ixm.protocol import (
     MAX_REPLY_SIZE,
@@ -84,11 +84,13 @@ def check_daemon(sock: socket.socket, path: str, trusted: frozenset[int]) -> Non
 
 def open_request(
     key: str, type: str | None, count: int | None, max_size: int | None, mode: str
-) -> tuple[Open, int | None]:
-    """The Open request, and the eventfd this process will be woken through when it reads."""
+) -> tuple[Open, int | None, list[int]]:
+    """The Open request, the read end of the wake-up pipe this process will be woken through when it reads,
+    and the descriptors to send with the request (the pipe's write end: close it once sent)."""
     wake = "r" in mode
-    efd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC) if wake else None
-    return Open(key=key, type=type, count=count, max_size=max_size, mode=mode, wake=wake), efd  # type: ignore[arg-type]
+    ends = wake_pipe() if wake else None
+    request = Open(key=key, type=type, count=count, max_size=max_size, mode=mode, wake=wake)  # type: ignore[arg-type]
+    return request, ends[0] if ends else None, [ends[1]] if ends else []
 
 
 class ClientConnection:
@@ -144,7 +146,7 @@ class ClientConnection:
         """The key state for the daemon's answer to Open (its descriptors taken and the segment mapped).
 
         Raises:
-            IxmError: the daemon refused, or the segment cannot be mapped (the eventfd is closed).
+            IxmError: the daemon refused, or the segment cannot be mapped (the wake-up pipe is closed).
             RemoteProtocolError: the daemon answered with something other than Opened.
         """
         if not isinstance(reply, Opened):

@@ -1,7 +1,7 @@
 """One open IXM key in this process: its mapping, the seqlocked read and write, the wake-ups it sends.
 
 This module owns what a key does without the daemon: writing (IxmWrite: ``flock`` between writers, the
-seqlock copy, then one 8-byte ``write`` to each reader's eventfd) and reading (IxmRead). A writer checks
+seqlock copy, then one non-blocking wake-up into each reader's pipe) and reading (IxmRead). A writer checks
 after each write whether the daemon pushed a new list of readers to wake: the daemon counts its pushes in
 the connection's notice page (mapped read-only here) and the connection counts those it applied; only
 when the two differ does the writer read its socket.
@@ -13,19 +13,24 @@ import contextlib
 import fcntl
 import mmap
 import os
-import sys
+import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
 from mrosd.errors import IxmError
+from mrosd.ixm.channel import drain, wake
 from mrosd.ixm.layout import SegmentLayout
 from mrosd.ixm.protocol import Opened
 from mrosd.ixm.types import IxmType, codec
 
 __all__ = ["KeyBase", "KeyState", "Pushes"]
 
-_ONE = (1).to_bytes(8, sys.byteorder)
 _NEVER = memoryview(bytearray(8)).cast("Q")
+#: Seconds a write waits for the writers' lock while another writer holds it, then fails: a writer that
+#: holds it for good (stopped, hostile) must not hold every other writer of the key for good. An asyncio
+#: key's write runs in the event loop, so it waits far less (the daemon's bridges write this way).
+LOCK_WAIT = 0.5
+ASYNC_LOCK_WAIT = 0.005
 
 
 class Pushes:
@@ -55,7 +60,8 @@ class Pushes:
 
 
 class KeyState:
-    """One open key: the mapping, the codec, the reader's eventfd, the writer's list of eventfds to signal."""
+    """One open key: the mapping, the codec, the reader's wake-up pipe (read end), the writer's list of
+    readers' pipes (write ends) to wake."""
 
     def __init__(
         self, opened: Opened, fd: int, wake_fd: int | None, pushes: Pushes | None = None, lock_fd: int | None = None
@@ -95,6 +101,8 @@ class KeyState:
         self.refresh_targets: Callable[[], None] = lambda: None
         self.last_seq = 0
         self.closed = False
+        #: see LOCK_WAIT
+        self.lock_wait = LOCK_WAIT
 
     # writing ---------------------------------------------------------------------------------------------
 
@@ -102,7 +110,7 @@ class KeyState:
         if not self.writable:
             raise IxmError(f"{self.key} is open for reading only (mode {self.mode!r})")
         fd = self.lock_fd
-        fcntl.flock(fd, fcntl.LOCK_EX)
+        self._lock()
         try:
             seq = self.layout.write(data)
         finally:
@@ -112,17 +120,43 @@ class KeyState:
         pushes = self.pushes
         if pushes.sent[0] != pushes.applied:
             # checked after the data is in place: a reader whose open completed before this point is
-            # already announced by the daemon, and its eventfd is in our socket buffer
+            # already announced by the daemon, and its wake-up pipe is in our socket buffer
             self.refresh_targets()
         self.signal()
         return seq
 
+    def _lock(self) -> None:
+        """Take the writers' lock, waiting at most ``lock_wait`` seconds (yielding, then sleeping briefly).
+
+        Raises:
+            IxmError: another writer held it all that time; the value is not written.
+        """
+        fd = self.lock_fd
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return
+        except BlockingIOError:
+            pass
+        deadline = time.monotonic() + self.lock_wait
+        tries = 0
+        while True:
+            tries += 1
+            if tries < 64:
+                os.sched_yield()  # an honest writer holds it for one copy: usually microseconds
+            else:
+                time.sleep(min(0.002, self.lock_wait / 8))
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                return
+            except BlockingIOError:
+                if time.monotonic() >= deadline:
+                    raise IxmError(
+                        f"{self.key}: another writer has held the key's lock for {self.lock_wait} s; not written"
+                    ) from None
+
     def signal(self) -> None:
         for target in self.targets:
-            try:
-                os.write(target, _ONE)
-            except (BlockingIOError, OSError):
-                pass  # a reader that never reads its eventfd only misses wake-ups it would coalesce anyway
+            wake(target)  # never blocks; a full pipe is a wake-up pending, a reader gone leaves with the next list
 
     @contextlib.contextmanager
     def writing(self) -> Iterator[memoryview]:
@@ -131,7 +165,7 @@ class KeyState:
         if not self.type.is_raw_array:
             raise IxmError(f"{self.key} holds {self.type.describe()}: zero-copy views are for numeric arrays")
         fmt = self.type.fmt
-        fcntl.flock(self.lock_fd, fcntl.LOCK_EX)
+        self._lock()
         try:
             layout = self.layout
             seq = layout.begin_write()
@@ -179,10 +213,9 @@ class KeyState:
         seq = self.layout.seq
         return seq != self.last_seq and not seq & 1
 
-    def drain_wake(self) -> None:
-        if self.wake_fd is not None:
-            with contextlib.suppress(BlockingIOError, OSError):
-                os.read(self.wake_fd, 8)
+    def drain_wake(self) -> bool:
+        """Consume pending wake-ups; False once no one can wake us any more (see ``drain``)."""
+        return self.wake_fd is None or drain(self.wake_fd)
 
     def close(self) -> None:
         if self.closed:

@@ -3,7 +3,8 @@
 This module owns the message types and their encoding (``encode``, ``decode_request``, ``decode_reply``) in
 the style of msgspec's asyncio key-value example; it has no socket. Frames are TCPROS frames, cut by the one
 ``FrameDecoder`` of ``mrosd.wire.framing`` with the limits below. File descriptors
-travel beside the bytes (SCM_RIGHTS): a message states how many it carries (``Open.wake``: one eventfd;
+travel beside the bytes (SCM_RIGHTS): a message states how many it carries (``Open.wake``: the write end
+of the reader's wake-up pipe;
 ``Opened``: one segment fd; ``WakeList.count``) and the receiver takes them, in order, from the fds that
 arrived with the stream. Data never flows through this protocol: it is only for opening, closing and
 listing keys, and for telling writers whom to wake.
@@ -57,7 +58,7 @@ class Hello(msgspec.Struct, tag_field="op", tag="hello", gc=False):
 
 
 class Open(msgspec.Struct, tag_field="op", tag="open", gc=False, kw_only=True):
-    """IxmInit. ``wake``: an eventfd follows, to be written by writers on each write."""
+    """IxmInit. ``wake``: the write end of the reader's wake-up pipe follows, which writers write on each write."""
 
     key: str
     type: str | None = None
@@ -97,7 +98,7 @@ class Opened(msgspec.Struct, tag_field="op", tag="opened", gc=False, kw_only=Tru
     """Open granted; fds follow: the segment (read-only for a reader); for a writer, the writers' lock file
     (``flock`` it around each write); at a connection's first open for writing (``notice``), its notice page
     (read-only: the count of WakeList pushes sent to it, ``generation`` so far); then, for a writer, the
-    ``wake`` eventfds of the key's current readers; later changes come as WakeList."""
+    ``wake`` pipes (write ends) of the key's current readers; later changes come as WakeList."""
 
     key: str
     type: str
@@ -112,7 +113,7 @@ class Opened(msgspec.Struct, tag_field="op", tag="opened", gc=False, kw_only=Tru
 
 
 class WakeList(msgspec.Struct, tag_field="op", tag="wake", gc=False, kw_only=True):
-    """Pushed to writers: ``count`` reader eventfds follow, replacing the previous list for ``key``;
+    """Pushed to writers: ``count`` readers' wake-up pipes (write ends) follow, replacing the previous list for ``key``;
     ``generation`` is the connection's push count, which its notice page shows once this is queued."""
 
     key: str

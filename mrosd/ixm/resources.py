@@ -16,13 +16,53 @@ import contextlib
 import fcntl
 import mmap
 import os
+from collections.abc import Iterable
 
 import msgspec
 
+from mrosd.ixm.channel import MAX_FDS_PER_MESSAGE
 from mrosd.ixm.layout import SegmentLayout
 from mrosd.ixm.registry import SegmentInfo
 
-__all__ = ["Limits", "NoticePage", "Segment", "held_memfds", "reopen", "sealed_memfd"]
+__all__ = [
+    "MAX_WAKE_READERS",
+    "WAKE_SHARES",
+    "WAKE_SLOTS_PER_UID",
+    "Limits",
+    "NoticePage",
+    "Segment",
+    "held_memfds",
+    "reopen",
+    "sealed_memfd",
+    "wake_slot_refusal",
+]
+
+#: A key's woken-reader slots: the readers' wake-up pipes one writer can be handed in one sendmsg (the
+#: kernel's SCM_MAX_FD).
+MAX_WAKE_READERS = MAX_FDS_PER_MESSAGE
+#: A uid may hold at most 1/WAKE_SHARES of a key's woken-reader slots (63 of 253): one uid then leaves at
+#: least 190 to the others, and a key is full only once five uids hold their share, which a user without
+#: root cannot make up on its own.
+WAKE_SHARES = 4
+WAKE_SLOTS_PER_UID = MAX_WAKE_READERS // WAKE_SHARES
+
+
+def wake_slot_refusal(key: str, holders: Iterable[int], uid: int) -> str:
+    """Why a new woken reader of ``key`` by ``uid`` is refused, given the uids of the woken readers it
+    already has (one entry per reader), or "" when it may have a slot."""
+    total = mine = 0
+    for holder in holders:
+        total += 1
+        mine += holder == uid
+    if total >= MAX_WAKE_READERS:
+        return f"{key} already has {MAX_WAKE_READERS} woken readers, the most one writer can signal"
+    if mine >= WAKE_SLOTS_PER_UID:
+        return (
+            f"uid {uid} already has {mine} woken readers of {key}, its share "
+            f"({WAKE_SLOTS_PER_UID} of {MAX_WAKE_READERS}); close some"
+        )
+    return ""
+
 
 _SEALS = fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW | fcntl.F_SEAL_SEAL
 
@@ -38,7 +78,7 @@ class Limits(msgspec.Struct, frozen=True, kw_only=True):
     @classmethod
     def for_fd_limit(cls, soft_limit: int, **given: int | None) -> Limits:
         """Defaults that keep IXM within 3/4 of ``soft_limit`` (a connection costs one descriptor, a key held
-        up to three: a reader's eventfd and, for its creator, the segment and the writers' lock), leaving the
+        up to three: a reader's wake-up pipe and, for its creator, the segment and the writers' lock), leaving the
         rest to the master; values in ``given`` (not None) are taken as they are."""
         budget = max(64, soft_limit * 3 // 4)
         clients = min(4096, budget // 4)
@@ -73,7 +113,7 @@ def reopen(fd: int, write: bool) -> int:
 
 
 class Segment:
-    """One key's memfd (the daemon's descriptor, never mapped here) and its readers' eventfds."""
+    """One key's memfd (the daemon's descriptor, never mapped here) and its readers' wake-up pipes (write ends)."""
 
     def __init__(self, info: SegmentInfo) -> None:
         t = info.type
@@ -82,11 +122,11 @@ class Segment:
         self.info = info
         #: the writers' lock file, created at the first open for writing
         self.lock_fd: int | None = None
-        #: reader connection -> the daemon's copy of its eventfd
+        #: reader connection -> the daemon's copy of its wake-up pipe's write end
         self.wake_fds: dict[int, int] = {}
 
     def fds_to_wake(self, writer: int) -> list[int]:
-        """The reader eventfds the writer connection ``writer`` signals (its own excluded), in a stable order."""
+        """The readers' wake-up pipes the writer connection ``writer`` signals (its own excluded), in a stable order."""
         return [fd for conn, fd in sorted(self.wake_fds.items()) if conn != writer]
 
     def open_fd(self, write: bool) -> int:

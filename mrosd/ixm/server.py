@@ -3,7 +3,7 @@
 This module owns the I/O around the pure ``Registry``: accepting clients, learning who they are from the
 kernel (SO_PEERCRED, /proc), creating segments, handing them out as file descriptors (SCM_RIGHTS; read-only
 descriptors to readers, so that their mappings cannot be written), and telling writers which reader
-eventfds to signal. It is not in the data path: writes and reads go straight to shared memory, and wake-ups
+wake-up pipes to write. It is not in the data path: writes and reads go straight to shared memory, and wake-ups
 go straight from writer to reader.
 
 Segments are sealed memfds: sized once, their header written with ``pwrite``, made 0600 (a reader's
@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from mrosd.errors import IxmError, IxmPermissionError, MrosError, RemoteProtocolError
-from mrosd.ixm.channel import MAX_FDS_PER_MESSAGE, FdReader, is_eventfd, send_frame
+from mrosd.ixm.channel import FdReader, is_wake_pipe, send_frame
 from mrosd.ixm.protocol import (
     MAX_REQUEST_SIZE,
     Close,
@@ -58,7 +58,7 @@ from mrosd.ixm.protocol import (
     encode,
 )
 from mrosd.ixm.registry import CreateSegment, Effect, ReadersChanged, Registry, UnlinkSegment
-from mrosd.ixm.resources import Limits, NoticePage, Segment
+from mrosd.ixm.resources import Limits, NoticePage, Segment, wake_slot_refusal
 from mrosd.ixm.rules import AccessRules, Peer, names_of, parse_rules
 from mrosd.ixm.rundir import prepare_socket_dir
 from mrosd.lograte import RateLimitedLog
@@ -71,9 +71,7 @@ log = logging.getLogger("mrosd.ixm")
 SHM_PREFIX = "mrosd-ixm-"
 #: Bytes queued for one client before it is considered stuck and disconnected.
 MAX_OUTBOX = 32 << 20
-#: Reader eventfds one writer can be handed (one sendmsg); more readers still read, unwoken ones poll-free
-#: wake-ups are refused at open with a clear error.
-MAX_WAKE_READERS = MAX_FDS_PER_MESSAGE
+
 _PEERCRED = struct.Struct("3i")
 _OUT_OF_FDS = (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM)
 _BACKOFF_MIN, _BACKOFF_MAX = 0.02, 0.25
@@ -419,21 +417,29 @@ class IxmServer:
         wake_fd = client.reader.take_fds(1)[0] if req.wake else None
         try:
             if wake_fd is not None:
-                if not is_eventfd(wake_fd):
-                    raise IxmError("the wake-up descriptor sent with open is not an eventfd")
+                if not is_wake_pipe(wake_fd):
+                    raise IxmError(
+                        "the wake-up descriptor sent with open is not the write end of a pipe "
+                        "(a client older than this daemon sends an eventfd: upgrade it)"
+                    )
+                # writers write it with RWF_NOWAIT, whatever its flags; this covers kernels without that
                 flags = fcntl.fcntl(wake_fd, fcntl.F_GETFL)
                 fcntl.fcntl(wake_fd, fcntl.F_SETFL, flags | os.O_NONBLOCK)
                 if "r" not in req.mode:
-                    raise IxmError("a wake-up eventfd only makes sense when opening for reading")
-                existing = self.registry.segments.get(req.key)
-                if existing is not None and len(existing.readers) >= MAX_WAKE_READERS:
-                    raise IxmError(
-                        f"{req.key} already has {MAX_WAKE_READERS} woken readers, the most one writer can signal"
-                    )
+                    raise IxmError("a wake-up pipe only makes sense when opening for reading")
+                self._check_wake_slots(req.key, client.peer.uid)
             info, effects = self.registry.open(client.id, req.key, req.type, req.count, req.max_size, req.mode)
         except IxmPermissionError as exc:
             self._close_fd(wake_fd)
-            log.info("IXM: refused %s of %s to pid %d uid %d", req.mode, req.key, client.peer.pid, client.peer.uid)
+            self._ratelog.log(  # a client can ask again and again: one line per uid and 10 s, with a count
+                logging.INFO,
+                f"refused-{client.peer.uid}",
+                "IXM: refused %s of %s to pid %d uid %d",
+                req.mode,
+                req.key,
+                client.peer.pid,
+                client.peer.uid,
+            )
             self._send(client, Error("permission", str(exc)))
             return
         except MrosError as exc:
@@ -481,6 +487,16 @@ class IxmServer:
             notice=notice is not None,
         )
         self._send(client, reply, fds=[*fds, *wake], close_after=fds)
+
+    def _check_wake_slots(self, key: str, uid: int) -> None:
+        """Raises: IxmError: ``key`` has no woken-reader slot left, or ``uid`` holds its share of them."""
+        seg = self._segments.get(key)
+        if seg is None:
+            return
+        holders = (c.peer.uid for conn in seg.wake_fds if (c := self._clients.get(conn)) is not None)
+        refusal = wake_slot_refusal(key, holders, uid)
+        if refusal:
+            raise IxmError(refusal)
 
     @staticmethod
     def _close_fd(fd: int | None) -> None:

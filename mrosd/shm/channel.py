@@ -2,7 +2,8 @@
 
 A publisher listens on an abstract Unix socket (no file to leave behind, scoped to the network namespace);
 each subscriber connects to it and the two exchange ``mrosd.shm.control`` messages, descriptors attached
-(the subscriber's eventfd, the publisher's rings). ``ControlChannel`` frames and unframes those messages;
+(the publisher's rings, acknowledgement pages and wake-up socket pairs). ``ControlChannel`` frames and
+unframes those messages;
 the functions here are the socket chores both ends share: the abstract name, connecting without blocking,
 the peer's credentials from the kernel, closing descriptors received.
 """
@@ -15,7 +16,6 @@ import errno
 import os
 import socket
 import struct
-import sys
 from collections.abc import Iterable
 
 from mrosd.ixm.channel import FdReader, send_frame
@@ -23,7 +23,6 @@ from mrosd.shm import control
 
 __all__ = [
     "ATTACH_TIMEOUT",
-    "ONE",
     "ControlChannel",
     "abstract_name",
     "close_fds",
@@ -35,8 +34,6 @@ __all__ = [
 ATTACH_TIMEOUT = 10.0
 
 _PEERCRED = struct.Struct("3i")
-#: what a wake-up writes to an eventfd
-ONE = (1).to_bytes(8, sys.byteorder)
 
 
 def abstract_name(address: str) -> str:
@@ -50,28 +47,22 @@ def peer_credentials(sock: socket.socket) -> tuple[int, int]:
     return pid, uid
 
 
-def _settle(future: asyncio.Future[None]) -> None:
-    if not future.done():
-        future.set_result(None)
-
-
 async def connect_unix(sock: socket.socket, address: str) -> None:
-    """Connect a non-blocking Unix socket (by hand: uvloop's sock_connect does not take abstract names)."""
-    try:
-        sock.connect(address)
-        return
-    except (BlockingIOError, InterruptedError):
-        pass  # the listener's backlog is full: wait until it takes us
-    loop = asyncio.get_running_loop()
-    ready: asyncio.Future[None] = loop.create_future()
-    loop.add_writer(sock.fileno(), _settle, ready)
-    try:
-        await ready
-    finally:
-        loop.remove_writer(sock.fileno())
-    err = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
-    if err:
-        raise OSError(err, os.strerror(err))
+    """Connect a non-blocking Unix socket (by hand: uvloop's sock_connect does not take abstract names).
+
+    A Unix socket's connect never completes later: EAGAIN means the listener's backlog is full and nothing
+    was started (waiting for the socket to become writable would return an unconnected socket). So it tries
+    again, 1 ms apart doubling to 50 ms, until the caller's timeout: a peer flooding the listener with
+    connections delays us, it does not make us attach to nothing.
+    """
+    delay = 0.001
+    while True:
+        try:
+            sock.connect(address)
+            return
+        except (BlockingIOError, InterruptedError):
+            await asyncio.sleep(delay)
+            delay = min(0.05, delay * 2)
 
 
 def close_fds(fds: Iterable[int]) -> None:

@@ -4,11 +4,12 @@ Frames are length-prefixed msgpack, read by ``mrosd.ixm.channel.FdReader`` as IX
 descriptors travel beside them with SCM_RIGHTS (``FDS`` says how many each kind carries). Data never
 goes through this socket:
 
-- ``Attach`` (subscriber -> publisher, + its eventfd): the token from requestTopic and the TCPROS
+- ``Attach`` (subscriber -> publisher, no descriptor): the token from requestTopic and the TCPROS
   connection header the subscriber would have sent over TCP.
 - ``Attached`` (publisher -> subscriber, + three descriptors: the ring, read-only; the subscriber's own
-  acknowledgement page, writable; its own eventfd to wake the publisher with): the publisher's connection
-  header and the number of the first message to read (the latched one when there is one).
+  acknowledgement page, writable; its end of a Unix socket pair the publisher made, for wake-ups both
+  ways): the publisher's connection header and the number of the first message to read (the latched one
+  when there is one). Version 2 sent eventfds both ways instead, which the other side could make blocking.
 - ``Refused``: why the publisher will not serve this subscriber (md5 mismatch, bad token); then it closes.
 - ``Ring`` (publisher -> subscriber, + the new ring): a message did not fit, the old ring is retired.
 - ``Progress`` (subscriber -> publisher): the subscriber's drop count, for the publisher's getBusStats.
@@ -54,7 +55,7 @@ class Progress(msgspec.Struct, tag="progress", gc=False):
 
 Message = Attach | Attached | Refused | Ring | Progress
 #: descriptors that come with each kind of message
-FDS: dict[type, int] = {Attach: 1, Attached: 3, Ring: 1}
+FDS: dict[type, int] = {Attached: 3, Ring: 1}
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder(Message)
 

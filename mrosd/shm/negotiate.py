@@ -44,8 +44,10 @@ PROTOCOL = "MROSSHM"
 #: The transport name getBusInfo reports for a shared-memory connection.
 TRANSPORT = "SHMROS"
 #: 2: acknowledgement pages and the publisher's queue (an Attached carries three descriptors, ring layout v2).
+#: 3: wake-ups through a socket pair the publisher makes instead of an eventfd each way (Attach carries no
+#: descriptor), so that neither side can make the other's wake-up block (issue 24).
 #: Peers of another version do not share memory: they find each other's offer unknown and use TCPROS.
-VERSION = 2
+VERSION = 3
 #: Comma-separated uids whose nodes may read (subscriber side: write) our topics' memory, besides ours and root.
 TRUSTED_UIDS_ENV = "MROSD_SHM_TRUSTED_UIDS"
 #: Turns the shared-memory transport off for this process when set to 0.

@@ -1,17 +1,18 @@
 """A topic's publishing end of the shared-memory transport: its ring, its listener, its subscribers.
 
 ``ShmPublisherEndpoint`` owns one topic's ring (a sealed memfd, ``mrosd.shm.segment``), an abstract Unix
-socket (``mrosd.shm.channel``) on which same-host subscribers attach, and two eventfds per subscriber (one
-to wake it, one it wakes the publisher with). ``publish`` copies the serialized message once into the ring
-and writes 8 bytes to each subscriber's eventfd: its cost does not grow with the number of subscribers, and
-it never waits for anyone.
+socket (``mrosd.shm.channel``) on which same-host subscribers attach, and one Unix socket pair per
+subscriber for wake-ups both ways (each end receives only what the other sends). ``publish`` copies the
+serialized message once into the ring and sends one byte to each subscriber, ``MSG_DONTWAIT``: its cost
+does not grow with the number of subscribers, and it never waits for anyone, whatever the subscriber did
+to its end (``mrosd.ixm.channel``).
 
 The ring is small (``RING_BYTES``, at least ``MIN_SLOTS`` slots): it is there to pipeline, and fresh shared
 memory is expensive to touch. The publisher's queue is kept beside it, as a TCPROS publisher keeps one per
 connection: each subscriber writes the number of the next message it wants into its own acknowledgement
 page, and a message whose slot still holds one that a subscriber has not read waits in the backlog (as
 references, never copied twice) until that subscriber moves on and, seeing the ring's ``waiting`` word,
-wakes the publisher through its own eventfd. A subscriber that holds the ring back too long stops being waited
+wakes the publisher through its end of the pair. A subscriber that holds the ring back too long stops being waited
 for ("lagging": it is overwritten and counts drops, drop-oldest) once the backlog holds more than
 ``queue_size`` messages, or when it has delayed a subscriber that keeps up for ``STALL`` seconds; it is
 waited for again once it has caught up. Memory is bounded by the ring plus ``queue_size`` messages.
@@ -37,12 +38,12 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
-from mrosd.ixm.channel import is_eventfd
+from mrosd.ixm.channel import drain_socket, small_send_buffer, wake_socket
+from mrosd.lograte import RateLimitedLog
 from mrosd.msg.runtime import is_immutable
 from mrosd.shm import control
 from mrosd.shm.channel import (
     ATTACH_TIMEOUT,
-    ONE,
     ControlChannel,
     abstract_name,
     close_fds,
@@ -67,6 +68,9 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+#: every line a peer can trigger (connect, refuse, drop, in a loop) goes through this: 5 per kind per 10 s,
+#: the rest counted (issue 24: 170k lines in 10 s from one peer connecting and closing)
+_ratelog = RateLimitedLog(log)
 
 #: A publisher's ring is at most this big (more slots than fit are not made; at least 2 always are).
 DEFAULT_MAX_RING_BYTES = 128 << 20
@@ -107,7 +111,6 @@ class ShmSubscriberLink:
         self,
         endpoint: ShmPublisherEndpoint,
         channel: ControlChannel,
-        wake_fd: int,
         *,
         callerid: str,
         pid: int,
@@ -115,7 +118,6 @@ class ShmSubscriberLink:
     ) -> None:
         self.endpoint = endpoint
         self.channel = channel
-        self.wake_fd = wake_fd
         self.callerid = callerid
         self.pid = pid
         self.id = next(_ids)
@@ -126,13 +128,18 @@ class ShmSubscriberLink:
         self.connected = True
         #: the subscriber's acknowledgement page: the number of the next message it wants
         self.ack = AckPage(endpoint.label, first)
-        #: its own eventfd to wake us when it moves on while ``waiting`` is set (one per subscriber: a subscriber
-        #: that reads it, or floods it, touches only its own wake-ups)
+        #: wake-ups both ways: we send on ``wake`` to wake it, it sends on its end (``peer_end``, sent with
+        #: Attached, then closed here) when it moves on while ``waiting`` is set. Only it holds its end, and a
+        #: send here ignores the file's flags: it cannot make us block, read what we send, or steal its own
+        #: wake-ups of us; flooding or shutting its end costs only itself.
         try:
-            self.progress_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+            self.wake, self.peer_end = socket.socketpair(
+                socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_NONBLOCK | socket.SOCK_CLOEXEC
+            )
         except OSError:
             self.ack.close()
             raise
+        small_send_buffer(self.wake)
         #: no longer waited for (it fell too far behind) until it catches up
         self.lagging = False
 
@@ -148,9 +155,10 @@ class ShmSubscriberLink:
         with contextlib.suppress(Exception):
             loop.remove_reader(self.channel.sock.fileno())
         with contextlib.suppress(Exception):
-            loop.remove_reader(self.progress_fd)
+            loop.remove_reader(self.wake.fileno())
         self.channel.close()
-        close_fds([self.wake_fd, self.progress_fd])
+        self.wake.close()
+        self.peer_end.close()
         self.ack.close()
 
 
@@ -250,12 +258,8 @@ class ShmPublisherEndpoint:
         for link in list(self.links):
             link.messages_sent += count
             link.bytes_sent += size
-            try:
-                os.write(link.wake_fd, ONE)
-            except BlockingIOError:
-                pass  # the counter is saturated: the subscriber is woken anyway
-            except OSError as exc:
-                self._drop(link, f"cannot wake it: {exc}")
+            if not wake_socket(link.wake):  # a full buffer is a wake-up pending; this is its end gone
+                self._drop(link, "cannot wake it: its wake-up channel is closed")
         self._poke()
 
     def _free(self, m: int) -> bool:
@@ -330,8 +334,9 @@ class ShmPublisherEndpoint:
         return True
 
     def _on_progress(self, link: ShmSubscriberLink) -> None:
-        with contextlib.suppress(OSError):
-            os.read(link.progress_fd, 8)
+        if not drain_socket(link.wake):
+            self._drop(link, "")  # its end closed: it went away (its control socket says so too, maybe later)
+            return
         if self.backlog and not self.closed:
             self._recheck_delay = 0.0
             self._flush()
@@ -376,18 +381,20 @@ class ShmPublisherEndpoint:
 
     def _accept(self) -> None:
         assert self._sock is not None
-        while True:
+        for _ in range(64):  # then the loop's other work gets a turn, however fast peers connect
             try:
                 conn, _ = self._sock.accept()
             except (BlockingIOError, InterruptedError):
                 return
             except OSError as exc:
-                log.warning("%s: shared-memory accept failed: %s", self.topic, exc)
+                _ratelog.warning("accept", "%s: shared-memory accept failed: %s", self.topic, exc)
                 return
             pid, uid = peer_credentials(conn)
             if uid not in self.trusted or len(self._pending) >= MAX_PENDING:
                 why = "uid not trusted" if uid not in self.trusted else "too many pending attachments"
-                log.warning("%s: refusing shared-memory subscriber pid %d uid %d: %s", self.topic, pid, uid, why)
+                _ratelog.warning(
+                    "refuse", "%s: refusing shared-memory subscriber pid %d uid %d: %s", self.topic, pid, uid, why
+                )
                 conn.close()
                 continue
             channel = ControlChannel(conn)
@@ -404,7 +411,7 @@ class ShmPublisherEndpoint:
         timer.cancel()
         with contextlib.suppress(Exception):
             self._loop.remove_reader(fd)
-        log.warning("%s: closing a shared-memory subscriber connection: %s", self.topic, why)
+        _ratelog.warning("abandon", "%s: closing a shared-memory subscriber connection: %s", self.topic, why)
         channel.close()
 
     def _on_pending(self, fd: int, pid: int) -> None:
@@ -419,32 +426,26 @@ class ShmPublisherEndpoint:
             return
         if not got:
             return
-        msg, fds = got[0]
+        msg = got[0][0]
+        channel.reader.close()  # an Attach carries no descriptor: whatever came is closed, not held
         if not isinstance(msg, control.Attach) or len(got) > 1:
-            close_fds(f for _, more in got for f in more)
             self._abandon(fd, f"expected one attach, got {type(msg).__name__}")
             return
-        wake_fd = fds[0]
         entry = self._pending.pop(fd)
         entry[1].cancel()
         self._loop.remove_reader(fd)
-        self._attach(channel, msg, wake_fd, pid)
+        self._attach(channel, msg, pid)
 
-    def _attach(self, channel: ControlChannel, msg: control.Attach, wake_fd: int, pid: int) -> None:
+    def _attach(self, channel: ControlChannel, msg: control.Attach, pid: int) -> None:
         def refuse(why: str) -> None:
-            log.warning("%s: refusing shared-memory subscriber (pid %d): %s", self.topic, pid, why)
+            _ratelog.warning("refuse", "%s: refusing shared-memory subscriber (pid %d): %s", self.topic, pid, why)
             with contextlib.suppress(OSError):
                 channel.send(control.Refused(reason=why))
             channel.close()
-            close_fds([wake_fd])
 
         if not hmac.compare_digest(msg.token.encode(), self.token.encode()):
             refuse("wrong token")
             return
-        if not is_eventfd(wake_fd):
-            refuse("the wake-up descriptor is not an eventfd")
-            return
-        os.set_blocking(wake_fd, False)
         try:
             header = decode_connection_header(msg.header)
             reply = self.handshake(header)
@@ -458,20 +459,21 @@ class ShmPublisherEndpoint:
         head = ring.layout.head
         first = head if self.latch and head > 0 else head + 1
         try:
-            link = ShmSubscriberLink(self, channel, wake_fd, callerid=header.callerid or "?", pid=pid, first=first)
+            link = ShmSubscriberLink(self, channel, callerid=header.callerid or "?", pid=pid, first=first)
         except OSError as exc:
             refuse(f"cannot make its acknowledgement page: {exc}")
             return
         attached = control.Attached(header=encode_header(reply)[4:], first=first)
-        if not self._send_ring(link, attached, link.ack.fd, link.progress_fd):
+        if not self._send_ring(link, attached, link.ack.fd, link.peer_end.fileno()):
             return
+        link.peer_end.close()  # only the subscriber holds its end
         link.ack.sent()
         if first <= head:  # the latched message
             link.messages_sent += 1
             link.bytes_sent += int(ring.layout.words[(head - 1) % ring.layout.slots][1])
         self.links.append(link)
         self._loop.add_reader(channel.sock.fileno(), self._on_link, link)
-        self._loop.add_reader(link.progress_fd, self._on_progress, link)
+        self._loop.add_reader(link.wake.fileno(), self._on_progress, link)
         self.on_change()
 
     def _on_link(self, link: ShmSubscriberLink) -> None:
@@ -483,6 +485,7 @@ class ShmPublisherEndpoint:
         if got is None:
             self._drop(link, "")
             return
+        link.channel.reader.close()  # nothing it sends carries a descriptor: none is held
         for msg, fds in got:
             close_fds(fds)
             if isinstance(msg, control.Progress):
@@ -493,9 +496,9 @@ class ShmPublisherEndpoint:
 
     def _drop(self, link: ShmSubscriberLink, why: str) -> None:
         if why:
-            log.warning("%s: closing shared-memory subscriber %s: %s", self.topic, link.callerid, why)
+            _ratelog.warning("drop", "%s: closing shared-memory subscriber %s: %s", self.topic, link.callerid, why)
         else:
-            log.info("%s: shared-memory subscriber %s went away", self.topic, link.callerid)
+            _ratelog.log(logging.INFO, "gone", "%s: shared-memory subscriber %s went away", self.topic, link.callerid)
         link.close()
         if link in self.links:
             self.links.remove(link)

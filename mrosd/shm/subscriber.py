@@ -1,8 +1,8 @@
 """A subscriber's end of the shared-memory transport: its connection to one publisher's ring.
 
-``ShmSubscriberConnection`` attaches (token, connection header, eventfd out; header, read-only ring, its
-acknowledgement page and an eventfd to wake the publisher with in, over the socket of ``mrosd.shm.channel``), then is
-woken by the loop (``add_reader`` on the eventfd, spin-then-block through ``mrosd.spin``) and reads the ring:
+``ShmSubscriberConnection`` attaches (token and connection header out; header, read-only ring, its
+acknowledgement page and its end of a wake-up socket pair in, over the socket of ``mrosd.shm.channel``), then is
+woken by the loop (``add_reader`` on its end of the pair, spin-then-block through ``mrosd.spin``) and reads the ring:
 copies by default, or zero-copy ``ShmView``s on request. After each message it writes the number of the
 next one it wants into its acknowledgement page (for a view: once the view is released), and wakes the
 publisher when the ring says the publisher waits for a slot. A subscriber that falls too far behind loses
@@ -17,18 +17,16 @@ import asyncio
 import collections
 import contextlib
 import logging
-import os
 import socket
 from collections.abc import Callable
 from typing import Any
 
 from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
-from mrosd.ixm.channel import is_eventfd
+from mrosd.ixm.channel import drain_socket, is_wake_socket, small_send_buffer, wake_socket
 from mrosd.msg.runtime import FramePool
 from mrosd.shm import control
 from mrosd.shm.channel import (
     ATTACH_TIMEOUT,
-    ONE,
     ControlChannel,
     abstract_name,
     close_fds,
@@ -116,14 +114,14 @@ class ShmSubscriberConnection:
         self.error = ""
         self.publisher_pid = 0
         self._channel: ControlChannel | None = None
-        self._wake_fd: int | None = None
+        #: our end of the wake-up pair: the publisher wakes us through it, we wake it through it
+        self._wake: socket.socket | None = None
+        self.publisher_uid = -1
         self._ring: MappedRing | None = None
         self._cursor: RingCursor | None = None
         self._ack: MappedAck | None = None
         #: copies are made into these buffers, reused once the messages decoded from them are gone
         self._pool = FramePool()
-        #: our eventfd to the publisher: written when it waits for a slot and we freed one
-        self._publisher_fd: int | None = None
         self._dropped_before = 0
         self._reported = 0
         self._on_frame: Callable[[Any], None] | None = None
@@ -175,9 +173,8 @@ class ShmSubscriberConnection:
         pid, uid = peer_credentials(sock)
         if uid not in trusted:
             raise RemoteProtocolError(f"the shared-memory publisher (pid {pid}) runs as untrusted uid {uid}")
-        self.publisher_pid = pid
-        self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
-        channel.send(control.Attach(token=answer.token, header=encode_header(header)[4:]), (self._wake_fd,))
+        self.publisher_pid, self.publisher_uid = pid, uid
+        channel.send(control.Attach(token=answer.token, header=encode_header(header)[4:]))
         got: list[tuple[control.Message, list[int]]] = []
         while not got:
             ready = loop.create_future()
@@ -199,11 +196,17 @@ class ShmSubscriberConnection:
             raise RemoteProtocolError(f"expected Attached from the shared-memory publisher, got {type(msg).__name__}")
         if rest:
             raise RemoteProtocolError("the shared-memory publisher sent messages before we were attached")
-        ring_fd, ack_fd, self._publisher_fd = fds
-        if not is_eventfd(self._publisher_fd):
+        ring_fd, ack_fd, wake_fd = fds
+        try:
+            self._wake = socket.socket(fileno=wake_fd)
+        except OSError:
+            close_fds([ring_fd, ack_fd, wake_fd])
+            raise RemoteProtocolError("the shared-memory publisher's wake-up descriptor is not a socket") from None
+        # sends ignore the flags (MSG_DONTWAIT); a pair the publisher made cannot carry our bytes to a third party
+        if not is_wake_socket(self._wake, uid):
             close_fds([ring_fd, ack_fd])
-            raise RemoteProtocolError("the shared-memory publisher's wake-up descriptor is not an eventfd")
-        os.set_blocking(self._publisher_fd, False)  # a write must never block us, whatever the publisher set
+            raise RemoteProtocolError("the shared-memory publisher's wake-up descriptor is not its own socket pair")
+        small_send_buffer(self._wake)
         try:
             self._ack = MappedAck(ack_fd)
         except BaseException:
@@ -212,7 +215,7 @@ class ShmSubscriberConnection:
         self.reply_header = decode_connection_header(msg.header)
         self._ring = MappedRing(ring_fd, self._max_map)
         self._cursor = RingCursor(self._ring.layout, max(1, msg.first))
-        loop.add_reader(self._wake_fd, self._on_wake)
+        loop.add_reader(self._wake.fileno(), self._on_wake)
         loop.add_reader(sock.fileno(), self._on_control)
         if self._on_frame is not None:
             self._schedule()
@@ -233,9 +236,9 @@ class ShmSubscriberConnection:
     # wake-ups ----------------------------------------------------------------------------------------------
 
     def _on_wake(self) -> None:
-        if self._wake_fd is not None:
-            with contextlib.suppress(OSError):
-                os.read(self._wake_fd, 8)
+        if self._wake is not None and not drain_socket(self._wake):
+            self._end("")  # the publisher went away (its control socket says so too, maybe later)
+            return
         self._poke()
         if self._on_frame is not None:
             self._drain()
@@ -311,9 +314,8 @@ class ShmSubscriberConnection:
             return
         ack.write(next_message)
         ring = self._ring
-        if ring is not None and ring.layout.waiting and self._publisher_fd is not None:
-            with contextlib.suppress(OSError):
-                os.write(self._publisher_fd, ONE)
+        if ring is not None and ring.layout.waiting and self._wake is not None:
+            wake_socket(self._wake)  # never blocks: a full buffer is a wake-up the publisher has pending
 
     def _report(self) -> None:
         dropped = self.dropped
@@ -412,11 +414,11 @@ class ShmSubscriberConnection:
 
     def _release(self) -> None:
         loop = self._loop
-        if self._wake_fd is not None:
+        if self._wake is not None:
             with contextlib.suppress(Exception):
-                loop.remove_reader(self._wake_fd)
-            close_fds([self._wake_fd])
-            self._wake_fd = None
+                loop.remove_reader(self._wake.fileno())
+            self._wake.close()
+            self._wake = None
         if self._channel is not None:
             with contextlib.suppress(Exception):
                 loop.remove_reader(self._channel.sock.fileno())
@@ -432,9 +434,6 @@ class ShmSubscriberConnection:
         if self._ack is not None:
             self._ack.close()
             self._ack = None
-        if self._publisher_fd is not None:
-            close_fds([self._publisher_fd])
-            self._publisher_fd = None
         while self._next_rings:
             self._next_rings.popleft().close()
 

@@ -3,9 +3,9 @@
 A subscriber cannot resize or write the ring (sealed memfd, read-only descriptor, F_SEAL_FUTURE_WRITE even
 against reopening it read-write through /proc); a publisher that sends an unsealed or oversized file, lies
 about lengths or heads, or speaks garbage ends only its own connection, with one line, and never makes the
-subscriber read out of bounds; a subscriber that sends a pipe for an eventfd, garbage, or nothing at all is
-closed and the publisher serves the others. A subscriber that lies in its acknowledgement page, or stops
-reading, costs only itself: the publisher never waits for it beyond its queue, and the others are served.
+subscriber read out of bounds; a subscriber that sends garbage, or nothing at all, is closed and the publisher
+serves the others. A subscriber that lies in its acknowledgement page, or stops reading, costs only itself:
+the publisher never waits for it beyond its queue, and the others are served.
 """
 
 from __future__ import annotations
@@ -121,9 +121,32 @@ def pipe_end() -> int:
     return w
 
 
+#: the fake publishers' ends of their wake-up pairs, held for the test session (a closed end ends the connection)
+_HELD: list[socket.socket] = []
+
+
+def wake_pair_end() -> int:
+    """The subscriber's end of a wake-up socket pair made here (our end is held, never written)."""
+    mine, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+    _HELD.append(mine)
+    return theirs.detach()
+
+
+def third_party_socket() -> int:
+    """A socket connected to someone else's listening socket: our wake-ups would land there."""
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind("\0mrosd-shm-third-party-" + secrets.token_hex(6))
+    listener.listen(1)
+    conn = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    conn.connect(listener.getsockname())
+    listener.close()
+    return conn.detach()
+
+
 def attached_fds(ring_fd: int, ack: int | None = None, wake: int | None = None) -> list[int]:
-    """What an honest Attached carries beside the ring: an acknowledgement page and the publisher's eventfd."""
-    return [ring_fd, ack_page() if ack is None else ack, os.eventfd(0) if wake is None else wake]
+    """What an honest Attached carries beside the ring: an acknowledgement page and the subscriber's end of the
+    publisher's wake-up socket pair."""
+    return [ring_fd, ack_page() if ack is None else ack, wake_pair_end() if wake is None else wake]
 
 
 def lying_ring(mutate: Callable[[RingLayout], None]) -> bytes:
@@ -204,8 +227,14 @@ async def test_a_publisher_that_lies_about_the_ring_ends_only_its_connection(
         # the acknowledgement page: unsealed (could be shrunk under our mapping), or not one page
         (lambda c: send(c, ATTACHED, attached_fds(sealed(lying_ring(lambda r: None)), ack_page(seal=False))), "4 KiB"),
         (lambda c: send(c, ATTACHED, attached_fds(sealed(lying_ring(lambda r: None)), ack_page(1 << 20))), "4 KiB"),
-        # a pipe for the publisher's wake-up: a full pipe would block every acknowledgement
-        (lambda c: send(c, ATTACHED, attached_fds(sealed(lying_ring(lambda r: None)), wake=pipe_end())), "eventfd"),
+        # a pipe or an eventfd for the wake-ups both ways: the publisher could make either block our writes
+        (lambda c: send(c, ATTACHED, attached_fds(sealed(lying_ring(lambda r: None)), wake=pipe_end())), "socket"),
+        (lambda c: send(c, ATTACHED, attached_fds(sealed(lying_ring(lambda r: None)), wake=os.eventfd(0))), "socket"),
+        # a socket connected to a third party: our wake-ups would be bytes sent to someone else
+        (
+            lambda c: send(c, ATTACHED, attached_fds(sealed(lying_ring(lambda r: None)), wake=third_party_socket())),
+            "socket pair",
+        ),
         (lambda c: c.send(b"\x05\x00\x00\x00garba"), "bad shared-memory control message"),
         (lambda c: c.send(b"\xff\xff\xff\x7f"), "limit"),
         (lambda c: send(c, control.Ring(slots=2), [sealed(lying_ring(lambda r: None))]), "expected Attached"),
@@ -254,12 +283,14 @@ async def test_hostile_subscribers_are_closed_and_the_others_served(monkeypatch:
     good = await ShmSubscriberConnection.attach(ShmAnswer(version=VERSION, address=ep.address, token=ep.token), HEADER)
     try:
         attach = control.Attach(token=ep.token, header=encode_header(HEADER)[4:])
-        # a pipe instead of an eventfd: a blocking write into it could stall the publisher
+        # descriptors with the Attach (version 2 sent an eventfd): closed unused, and the publisher goes on
         pipe_sock = await raw_client(ep)
         r, w = os.pipe()
         send(pipe_sock, attach, [w])
-        assert b"not an eventfd" in await closed_by_peer(pipe_sock)
-        os.close(r)
+        async with asyncio.timeout(5):
+            assert b"attached" in await asyncio.get_running_loop().sock_recv(pipe_sock, 65536)
+        os.set_blocking(r, False)
+        assert os.read(r, 1) == b""  # nobody holds the write end any more: the publisher closed it
         # garbage, a frame bigger than allowed, fds without a frame, silence
         for payload in (b"\x03\x00\x00\x00abc", b"\xff\xff\xff\xff", b""):
             sock = await raw_client(ep)
@@ -318,7 +349,7 @@ async def test_a_subscriber_that_lies_in_its_acknowledgement_page_costs_only_its
     got: list[bytes] = []
     honest = await ShmSubscriberConnection.attach(shm_answer, HEADER, on_frame=lambda b: got.append(bytes(b)))
     try:
-        assert liar._ack is not None and liar._publisher_fd is not None
+        assert liar._ack is not None and liar._wake is not None
         sent = [i.to_bytes(2, "little") * 5000 for i in range(300)]
         for i, body in enumerate(sent):
             if i == 0:
@@ -327,7 +358,8 @@ async def test_a_subscriber_that_lies_in_its_acknowledgement_page_costs_only_its
                 liar._ack.write(0)  # "I have read nothing at all"
             elif i == 200:
                 for _ in range(10_000):  # and wakes the publisher for nothing, over and over
-                    os.write(liar._publisher_fd, (1).to_bytes(8, "little"))
+                    with contextlib.suppress(BlockingIOError):
+                        liar._wake.send(b"\x01", socket.MSG_DONTWAIT)
             ep.publish(body)
             assert len(ep.backlog) <= 1000
             await asyncio.sleep(0.0005)
@@ -361,13 +393,14 @@ async def test_a_subscriber_that_steals_wake_ups_from_its_descriptor_takes_only_
     got: list[bytes] = []
     honest = await ShmSubscriberConnection.attach(shm_answer, HEADER, on_frame=lambda b: got.append(bytes(b)))
     stop = threading.Event()
-    fd = thief._publisher_fd
-    assert fd is not None
+    assert thief._wake is not None
+    fd = os.dup(thief._wake.fileno())
 
-    def steal() -> None:  # drains the publisher's wake-ups from the descriptor it was given, all the time
+    def steal() -> None:  # drains everything it can from the descriptor it was given, all the time
         while not stop.is_set():
             with contextlib.suppress(OSError):
                 os.read(fd, 8)
+        os.close(fd)
 
     stealer = threading.Thread(target=steal, daemon=True)
     stealer.start()

@@ -8,11 +8,13 @@ import os
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mrosd.errors import IxmError
 from mrosd.ixm.layout import SegmentLayout
 from mrosd.ixm.registry import SegmentInfo
-from mrosd.ixm.resources import Limits, NoticePage, Segment
+from mrosd.ixm.resources import MAX_WAKE_READERS, WAKE_SLOTS_PER_UID, Limits, NoticePage, Segment, wake_slot_refusal
 from mrosd.ixm.rundir import prepare_socket_dir
 from mrosd.ixm.types import resolve_type
 
@@ -104,3 +106,27 @@ def _owned_by_other(path: Path) -> None:
         prepare_socket_dir(str(path), euid=1234)
     finally:
         os.chown(path, 0, 0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.sampled_from([0, 1000, 1001, 65534, 4242, 7]), max_size=600))
+def test_no_uid_takes_more_than_its_share_of_woken_reader_slots(attempts: list[int]) -> None:
+    """Opens in any order by a few uids: each uid keeps at most its share, the key at most its slots, and a
+    uid below its share is refused only when the key is full (five uids at their share)."""
+    held: list[int] = []
+    for uid in attempts:
+        refusal = wake_slot_refusal("/k", held, uid)
+        mine = held.count(uid)
+        if refusal:
+            assert mine >= WAKE_SLOTS_PER_UID or len(held) >= MAX_WAKE_READERS
+        else:
+            held.append(uid)
+        assert held.count(uid) <= WAKE_SLOTS_PER_UID and len(held) <= MAX_WAKE_READERS
+    assert len({u for u in held}) >= 5 or len(held) < MAX_WAKE_READERS
+
+
+def test_a_refused_woken_reader_is_told_which_limit() -> None:
+    full_share = [65534] * WAKE_SLOTS_PER_UID
+    assert "its share (63 of 253)" in wake_slot_refusal("/k", full_share, 65534)
+    assert wake_slot_refusal("/k", full_share, 1000) == ""
+    assert "253 woken readers" in wake_slot_refusal("/k", [1, 2, 3, 4, 5] * 51, 6)
