@@ -343,7 +343,7 @@ def run(args: argparse.Namespace) -> int:
         end = samples[-1]
         names = ["daemon"] + [f"worker{w}" for w in range(len(workers))]
         # A live IXM key holds a few fds in the daemon and its client (segment memfd, writers' lock memfd,
-        # notice page, eventfd); keys still being opened after warm-up are allowed for, leaks are not.
+        # notice page, the reader's wake-up pipe); keys still being opened after warm-up are allowed for, leaks are not.
         fd_slack = 32 + FDS_PER_LIVE_KEY * max(0, end["shm"] - warm["shm"])
         for name, r0, r1, f0, f1 in zip(names, warm["rss"], end["rss"], warm["fds"], end["fds"], strict=True):
             bound = r0 * 1.25 + 20 * 1024
