@@ -33,6 +33,7 @@ import signal
 import sys
 import threading
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from mrosd.config import Config, load_config, part_options
@@ -44,6 +45,7 @@ if TYPE_CHECKING:
     from mrosd.ixm.bridge import Bridge, IxmBridge
     from mrosd.ixm.rules import AccessRules
     from mrosd.ixm.server import IxmServer
+    from mrosd.logfiles import RunLogs
     from mrosd.master import Master
     from mrosd.rosout import RosoutAggregator
     from mrosd.xmlrpc import XmlRpcClient
@@ -173,6 +175,9 @@ class Daemon:
         self.ixm: IxmServer | None = None
         self.bridge: IxmBridge | None = None
         self.rosout: RosoutAggregator | None = None
+        #: this run's log files (``<log dir>/<run_id>/``), None when ``[log] dir = "off"`` or not writable
+        self.logs: RunLogs | None = None
+        self.run_id = ""
         self.master_uri = ""
         #: part name -> why it did not start (the daemon runs degraded without it)
         self.failed: dict[str, str] = {}
@@ -187,7 +192,10 @@ class Daemon:
             MrosError: the master does not answer, or (``strict``) another part refused to start.
         """
         try:
+            self._open_logs()
             await self._start_master()
+            if self.logs is not None and self.master is not None:
+                self.logs.follow_graph(self.master.api)
             await self._wait_master_answers()
             if not self.master_only and self.cfg.ixm.enabled:
                 await self._optional("ixm", self._start_ixm)
@@ -210,6 +218,26 @@ class Daemon:
             if not isinstance(exc, (MrosError, OSError)):
                 log.debug("%s start failure", name, exc_info=exc)
             self.failed[name] = why
+
+    def _open_logs(self) -> None:
+        """master.log (and later rosout.log) in ``<log dir>/<run_id>/``; a log directory that cannot be
+        written is one error line, never a reason to stop (the journal still has the daemon's messages)."""
+        from mrosd.logfiles import RunLogs, ros_log_root
+        from mrosd.rosout import new_run_id
+
+        self.run_id = new_run_id()
+        cfg = self.cfg.log
+        if cfg.dir == cfg.OFF:
+            return
+        logs = RunLogs(Path(cfg.dir) if cfg.dir else ros_log_root(), self.run_id, cfg.max_bytes, cfg.backups)
+        try:
+            logs.open(logging.getLogger().getEffectiveLevel())
+        except OSError as exc:
+            log.error("no log files: cannot write %s: %s", logs.dir, reason(exc))
+            return
+        self.logs = logs
+        self._parts.append(("logs", logs))  # first in, last out: master.log sees the whole shutdown
+        log.info("log files in %s", logs.dir)
 
     async def _start_master(self) -> None:
         from mrosd.master import Master
@@ -260,7 +288,14 @@ class Daemon:
     async def _start_rosout(self) -> None:
         from mrosd.rosout import RosoutAggregator
 
-        agg = RosoutAggregator(self.master_uri)
+        logs, cfg = self.logs, self.cfg.log
+        agg = RosoutAggregator(
+            self.master_uri,
+            run_id=self.run_id or None,
+            log_file=logs.rosout_path if logs is not None else None,
+            max_bytes=cfg.max_bytes,
+            backups=cfg.backups,
+        )
         await agg.start()
         self.rosout = agg
         self._parts.append(("rosout", agg))
