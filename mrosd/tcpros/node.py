@@ -92,7 +92,10 @@ class InboundProtocol(ServiceProtocol, PublisherProtocol):
                 log.debug("%s: no TCP keepalive on %s: %s", self.node.name, self.peer, exc)
 
     def _refuse(self, reason: str) -> None:
-        log.warning("%s: refusing TCPROS connection from %s: %s", self.node.name, self.peer, reason)
+        # While the node closes, a peer that connected to an endpoint just closed (rosout dialling a
+        # short-lived node's /rosout) is expected: it gets the error header, the user no warning.
+        level = logging.DEBUG if self.node.closing else logging.WARNING
+        log.log(level, "%s: refusing TCPROS connection from %s: %s", self.node.name, self.peer, reason)
         self.write(encode_header(error_header(reason)))
         self.close()
 
@@ -171,6 +174,8 @@ class Node:
         self.rosout = rosout
         self.logger_services = logger_services
         self.shutdown_reason = ""
+        #: set once ``aclose()`` began: late connections to closed endpoints are then expected
+        self.closing = False
         self._rosout_handler: RosoutHandler | None = None
         self.shutdown_event = asyncio.Event()
         self.xmlrpc = XmlRpcClient(timeout=MASTER_TIMEOUT)
@@ -248,6 +253,7 @@ class Node:
 
     async def aclose(self) -> None:
         """Unregister every topic and service (best effort, bounded) and close every connection."""
+        self.closing = True
         _open_nodes.discard(self)
         if self._rosout_handler is not None:
             logging.getLogger(ROSOUT_LOGGER).removeHandler(self._rosout_handler)
