@@ -231,7 +231,7 @@ class Daemon:
             return
         logs = RunLogs(Path(cfg.dir) if cfg.dir else ros_log_root(), self.run_id, cfg.max_bytes, cfg.backups)
         try:
-            logs.open(logging.getLogger().getEffectiveLevel())
+            logs.open(logging.NOTSET)  # the loggers' levels ([log] level) decide, as for the journal
         except OSError as exc:
             log.error("no log files: cannot write %s: %s", logs.dir, reason(exc))
             return

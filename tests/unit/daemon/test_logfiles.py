@@ -140,3 +140,39 @@ def test_a_log_file_that_cannot_be_written_is_one_journal_line_not_a_traceback(
     assert [r.getMessage() for r in caplog.records if r.name == "mrosd.logfiles"] == [
         f"cannot write {tmp_path / 'rosout.log'}: [Errno 28] No space left on device"
     ]
+
+
+async def test_the_daemon_writes_no_files_with_dir_off_and_runs_without_an_unwritable_dir(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from mrosd.config import Config
+    from mrosd.daemon import Daemon
+
+    cfg = Config()
+    cfg.master.host, cfg.master.port = "127.0.0.1", 0
+    cfg.log.dir = "off"
+    daemon = Daemon(cfg, master_only=True)
+    await daemon.start()
+    try:
+        assert daemon.logs is None and daemon.run_id
+    finally:
+        await daemon.aclose()
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    cfg.log.dir = str(blocker / "log")  # a directory under a file: cannot be created
+    daemon = Daemon(cfg, master_only=True)
+    await daemon.start()
+    try:
+        assert daemon.logs is None and daemon.master is not None
+    finally:
+        await daemon.aclose()
+    cfg.log.dir = str(tmp_path / "log")
+    caplog.set_level(logging.INFO, logger="mrosd")  # what [log] level = "info" sets up in the daemon
+    daemon = Daemon(cfg, master_only=True)
+    await daemon.start()
+    try:
+        assert daemon.logs is not None
+        assert (tmp_path / "log" / "latest").resolve() == tmp_path / "log" / daemon.run_id
+    finally:
+        await daemon.aclose()
+    assert "master listening on 127.0.0.1" in (tmp_path / "log" / "latest" / "master.log").read_text()
