@@ -243,6 +243,10 @@ class RunLogs:
             for text in graph_lines(state, new_state, api_of):
                 graph.info("%s", text)
             state = new_state
+            # remembered only while a node is listed: anonymous CLI nodes come and go all day
+            listed = {str(n) for table in state for _name, nodes in table for n in nodes}
+            for node in apis.keys() - listed:
+                del apis[node]
 
     async def aclose(self) -> None:
         """Stop following the graph and close master.log (the daemon's last part to close)."""

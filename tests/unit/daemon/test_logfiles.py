@@ -176,3 +176,26 @@ async def test_the_daemon_writes_no_files_with_dir_off_and_runs_without_an_unwri
     finally:
         await daemon.aclose()
     assert "master listening on 127.0.0.1" in (tmp_path / "log" / "latest" / "master.log").read_text()
+
+
+async def test_master_log_follows_registrations_as_rosmaster_writes_them(tmp_path: Path) -> None:
+    import mrosd
+    from mrosd.master import Master
+    from mrosd.msg import get_message_class
+
+    logs = RunLogs(tmp_path, "run", 10**6, 1)
+    logs.open()
+    try:
+        async with Master(host="127.0.0.1", port=0) as master:
+            logs.follow_graph(master.api)
+            async with mrosd.Node("talker", master_uri=master.uri, argv=[], host="127.0.0.1", rosout=False) as n:
+                await n.advertise("/chatter", get_message_class("std_msgs/String"))
+                uri = n.uri
+            for _ in range(200):  # the follower writes as the master's graph changes
+                if "-PUB [/chatter]" in logs.master_path.read_text():
+                    break
+                await asyncio.sleep(0.01)
+    finally:
+        await logs.aclose()
+    lines = [line.split(": ", 1)[1] for line in logs.master_path.read_text().splitlines() if "PUB" in line]
+    assert lines == [f"+PUB [/chatter] /talker {uri}", f"-PUB [/chatter] /talker {uri}"]  # the URI outlives the node
