@@ -13,6 +13,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from mrosd.app import run
     from mrosd.errors import MrosError
     from mrosd.msg import Duration, Time
     from mrosd.tcpros import AnyMsg, Node, Publisher, RawMessage, Service, ServiceProxy, Subscriber
@@ -28,12 +29,14 @@ __all__ = [
     "ServiceProxy",
     "Subscriber",
     "Time",
+    "run",
 ]
 __version__ = "0.1.0"
 
 #: Where each re-exported name lives.
 _EXPORTS = {
     "MrosError": "mrosd.errors",
+    "run": "mrosd.app",
     "Duration": "mrosd.msg",
     "Time": "mrosd.msg",
     **dict.fromkeys(

@@ -99,9 +99,19 @@ class RosoutConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
 
 class LogConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """``[log]``: the daemon's own log verbosity."""
+    """``[log]``: the daemon's own log verbosity, and the log files roscore users look for.
+
+    ``dir`` is where ``<run_id>/master.log`` and ``rosout.log`` go (``mrosd.logfiles``): empty means ROS's
+    own rule (``$ROS_LOG_DIR``, else ``$ROS_HOME/log``, else ``~/.ros/log``), ``"off"`` writes no files.
+    Each file rotates past ``max_bytes`` keeping ``backups`` numbered copies (rosout's 100 MiB and 10).
+    """
+
+    OFF: ClassVar[str] = "off"
 
     level: LogLevel = "info"
+    dir: str = ""
+    max_bytes: Count = 100 * 1024 * 1024
+    backups: Annotated[int, msgspec.Meta(ge=0)] = 10
 
 
 class Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -186,6 +196,8 @@ def _validate(cfg: Config) -> None:
         raise ConfigError(f"{where}: master.port must be 0..65535, got {cfg.master.port}")
     if not valid_host(cfg.master.host):
         raise ConfigError(f"{where}: master.host is not an IP address or host name: {cfg.master.host!r}")
+    if cfg.log.dir not in ("", LogConfig.OFF) and not os.path.isabs(cfg.log.dir):
+        raise ConfigError(f'{where}: log.dir must be an absolute path, "off" or empty, got {cfg.log.dir!r}')
     for i, net in enumerate(cfg.master.allow):
         try:
             ipaddress.ip_network(net, strict=False)

@@ -33,6 +33,7 @@ import signal
 import sys
 import threading
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from mrosd.config import Config, load_config, part_options
@@ -45,6 +46,7 @@ if TYPE_CHECKING:
     from mrosd.ixm.bridge import Bridge, IxmBridge
     from mrosd.ixm.rules import AccessRules
     from mrosd.ixm.server import IxmServer
+    from mrosd.logfiles import RunLogs
     from mrosd.master import Master
     from mrosd.rosout import RosoutAggregator
     from mrosd.tcpros.admission import AdmissionLimits
@@ -189,6 +191,9 @@ class Daemon:
         self.ixm: IxmServer | None = None
         self.bridge: IxmBridge | None = None
         self.rosout: RosoutAggregator | None = None
+        #: this run's log files (``<log dir>/<run_id>/``), None when ``[log] dir = "off"`` or not writable
+        self.logs: RunLogs | None = None
+        self.run_id = ""
         self.master_uri = ""
         #: each part's share of RLIMIT_NOFILE, given to it as its cap (``mrosd.fdbudget``); set by ``start()``
         self.budgets: FdBudgets | None = None
@@ -207,7 +212,10 @@ class Daemon:
         soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
         self.budgets = fd_budgets(1 << 20 if soft == resource.RLIM_INFINITY else soft)
         try:
+            self._open_logs()
             await self._start_master()
+            if self.logs is not None and self.master is not None:
+                self.logs.follow_graph(self.master.api)
             await self._wait_master_answers()
             if not self.master_only and self.cfg.ixm.enabled:
                 await self._optional("ixm", self._start_ixm)
@@ -230,6 +238,26 @@ class Daemon:
             if not isinstance(exc, (MrosError, OSError)):
                 log.debug("%s start failure", name, exc_info=exc)
             self.failed[name] = why
+
+    def _open_logs(self) -> None:
+        """master.log (and later rosout.log) in ``<log dir>/<run_id>/``; a log directory that cannot be
+        written is one error line, never a reason to stop (the journal still has the daemon's messages)."""
+        from mrosd.logfiles import RunLogs, ros_log_root
+        from mrosd.rosout import new_run_id
+
+        self.run_id = new_run_id()
+        cfg = self.cfg.log
+        if cfg.dir == cfg.OFF:
+            return
+        logs = RunLogs(Path(cfg.dir) if cfg.dir else ros_log_root(), self.run_id, cfg.max_bytes, cfg.backups)
+        try:
+            logs.open(logging.NOTSET)  # the loggers' levels ([log] level) decide, as for the journal
+        except OSError as exc:
+            log.error("no log files: cannot write %s: %s", logs.dir, reason(exc))
+            return
+        self.logs = logs
+        self._parts.append(("logs", logs))  # first in, last out: master.log sees the whole shutdown
+        log.info("log files in %s", logs.dir)
 
     async def _start_master(self) -> None:
         from mrosd.master import Master
@@ -294,7 +322,15 @@ class Daemon:
     async def _start_rosout(self) -> None:
         from mrosd.rosout import RosoutAggregator
 
-        agg = RosoutAggregator(self.master_uri, admission=self._tcpros_admission())
+        logs, cfg = self.logs, self.cfg.log
+        agg = RosoutAggregator(
+            self.master_uri,
+            run_id=self.run_id or None,
+            log_file=logs.rosout_path if logs is not None else None,
+            max_bytes=cfg.max_bytes,
+            backups=cfg.backups,
+            admission=self._tcpros_admission(),
+        )
         await agg.start()
         self.rosout = agg
         self._parts.append(("rosout", agg))

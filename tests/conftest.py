@@ -3,12 +3,26 @@
 from __future__ import annotations
 
 import gc
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from tests.rosenv import Processes, start_rosmaster
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _log_files_in_a_temporary_directory(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Daemons and ROS tools started by tests write their log files (``<run_id>/master.log``, ...) here, not
+    into the developer's ``~/.ros/log`` (helpers that build an environment from scratch set their own)."""
+    saved = os.environ.get("ROS_LOG_DIR")
+    os.environ["ROS_LOG_DIR"] = str(tmp_path_factory.mktemp("ros_log"))
+    yield
+    if saved is None:
+        os.environ.pop("ROS_LOG_DIR", None)
+    else:
+        os.environ["ROS_LOG_DIR"] = saved
 
 
 @pytest.fixture

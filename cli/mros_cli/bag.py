@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from mros_cli.main import master_uri, run
+from mros_cli.main import error_text, master_uri, run
 from mrosd.bag.model import DEFAULT_BUFFER_MB, DEFAULT_CLOCK_HZ, BagError, SplitPolicy, parse_duration
 
 if TYPE_CHECKING:
@@ -340,7 +340,7 @@ def info(bags: tuple[str, ...]) -> None:
         try:
             reader = open_bag(path)
         except BagError as exc:
-            click.echo(f"mros: error: {exc}", err=True)
+            click.echo(error_text(str(exc)), err=True)
             failed = True
             continue
         try:

@@ -3,8 +3,9 @@
 Also owns what every noun shares: the global ``--master-uri`` option, running one coroutine per command,
 the clients of the master (``master_client``, a ``mrosd.master.client.MasterClient``) and of nodes'
 slave APIs (``slave_call``), user-typed name resolution (``resolve_name``, via ``mrosd.names``) and the exit
-codes scripts rely on: 0 success, 1 error (one line on stderr, ``mros: error: ...``), 2 usage error (click's,
-and where rosservice exits 2), 130 interrupted.
+codes scripts rely on: 0 success, 1 error (on stderr ``ERROR: ...`` as rostopic, rosparam, rosnode and
+rosservice print it, with their hint after a blank line where they give one), 2 usage error (click's, and
+where rosservice exits 2), 130 interrupted.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
 import click
 
-from mrosd.errors import MasterError, MrosError
+from mrosd.errors import MasterError, MasterUnreachableError, MrosError
 
 if TYPE_CHECKING:
     from mrosd.master.client import MasterClient
@@ -114,9 +115,27 @@ def run(coro: Coroutine[Any, Any, T]) -> T:
     return run_on_loop(coro)
 
 
-def fail(message: str, code: int = EXIT_ERROR) -> NoReturn:
-    """Print one error line on stderr and exit with ``code`` (1 unless a ROS tool exits otherwise there)."""
-    click.echo(f"mros: error: {message}", err=True)
+#: What rostopic, rosparam, rosnode and rosservice print when the master does not answer.
+MASTER_UNREACHABLE = "Unable to communicate with master!"
+
+
+class HintedError(MrosError):
+    """An error the ROS tools print with a hint after a blank line (rostopic pub's ``Args are: [x y z]``)."""
+
+    def __init__(self, message: str, hint: str) -> None:
+        super().__init__(message)
+        self.hint = hint
+
+
+def error_text(message: str, hint: str = "") -> str:
+    """``ERROR: message`` (the ROS tools' prefix), then ``hint`` after a blank line when there is one."""
+    return f"ERROR: {message}\n\n{hint}" if hint else f"ERROR: {message}"
+
+
+def fail(message: str, code: int = EXIT_ERROR, hint: str = "") -> NoReturn:
+    """Print the error on stderr as the ROS tools do and exit with ``code`` (1 unless a ROS tool exits
+    otherwise there)."""
+    click.echo(error_text(message, hint), err=True)
     sys.exit(code)
 
 
@@ -137,10 +156,14 @@ class LazyGroup(click.Group):
     def invoke(self, ctx: click.Context) -> Any:
         try:
             return super().invoke(ctx)
+        except MasterUnreachableError as exc:
+            # rostopic's line, then what it leaves out: which URI and why (ROS_MASTER_URI wrong, master down)
+            fail(MASTER_UNREACHABLE, hint=" ".join(exc.status.split()))
         except MasterError as exc:
             fail(exc.status)
         except MrosError as exc:
-            fail(" ".join(str(exc).split()))
+            # (HintedError by its attribute: under ``python -m mros_cli.main`` this module is loaded twice)
+            fail(" ".join(str(exc).split()), hint=getattr(exc, "hint", ""))
         except KeyboardInterrupt:
             sys.exit(EXIT_INTERRUPTED)
         except BrokenPipeError:

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from mros_cli.main import CALL_TIMEOUT, CALLER_ID, fail, master_client, resolve_name, run, slave_call
+from mros_cli.main import CALL_TIMEOUT, CALLER_ID, error_text, fail, master_client, resolve_name, run, slave_call
 from mrosd.errors import MasterError, MasterUnreachableError, MrosError, XmlRpcError
 
 if TYPE_CHECKING:
@@ -89,22 +89,24 @@ def list_(show_uri: bool, show_all: bool, namespace: str | None) -> None:
     async def main() -> list[tuple[str, str]]:
         async with master_client() as master:
             names = node_names(await master.get_system_state())
-            if namespace:
-                prefix = resolve(namespace).rstrip("/") + "/"
-                names = [n for n in names if n.startswith(prefix)]
+            if namespace:  # as rosnode: the nodes under the namespace, and a node of that very name
+                resolved = resolve(namespace)
+                prefix = resolved.rstrip("/") + "/"
+                names = [n for n in names if n.startswith(prefix) or n == resolved]
             if not (show_uri or show_all):
                 return [(n, "") for n in names]
             return [(n, await _lookup(master, n) or "unknown address") for n in names]
 
     rows = run(main())
+    # As rosnode: one line per node in the order of the names, -u included (a URI shared by two names, or
+    # 'unknown address', is printed for each), and an empty line when there are no nodes.
     if show_all:
         lines = [f"{uri} \t{name}" for name, uri in rows]
     elif show_uri:
-        lines = sorted({uri for _n, uri in rows})
+        lines = [uri for _n, uri in rows]
     else:
         lines = [name for name, _u in rows]
-    if lines:
-        click.echo("\n".join(lines))
+    click.echo("\n".join(lines))
 
 
 def _describe(name: str, state: Sequence[Any], pub_topics: list[Any]) -> str:
@@ -319,7 +321,7 @@ def kill(nodes: tuple[str, ...], kill_all: bool) -> None:
             names = known if kill_all else [resolve(n) for n in nodes]
             unknown = [n for n in names if n not in known]
             if unknown:
-                fail("Unknown node(s): " + ", ".join(unknown))
+                fail("Unknown node(s):\n" + "\n".join(f" * {n}" for n in unknown))  # rosnode's lines
             if len(names) > 1:
                 click.echo("killing:\n" + "\n".join(f" * {n}" for n in names))
             elif names:
@@ -384,7 +386,7 @@ def cleanup(yes: bool) -> None:
                     try:
                         await as_node.call(method, item, api)
                     except MasterError as exc:
-                        click.echo(f"mros: error: {method} {item} for {name}: {exc}", err=True)
+                        click.echo(error_text(f"{method} {item} for {name}: {exc}"), err=True)
 
     async def main() -> None:
         async with _clients() as (master, xmlrpc):

@@ -12,7 +12,7 @@ import click
 
 from mros_cli.main import anonymous, master_uri, resolve_name, run
 from mros_cli.stdin import stdin_is_input, stdin_messages
-from mros_cli.values import build_message, file_documents, message_class, parse_pub_args
+from mros_cli.values import build_message_or_hint, file_documents, message_class, parse_pub_args
 from mrosd.errors import MrosError
 
 __all__ = ["ONCE_DELAY", "pub"]
@@ -76,7 +76,7 @@ def pub(  # noqa: PLR0917  (one parameter per click option)
     cls = message_class(msg_type)
     from_stdin = path == "-" or (path is None and not args and bool(cls.__struct_fields__) and stdin_is_input())
     if path is not None and path != "-":
-        docs = [build_message(cls, d) for d in file_documents(path)]
+        docs = [build_message_or_hint(cls, d) for d in file_documents(path)]
         for m in docs:
             m.serialize()  # every message is checked before the first one is published
         _publish_stream(name, cls, iter_list(docs), rate, once, latch, count, repeat_single=len(docs) == 1)
@@ -84,7 +84,7 @@ def pub(  # noqa: PLR0917  (one parameter per click option)
     if from_stdin:
         _publish_stream(name, cls, None, rate, once, latch, count, repeat_single=False)
         return
-    msg = build_message(cls, parse_pub_args(args))
+    msg = build_message_or_hint(cls, parse_pub_args(args))
     msg.serialize()  # fail now, with the field named, rather than in the publisher
     latched = latch or rate is None
 

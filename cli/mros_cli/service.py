@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from mros_cli.main import EXIT_ERROR, EXIT_USAGE, anonymous, fail, master_client, resolve_name, run
-from mros_cli.values import build_message, message_class, parse_pub_args
+from mros_cli.values import build_message, parse_pub_args, printable_args
 from mrosd.errors import MasterError, MrosError
 
 if TYPE_CHECKING:
@@ -83,7 +83,8 @@ def uri(service: str) -> None:
             try:
                 value: str = await master.lookup_service(name)
             except MasterError:
-                fail(f"Unknown service: {name}")
+                click.echo(f"Unknown service: {name}", err=True)  # rosservice's line, without ERROR:
+                sys.exit(EXIT_ERROR)
             return value
 
     click.echo(run(main()))
@@ -156,17 +157,6 @@ def type_(service: str) -> None:
         click.echo(f"Unknown service [{name}]", err=True)
         sys.exit(1)
     click.echo(found)
-
-
-def printable_args(cls: Any, prefix: str = "") -> list[str]:
-    """The request's field names as ``rosservice args`` prints them (nested messages flattened: ``a.x a.y``)."""
-    names: list[str] = []
-    for name, rostype in zip(cls.__struct_fields__, cls._field_types, strict=True):
-        if "[" not in rostype and ("/" in rostype or rostype == "Header"):
-            names += printable_args(message_class(rostype), f"{prefix}{name}.")
-        else:
-            names.append(prefix + name)
-    return names
 
 
 async def service_class(master: MasterClient, name: str) -> Any:
@@ -300,8 +290,9 @@ def call(service: str, args: tuple[str, ...], wait: bool) -> None:
             srv = await service_class(master, name)
         try:
             request = build_message(srv._request_class, values if args else {})
-        except MrosError as exc:
-            fail(" ".join(str(exc).split()), EXIT_USAGE)
+        except MrosError as exc:  # rosservice's hint after the error: the request's fields
+            fields = " ".join(printable_args(srv._request_class))
+            fail(" ".join(str(exc).split()), EXIT_USAGE, hint=f"Service arguments are: [{fields}]")
         async with Node(anonymous("call"), master_uri=master.master_uri, argv=[]) as node:
             proxy = node.service_proxy(name, srv)
             try:

@@ -16,7 +16,15 @@ from mrosd.errors import MrosError
 from mrosd.msg import Duration, Time, get_message_class
 from mrosd.msg.spec import INT_RANGES
 
-__all__ = ["build_message", "file_documents", "load_document", "message_class", "parse_pub_args"]
+__all__ = [
+    "build_message",
+    "build_message_or_hint",
+    "file_documents",
+    "load_document",
+    "message_class",
+    "parse_pub_args",
+    "printable_args",
+]
 
 
 def message_class(rostype: str) -> Any:
@@ -125,6 +133,32 @@ def build_message(cls: Any, value: Any, where: str = "") -> Any:
         return cls(**kwargs)
     except (TypeError, ValueError, MrosError) as exc:
         raise MrosError(f"{where or cls._type}: {exc}") from exc
+
+
+def printable_args(cls: Any, prefix: str = "") -> list[str]:
+    """The field names as genpy prints them for rostopic pub's and rosservice's hints (nested messages
+    flattened: ``a.x a.y``; arrays of messages stay one name)."""
+    names: list[str] = []
+    for name, rostype in zip(cls.__struct_fields__, cls._field_types, strict=True):
+        if "[" not in rostype and ("/" in rostype or rostype == "Header"):
+            names += printable_args(message_class(rostype), f"{prefix}{name}.")
+        else:
+            names.append(prefix + name)
+    return names
+
+
+def build_message_or_hint(cls: Any, value: Any) -> Any:
+    """``build_message``, with rostopic pub's hint on error: ``Args are: [x y z]``.
+
+    Raises:
+        HintedError: the value does not fit ``cls``.
+    """
+    from mros_cli.main import HintedError
+
+    try:
+        return build_message(cls, value)
+    except MrosError as exc:
+        raise HintedError(str(exc), f"Args are: [{' '.join(printable_args(cls))}]") from exc
 
 
 def parse_pub_args(args: tuple[str, ...]) -> Any:

@@ -14,6 +14,7 @@ import logging
 import os
 import socket
 import sys
+import weakref
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -49,6 +50,15 @@ WATCHDOG_MAX_INTERVAL = 5.0
 #: Timeout of registration calls, and the shorter one for unregistering on exit.
 MASTER_TIMEOUT = 10.0
 UNREGISTER_TIMEOUT = 2.0
+
+
+#: Nodes started and not yet closed, so that ``mrosd.run`` can close what an application left open.
+_open_nodes: weakref.WeakSet[Node] = weakref.WeakSet()
+
+
+def open_nodes() -> list[Node]:
+    """The nodes of this process that are started and not closed."""
+    return list(_open_nodes)
 
 
 def _is_ipv6(host: str) -> bool:
@@ -110,7 +120,12 @@ class InboundProtocol(ServiceProtocol, PublisherProtocol, AdmittedConnection):
                 listener.header_bytes(self, self.decoder.buffered)
 
     def _refuse(self, reason: str) -> None:
-        refusals.warning("refuse", "%s: refusing TCPROS connection from %s: %s", self.node.name, self.peer, reason)
+        # While the node closes, a peer that connected to an endpoint just closed (rosout dialling a
+        # short-lived node's /rosout) is expected: it gets the error header, the user no warning.
+        if self.node.closing:
+            log.debug("%s: refusing TCPROS connection from %s: %s", self.node.name, self.peer, reason)
+        else:
+            refusals.warning("refuse", "%s: refusing TCPROS connection from %s: %s", self.node.name, self.peer, reason)
         self.write(encode_header(error_header(reason)))
         self.close()
 
@@ -195,6 +210,8 @@ class Node:
         self.rosout = rosout
         self.logger_services = logger_services
         self.shutdown_reason = ""
+        #: set once ``aclose()`` began: late connections to closed endpoints are then expected
+        self.closing = False
         self._rosout_handler: RosoutHandler | None = None
         self.shutdown_event = asyncio.Event()
         self.xmlrpc = XmlRpcClient(timeout=MASTER_TIMEOUT)
@@ -239,6 +256,7 @@ class Node:
             await self._close_servers()
             raise
         self._started = True
+        _open_nodes.add(self)
         try:
             await self._start_rosout()
         except MrosError as exc:
@@ -272,6 +290,8 @@ class Node:
 
     async def aclose(self) -> None:
         """Unregister every topic and service (best effort, bounded) and close every connection."""
+        self.closing = True
+        _open_nodes.discard(self)
         if self._rosout_handler is not None:
             logging.getLogger(ROSOUT_LOGGER).removeHandler(self._rosout_handler)
             self._rosout_handler = None
@@ -353,6 +373,12 @@ class Node:
         except MrosError as exc:
             log.info("%s: %s%r failed: %s", self.name, method, args, exc)
 
+    async def _undo_registration(self, exc: BaseException, method: str, *args: Any) -> None:
+        """A registration call failed without the master's answer (cancelled, timed out): it may have been
+        registered all the same, so unregister it (bounded); a master that answered with a failure did not."""
+        if not isinstance(exc, MasterError) or isinstance(exc, MasterUnreachableError):
+            await self._unregister(method, *args)
+
     async def _watch(self) -> None:
         delay = self.watchdog_interval
         down = False
@@ -407,6 +433,13 @@ class Node:
             self._watchdog = None
         self.shutdown_reason = reason
         self.shutdown_event.set()
+
+    async def spin(self) -> None:
+        """Wait until the node is told to shut down (``rosnode kill``), as ``rospy.spin()``.
+
+        For an application with nothing else to await; under ``mrosd.run`` Ctrl-C or SIGTERM cancels it.
+        """
+        await self.shutdown_event.wait()
 
     def param_update(self, key: str, value: Any) -> bool:
         """A paramUpdate from the master: run the callbacks of the subscribed key it falls under.
@@ -483,8 +516,9 @@ class Node:
         self.publishers[name] = pub
         try:
             await self.master.call("registerPublisher", name, pub.type, self.uri)
-        except BaseException:
+        except BaseException as exc:
             self.publishers.pop(name, None)
+            await self._undo_registration(exc, "unregisterPublisher", name, self.uri)
             raise
         return pub
 
@@ -512,9 +546,10 @@ class Node:
         try:
             # Raw call: a malformed publisher list is tolerated (treated as none), not an error.
             uris = await self.master.call("registerSubscriber", name, sub.type, self.uri)
-        except BaseException:
+        except BaseException as exc:
             self.subscribers.pop(name, None)
             sub.closed = True
+            await self._undo_registration(exc, "unregisterSubscriber", name, self.uri)
             raise
         sub.update_publishers(list(uris) if isinstance(uris, list) else [])
         return sub
@@ -534,8 +569,9 @@ class Node:
         self.services[name] = srv
         try:
             await self.master.register_service(name, self.service_uri, self.uri)
-        except BaseException:
+        except BaseException as exc:
             self.services.pop(name, None)
+            await self._undo_registration(exc, "unregisterService", name, self.service_uri)
             raise
         return srv
 

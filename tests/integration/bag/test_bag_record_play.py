@@ -228,6 +228,6 @@ def test_topic_echo_from_a_bag_prints_rostopic_text_and_bag_errors_are_one_line(
     ]:
         failed = mros(*args)
         assert failed.returncode == 1
-        assert failed.stderr.startswith("mros: error: ")
+        assert failed.stderr.startswith("ERROR: ")
         assert error in failed.stderr
         assert len(failed.stderr.splitlines()) == 1

@@ -28,6 +28,7 @@ def daemon_env(tmp: Path, notify: str = "", **extra: str) -> dict[str, str]:
         JOURNAL_STREAM="8:12345",
         MROSD_IXM_SOCKET=str(tmp / "run" / "ixm.sock"),
         ROS_HOSTNAME="127.0.0.1",
+        ROS_LOG_DIR=str(tmp / "ros_log"),
         PYTHONUNBUFFERED="1",
     )
     if notify:

@@ -7,14 +7,19 @@ import subprocess
 import sys
 from pathlib import Path
 
-from tests.rosenv import Processes, free_port, ros_env, wait_for_xmlrpc
+from tests.rosenv import PROJECT_ROOT, Processes, free_port, ros_env, wait_for_xmlrpc
+
+
+def mros_env(master_uri: str, tmp: Path) -> dict[str, str]:
+    """``ros_env`` plus this checkout on PYTHONPATH: ``mros`` runs the code under test, not an installed copy."""
+    return ros_env(master_uri, tmp, PYTHONPATH=f"{PROJECT_ROOT}:{PROJECT_ROOT / 'cli'}")
 
 
 def mros(
     master_uri: str, tmp: Path, *args: str, stdin: str | None = None, timeout: float = 60
 ) -> subprocess.CompletedProcess[str]:
     """``mros ARGS`` under the project's python, pointed at ``master_uri``."""
-    env = ros_env(master_uri, tmp)
+    env = mros_env(master_uri, tmp)
     return subprocess.run(
         [sys.executable, "-m", "mros_cli.main", *args],
         env=env,
@@ -67,7 +72,7 @@ def mros_process(
     procs: Processes, master_uri: str, *args: str, stdin: int | None = subprocess.DEVNULL
 ) -> subprocess.Popen[bytes]:
     """``mros ARGS`` as a long-running process (pub, echo), killed when the test ends."""
-    return procs.start([sys.executable, "-m", "mros_cli.main", *args], ros_env(master_uri, procs.tmp), stdin=stdin)
+    return procs.start([sys.executable, "-m", "mros_cli.main", *args], mros_env(master_uri, procs.tmp), stdin=stdin)
 
 
 def mask_seq(text: str) -> str:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import time
+import xmlrpc.client
 from pathlib import Path
 
 import pytest
@@ -78,3 +79,22 @@ def test_node_kill_shuts_a_rospy_node_down_and_cleanup_purges_a_dead_one(
     while "/talker" in mros(rosmaster, tmp_path, "node", "list").stdout:
         assert time.monotonic() < deadline
     assert ros_tool(rosmaster, tmp_path, "rosnode", "list").stdout.strip() == ""
+
+
+def test_node_list_u_and_a_follow_rosnodes_order_and_an_empty_graph_prints_its_empty_line(
+    rosmaster: str, tmp_path: Path
+) -> None:
+    """rosnode list -u prints one URI per node in the order of the names (not sorted by URI, not merged)."""
+    for argv in (["list"], ["list", "-u"]):  # nothing registered: rosnode prints one empty line
+        assert mros(rosmaster, tmp_path, "node", *argv).stdout == ros_tool(rosmaster, tmp_path, "rosnode", *argv).stdout
+    # Registrations only (rosnode list never calls the nodes): names in one order, URIs in the opposite one,
+    # and two names on one URI.
+    nodes = {"/a_node": "http://127.0.0.1:3/", "/b_node": "http://127.0.0.1:2/", "/c_node": "http://127.0.0.1:2/"}
+    with xmlrpc.client.ServerProxy(rosmaster) as master:
+        for name, api in nodes.items():
+            assert master.registerPublisher(name, f"{name}/out", "std_msgs/String", api)[0] == 1
+    for argv in (["list", "-u"], ["list", "-a"], ["list", "-u", "/b_node"]):
+        ours = mros(rosmaster, tmp_path, "node", *argv)
+        theirs = ros_tool(rosmaster, tmp_path, "rosnode", *argv)
+        assert (ours.returncode, ours.stdout) == (theirs.returncode, theirs.stdout), argv
+    assert mros(rosmaster, tmp_path, "node", "list", "-u").stdout.split() == [nodes[n] for n in sorted(nodes)]

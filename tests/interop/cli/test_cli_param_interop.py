@@ -50,7 +50,7 @@ def test_getting_a_missing_parameter_fails_with_exit_code_1_and_one_stderr_line(
     theirs = ros_tool(rosmaster, tmp_path, "rosparam", "get", "/missing")
     assert ours.returncode == theirs.returncode == 1
     assert ours.stdout == ""
-    assert ours.stderr.strip() == "mros: error: Parameter [/missing] is not set"
+    assert ours.stderr.strip() == "ERROR: Parameter [/missing] is not set"
 
 
 def test_delete_removes_what_rosparam_set(rosmaster: str, tmp_path: Path) -> None:
@@ -89,7 +89,7 @@ def test_load_honours_the_ns_key_of_each_document_like_rosparam(rosmaster: str, 
 def test_bad_yaml_and_oversized_integers_are_one_line_errors(rosmaster: str, tmp_path: Path) -> None:
     bad = mros(rosmaster, tmp_path, "param", "set", "/x", "{unclosed: [1,")
     assert bad.returncode == 1
-    assert bad.stderr.startswith("mros: error: value is not valid YAML")
+    assert bad.stderr.startswith("ERROR: value is not valid YAML")
     assert len(bad.stderr.strip().splitlines()) == 1
     big = mros(rosmaster, tmp_path, "param", "set", "/x", "99999999999")
     assert big.returncode == 1

@@ -48,6 +48,7 @@ def test_a_bad_document_in_a_file_fails_before_anything_is_published(rosmaster: 
     doc.write_text("{x: 1.0}\n---\n{x: 2.0, nope: 3}\n")
     out = mros(rosmaster, tmp_path, "topic", "pub", "/never", "geometry_msgs/Point", "-f", str(doc))
     assert out.returncode == 1
-    assert out.stderr.startswith("mros: error: ") and "nope" in out.stderr
+    assert out.stderr.startswith("ERROR: ") and "nope" in out.stderr
+    assert out.stderr.endswith("\n\nArgs are: [x y z]\n")  # rostopic pub's hint
     topics = mros(rosmaster, tmp_path, "topic", "list").stdout.split()
     assert "/never" not in topics

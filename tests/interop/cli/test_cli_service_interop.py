@@ -51,4 +51,9 @@ def test_a_wrong_request_field_is_a_one_line_error(server: str, tmp_path: Path) 
     out = mros(server, tmp_path, "service", "call", "/set", "{dta: 1}")
     theirs = ros_tool(server, tmp_path, "rosservice", "call", "/set", "{dta: 1}")
     assert out.returncode == theirs.returncode == 2  # rosservice's code for arguments it cannot use
-    assert out.stderr == "mros: error: field dta: std_srvs/SetBoolRequest has no such field; its fields are: data\n"
+    # rosservice: "ERROR: Incompatible arguments to call service:\nNo field name [dta]\n...\n\n"
+    # "Service arguments are: [data]"; mros names the field and the type in one line, then the same hint
+    assert out.stderr == (
+        "ERROR: field dta: std_srvs/SetBoolRequest has no such field; its fields are: data\n\n"
+        "Service arguments are: [data]\n"
+    )

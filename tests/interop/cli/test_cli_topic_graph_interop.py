@@ -58,4 +58,4 @@ def test_unknown_topics_fail_with_exit_code_1(rosmaster: str, tmp_path: Path) ->
     assert ours.stderr == theirs.stderr == "unknown topic type [/nothing]\n"
     info = mros(rosmaster, tmp_path, "topic", "info", "/nothing")
     assert info.returncode == 1
-    assert info.stderr == "mros: error: Unknown topic /nothing\n"
+    assert info.stderr == "ERROR: Unknown topic /nothing\n"

@@ -10,7 +10,6 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-import os
 import select
 import subprocess
 import xmlrpc.client
@@ -81,6 +80,14 @@ async def node_params(master: str) -> dict[str, Any]:
     return await asyncio.to_thread(get)
 
 
+async def rosversion_d() -> str:
+    """What roscore's launch sets /rosdistro to here (``rosversion -d``: $ROS_DISTRO, else Debian's "Debian")."""
+    out = await asyncio.to_thread(
+        subprocess.run, ["rosversion", "-d"], capture_output=True, text=True, timeout=60, check=True
+    )
+    return out.stdout
+
+
 def log_a_line(node: mrosd.Node) -> int:
     node.log.warning("wheels at %d rpm", 42)
     return log_a_line.__code__.co_firstlineno + 1
@@ -142,7 +149,7 @@ async def test_the_aggregator_offers_what_roscores_rosout_offers(rosmaster: str,
     async with RosoutAggregator(rosmaster):
         params = await node_params(rosmaster)
         assert params["/rosversion"] == ROSVERSION + "\n"  # with the newline of `rosversion roslaunch`, as roscore
-        assert params["/rosdistro"] == (os.environ.get("ROS_DISTRO") or "noetic") + "\n"
+        assert params["/rosdistro"] == await rosversion_d()  # as roscore's launch sets it, newline included
         assert len(params["/run_id"]) == 36
         info = await ros(procs, rosmaster, "rosnode", "info", "/rosout")
         publications = info.split("Publications:")[1].split("Subscriptions:")[0]

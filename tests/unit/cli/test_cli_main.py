@@ -51,7 +51,7 @@ def test_unknown_commands_and_missing_arguments_exit_with_code_2() -> None:
     assert CliRunner().invoke(cli, ["topic", "pub", "/x"]).exit_code == 2
 
 
-def test_an_unreachable_master_is_one_stderr_line_and_exit_code_1() -> None:
+def test_an_unreachable_master_is_rosparams_error_plus_the_uri_and_exit_code_1() -> None:
     out = subprocess.run(
         [sys.executable, "-m", "mros_cli.main", "--master-uri", "http://127.0.0.1:9/", "param", "list"],
         capture_output=True,
@@ -61,9 +61,10 @@ def test_an_unreachable_master_is_one_stderr_line_and_exit_code_1() -> None:
     )
     assert out.returncode == 1
     assert out.stdout == ""
-    lines = out.stderr.splitlines()
-    assert len(lines) == 1
-    assert lines[0].startswith("mros: error: cannot reach the ROS master at http://127.0.0.1:9/")
+    # rosparam list prints "ERROR: Unable to communicate with master!"; mros adds the URI and the reason
+    first, blank, detail = out.stderr.splitlines()
+    assert (first, blank) == ("ERROR: Unable to communicate with master!", "")
+    assert detail.startswith("cannot reach the ROS master at http://127.0.0.1:9/")
 
 
 def bash_complete(words: str, cword: int) -> list[str]:

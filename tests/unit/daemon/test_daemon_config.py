@@ -50,6 +50,9 @@ def test_an_empty_file_gives_the_defaults() -> None:
         ("[master]\nport = 70000\n", "master.port"),
         ('[master]\nallow = ["not-a-net"]\n', "master.allow[0]"),
         ('[log]\nlevel = "loud"\n', "log.level"),
+        ('[log]\ndir = "relative/logs"\n', "log.dir"),
+        ("[log]\nmax_bytes = 0\n", "log.max_bytes"),
+        ("[log]\nbackups = -1\n", "log.backups"),
         ("port = ", "not valid TOML"),
     ],
 )
@@ -58,6 +61,13 @@ def test_a_bad_config_is_an_error_naming_the_key(text: str, needle: str) -> None
         parse_config(text, "mrosd.toml")
     assert needle in str(info.value)
     assert "mrosd.toml" in str(info.value)
+
+
+def test_the_log_directory_is_ros_s_unless_set_or_off() -> None:
+    assert parse_config("").log.dir == ""  # the daemon then follows ROS_LOG_DIR, ROS_HOME/log, ~/.ros/log
+    assert parse_config('[log]\ndir = "off"\n').log.dir == "off"
+    cfg = parse_config('[log]\ndir = "/var/log/mrosd"\nmax_bytes = 1000\nbackups = 0\n')
+    assert (cfg.log.dir, cfg.log.max_bytes, cfg.log.backups) == ("/var/log/mrosd", 1000, 0)
 
 
 def test_the_ixm_rules_table_is_passed_through_untouched() -> None:
