@@ -1,0 +1,427 @@
+"""The one ROS side of every browser client: graph watch, shared raw subscriptions, client publishers.
+
+Every WebSocket protocol (Foxglove, rosbridge, the page) is a thin client of one ``WebHub``:
+
+- the graph comes from ``mrosd.master.client.watch_graph`` (pushed by an mrosd master, polled against
+  rosmaster); each topic becomes a ``TopicInfo`` with the type's full message_definition, looked up where
+  ``mrosd.msg.TypeStore`` looks (mrosd's definitions, ``ROS_PACKAGE_PATH``, ``/usr/share/<pkg>``), else read
+  from a publisher's connection header (a short-lived raw subscription, as rosbridge does for unknown types);
+- a topic that any client wants is subscribed once, raw (``AnyMsg``): each message body is handed as
+  received (no decode, no copy) with its receipt time to every ``TopicSink`` holding the topic; the last
+  sink to leave closes the subscription;
+- a topic a client publishes is advertised once per topic (shared by the clients that advertise it).
+
+No per-client buffering here: each sink owns its byte-bounded queue (``mrosd.web.queue``), so a slow client
+costs only what its own queues hold.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from mrosd.errors import MrosError, MsgError
+from mrosd.master.client import GraphSnapshot, MasterClient, watch_graph
+from mrosd.msg import load_type
+from mrosd.msg.loader import default_store
+from mrosd.tcpros import Node
+from mrosd.tcpros.subscriber import AnyMsg, RawMessage, Subscriber
+from mrosd.web.access import AccessPolicy
+from mrosd.web.foxglove import SystemState
+
+log = logging.getLogger(__name__)
+
+__all__ = ["GraphListener", "TopicInfo", "TopicSink", "WebHub"]
+
+#: How long a probe waits for a publisher's connection header before the topic stays unadvertised.
+PROBE_TIMEOUT = 5.0
+#: Probes in flight at once (each is one TCPROS connection to a publisher).
+MAX_PROBES = 8
+
+
+class TopicSink(Protocol):
+    """A client's end of a shared subscription; ``deliver`` must not block (queue and return)."""
+
+    def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None: ...
+
+
+class GraphListener(Protocol):
+    """Told about topics that became advertisable or went away, and about every graph change."""
+
+    def topics_changed(self, added: list[TopicInfo], removed: list[TopicInfo]) -> None: ...
+
+    def graph_changed(self, graph: GraphSnapshot) -> None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class TopicInfo:
+    """A topic a client can subscribe to: ``id`` is stable for as long as its type stays the same."""
+
+    id: int
+    name: str
+    type: str
+    definition: str
+
+
+@dataclass(slots=True)
+class _Shared:
+    """One raw subscription and the sinks that share it."""
+
+    subscriber: Subscriber
+    sinks: list[TopicSink] = field(default_factory=list)
+    messages: int = 0
+    bytes: int = 0
+
+
+@dataclass(slots=True)
+class _SharedPublisher:
+    publisher: Any
+    msg_class: Any
+    owners: int = 0
+
+
+class WebHub:
+    """The ROS node behind the browser protocols (``name`` is its node name in the graph)."""
+
+    def __init__(
+        self,
+        master_uri: str,
+        *,
+        name: str = "mrosd_web",
+        policy: AccessPolicy | None = None,
+        poll_interval: float = 0.5,
+        host: str | None = None,
+    ) -> None:
+        self.master_uri = master_uri
+        self.policy = policy or AccessPolicy()
+        self.poll_interval = poll_interval
+        self.node = Node(name, master_uri=master_uri, argv=[], rosout=False, logger_services=False, host=host)
+        self.graph = GraphSnapshot()
+        #: advertisable topics by name (allowed by the policy, with a known definition)
+        self.topics: dict[str, TopicInfo] = {}
+        self.listeners: set[GraphListener] = set()
+        self._ids = itertools.count(1)
+        self._shared: dict[str, _Shared] = {}
+        self._publishers: dict[str, _SharedPublisher] = {}
+        self._probing: dict[str, asyncio.Task[None]] = {}
+        self._probe_slots = asyncio.Semaphore(MAX_PROBES)
+        self._unresolved: dict[str, str] = {}
+        self._watch: asyncio.Task[None] | None = None
+        self._first_graph: asyncio.Future[None] | None = None
+        self._lock = asyncio.Lock()
+        #: called with the full system state after every graph change, while any is registered
+        self.state_listeners: set[Callable[[SystemState], None]] = set()
+        self._state_task: asyncio.Task[None] | None = None
+        self._params: dict[str, set[Callable[[str, Any], None]]] = {}
+
+    # --- lifecycle -------------------------------------------------------------------------------
+
+    async def start(self, timeout: float = 10.0) -> None:
+        """Start the node and the graph watch; returns once the first graph is known.
+
+        Raises:
+            MasterUnreachableError: no master answers.
+            TimeoutError: the first graph did not arrive within ``timeout`` seconds.
+        """
+        await self.node.start()
+        loop = asyncio.get_running_loop()
+        self._first_graph = loop.create_future()
+        self._watch = loop.create_task(self._watch_graph(), name="web graph watch")
+        try:
+            async with asyncio.timeout(timeout):
+                await asyncio.shield(self._first_graph)
+        except BaseException:
+            await self.aclose()
+            raise
+
+    async def aclose(self) -> None:
+        """Stop watching, close every shared subscription and publisher, and the node."""
+        tasks = [t for t in (self._watch, self._state_task, *self._probing.values()) if t is not None]
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        self._watch = None
+        self._probing.clear()
+        shared, self._shared = self._shared, {}
+        for entry in shared.values():
+            entry.sinks.clear()
+        self._publishers.clear()
+        await self.node.aclose()
+
+    # --- the graph -------------------------------------------------------------------------------
+
+    async def _watch_graph(self) -> None:
+        client = MasterClient(self.master_uri, self.node.name, self.node.xmlrpc, timeout=5.0)
+        first = self._first_graph
+        try:
+            async for graph in watch_graph(client, poll_interval=self.poll_interval):
+                self._apply_graph(graph)
+                if first is not None and not first.done():
+                    first.set_result(None)
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:
+            if first is not None and not first.done():
+                first.set_exception(exc)
+            else:
+                log.exception("web: the graph watch ended")
+
+    def _apply_graph(self, graph: GraphSnapshot) -> None:
+        self.graph = graph
+        added: list[TopicInfo] = []
+        removed: list[TopicInfo] = []
+        for name, info in list(self.topics.items()):
+            if graph.topics.get(name) != info.type:
+                removed.append(self.topics.pop(name))
+        for name, msg_type in graph.topics.items():
+            if name in self.topics or msg_type in ("", "*") or not self.policy.allows_topic(name):
+                continue
+            definition = self._definition(msg_type)
+            if definition is None:
+                self._start_probe(name, msg_type)
+                continue
+            info = TopicInfo(next(self._ids), name, msg_type, definition)
+            self.topics[name] = info
+            added.append(info)
+        if added or removed:
+            self._notify_topics(added, removed)
+        for listener in list(self.listeners):
+            try:
+                listener.graph_changed(graph)
+            except Exception:
+                log.exception("web: a graph listener failed")
+        if self.state_listeners:
+            self.refresh_state()
+
+    async def system_state(self) -> SystemState:
+        """Publishers, subscribers and services with their nodes (one getSystemState), filtered by the policy."""
+        pubs, subs, srvs = await self.node.master.get_system_state()
+        allow_t, allow_s = self.policy.allows_topic, self.policy.allows_service
+        return (
+            {n: ids for n, ids in pubs if allow_t(n)},
+            {n: ids for n, ids in subs if allow_t(n)},
+            {n: ids for n, ids in srvs if allow_s(n)},
+        )
+
+    def refresh_state(self) -> None:
+        """Fetch the system state once (coalesced) and hand it to every state listener."""
+        if self._state_task is not None and not self._state_task.done():
+            return
+        self._state_task = asyncio.get_running_loop().create_task(self._push_state(), name="web system state")
+
+    async def _push_state(self) -> None:
+        try:
+            state = await self.system_state()
+        except MrosError as exc:
+            log.info("web: getSystemState failed: %s", exc)
+            return
+        for listener in list(self.state_listeners):
+            try:
+                listener(state)
+            except Exception:
+                log.exception("web: a state listener failed")
+
+    def _notify_topics(self, added: list[TopicInfo], removed: list[TopicInfo]) -> None:
+        for listener in list(self.listeners):
+            try:
+                listener.topics_changed(added, removed)
+            except Exception:
+                log.exception("web: a topic listener failed")
+
+    def _definition(self, msg_type: str) -> str | None:
+        if msg_type in self._unresolved:
+            return None
+        try:
+            return default_store().full_text(msg_type)
+        except MsgError as exc:
+            self._unresolved[msg_type] = str(exc)
+            return None
+
+    def _start_probe(self, topic: str, msg_type: str) -> None:
+        if topic in self._probing:
+            return
+        task = asyncio.get_running_loop().create_task(self._probe(topic, msg_type), name=f"web probe {topic}")
+        self._probing[topic] = task
+
+    async def _probe(self, topic: str, msg_type: str) -> None:
+        """Read the type's message_definition from a publisher's connection header (short-lived raw subscription)."""
+        try:
+            async with self._probe_slots:
+                definition = await self._definition_from_publisher(topic)
+            if definition is None or self.graph.topics.get(topic) != msg_type or topic in self.topics:
+                return
+            try:
+                load_type(msg_type, definition)  # refuse a definition that does not parse before advertising it
+            except MsgError as exc:
+                log.warning("web: %s: the publisher's definition of %s does not parse: %s", topic, msg_type, exc)
+                return
+            info = TopicInfo(next(self._ids), topic, msg_type, definition)
+            self.topics[topic] = info
+            self._notify_topics([info], [])
+        finally:
+            self._probing.pop(topic, None)
+
+    async def _definition_from_publisher(self, topic: str) -> str | None:
+        entry = self._shared.get(topic)
+        if entry is not None:
+            return await self._header_definition(entry.subscriber)
+        sub = await self._subscribe(topic)
+        try:
+            return await self._header_definition(sub)
+        finally:
+            if topic not in self._shared:
+                await sub.aclose()
+
+    @staticmethod
+    async def _header_definition(sub: Subscriber) -> str | None:
+        try:
+            await sub.wait_for_publishers(1, timeout=PROBE_TIMEOUT)
+        except TimeoutError:
+            return None
+        for link in sub.links.values():
+            if link.header is not None and link.header.message_definition:
+                return link.header.message_definition
+        return None
+
+    async def _subscribe(self, topic: str) -> Subscriber:
+        return await self.node.subscribe(topic, AnyMsg, callback=self._raw_callback(topic))
+
+    # --- shared subscriptions --------------------------------------------------------------------
+
+    def _raw_callback(self, topic: str) -> Callable[[RawMessage], None]:
+        def deliver(msg: RawMessage) -> None:
+            entry = self._shared.get(topic)
+            if entry is None:
+                return
+            now = time.time_ns()
+            body = msg.data
+            entry.messages += 1
+            entry.bytes += len(body)
+            for sink in entry.sinks:
+                try:
+                    sink.deliver(topic, body, now)
+                except Exception:
+                    log.exception("web: a sink of %s failed", topic)
+
+        return deliver
+
+    async def add_sink(self, topic: str, sink: TopicSink) -> None:
+        """Give ``sink`` every message of ``topic`` (subscribing on the first sink).
+
+        Raises:
+            MrosError: the topic is not allowed, or the master refused the subscription.
+        """
+        if not self.policy.allows_topic(topic):
+            raise MrosError(f"topic {topic} is not allowed by the [web] topics allow-list")
+        async with self._lock:
+            entry = self._shared.get(topic)
+            if entry is None:
+                probe = self._probing.get(topic)
+                if probe is not None:  # a probe holds the node's subscription to this topic
+                    await asyncio.gather(probe, return_exceptions=True)
+                entry = _Shared(await self._subscribe(topic))
+                self._shared[topic] = entry
+            if sink not in entry.sinks:
+                entry.sinks.append(sink)
+
+    async def remove_sink(self, topic: str, sink: TopicSink) -> None:
+        """Stop giving ``sink`` the topic; the last sink closes the subscription."""
+        async with self._lock:
+            entry = self._shared.get(topic)
+            if entry is None:
+                return
+            with contextlib.suppress(ValueError):
+                entry.sinks.remove(sink)
+            if not entry.sinks:
+                del self._shared[topic]
+                await entry.subscriber.aclose()
+
+    def topic_stats(self, topic: str) -> tuple[int, int] | None:
+        """``(messages, bytes)`` received on a shared subscription since it opened (None: not subscribed)."""
+        entry = self._shared.get(topic)
+        return None if entry is None else (entry.messages, entry.bytes)
+
+    def sink_count(self, topic: str) -> int:
+        entry = self._shared.get(topic)
+        return 0 if entry is None else len(entry.sinks)
+
+    # --- client publishers -----------------------------------------------------------------------
+
+    def message_class(self, msg_type: str, definition: str | None = None) -> Any:
+        """The class of a type a client names (its own definition first, then the type search path).
+
+        Raises:
+            MsgError: unknown type (the message names where it was looked for) or a malformed definition.
+        """
+        return load_type(msg_type, definition or "")
+
+    async def acquire_publisher(self, topic: str, msg_class: Any) -> Any:
+        """The shared publisher of ``topic`` (advertised at the first owner).
+
+        Raises:
+            MrosError: not allowed, another type already published here, or the master refused.
+        """
+        if not self.policy.allows_topic(topic):
+            raise MrosError(f"topic {topic} is not allowed by the [web] topics allow-list")
+        async with self._lock:
+            entry = self._publishers.get(topic)
+            if entry is None:
+                pub = await self.node.advertise(topic, msg_class, queue_size=100)
+                entry = _SharedPublisher(pub, msg_class)
+                self._publishers[topic] = entry
+            elif entry.msg_class._md5sum != msg_class._md5sum:
+                raise MrosError(f"{topic} is already published by a web client as {entry.msg_class._type}")
+            entry.owners += 1
+            return entry.publisher
+
+    async def release_publisher(self, topic: str) -> None:
+        async with self._lock:
+            entry = self._publishers.get(topic)
+            if entry is None:
+                return
+            entry.owners -= 1
+            if entry.owners <= 0:
+                del self._publishers[topic]
+                await entry.publisher.aclose()
+
+    # --- parameters ------------------------------------------------------------------------------
+
+    async def watch_param(self, name: str, callback: Callable[[str, Any], None]) -> None:
+        """Call ``callback(key, value)`` on every update of ``name`` (one master subscription per name).
+
+        Raises:
+            MrosError: not allowed, or the master refused the subscription.
+        """
+        if not self.policy.allows_param(name):
+            raise MrosError(f"parameter {name} is not allowed by the [web] params allow-list")
+        callbacks = self._params.get(name)
+        if callbacks is None:
+            callbacks = self._params[name] = set()
+            try:
+                await self.node.subscribe_param(name, lambda key, value: self._param_update(name, key, value))
+            except BaseException:
+                del self._params[name]
+                raise
+        callbacks.add(callback)
+
+    def _param_update(self, name: str, key: str, value: Any) -> None:
+        for cb in list(self._params.get(name, ())):
+            try:
+                cb(key, value)
+            except Exception:
+                log.exception("web: a parameter listener failed")
+
+    async def unwatch_param(self, name: str, callback: Callable[[str, Any], None]) -> None:
+        callbacks = self._params.get(name)
+        if callbacks is None:
+            return
+        callbacks.discard(callback)
+        if not callbacks:
+            del self._params[name]
+            await self.node.unsubscribe_param(name)

@@ -1,0 +1,128 @@
+"""``WebServer``: the daemon's web part (and ``mros bridge``): one ``WebHub``, the Foxglove WebSocket listener.
+
+An embeddable server with ``start()``/``aclose()`` like the daemon's other parts. It refuses to listen off
+loopback without a token (``AccessPolicy.check_bind``); the token is accepted as ``?token=`` in the URL
+(browsers cannot set headers on a WebSocket) or as ``Authorization: Bearer <token>``. WebSocket frames are
+capped at ``max_frame`` bytes by aiohttp before anything is buffered beyond them.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from aiohttp import web
+
+from mrosd.web import foxglove as fg
+from mrosd.web.access import AccessPolicy
+from mrosd.web.foxglove_server import FoxgloveSession, SessionLimits
+from mrosd.web.hub import WebHub
+
+log = logging.getLogger(__name__)
+
+__all__ = ["WebServer"]
+
+#: Largest WebSocket message a client may send (a client-published image fits; more is refused by aiohttp).
+MAX_CLIENT_FRAME = 64 * 1024 * 1024
+#: Most WebSocket clients at once.
+MAX_CLIENTS = 64
+
+
+class WebServer:
+    """Serves Foxglove WebSocket on ``host:port`` (port 0: any free port, read ``port`` after start)."""
+
+    def __init__(
+        self,
+        master_uri: str,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 8765,
+        policy: AccessPolicy | None = None,
+        limits: SessionLimits | None = None,
+        node_name: str = "mrosd_web",
+        max_clients: int = MAX_CLIENTS,
+        max_frame: int = MAX_CLIENT_FRAME,
+        node_host: str | None = None,
+    ) -> None:
+        self.policy = policy or AccessPolicy()
+        self.policy.check_bind(host)
+        self.host = host
+        self.port = port
+        self.limits = limits or SessionLimits()
+        self.max_clients = max_clients
+        self.max_frame = max_frame
+        self.hub = WebHub(master_uri, name=node_name, policy=self.policy, host=node_host)
+        self.sessions: set[FoxgloveSession] = set()
+        self._runner: web.AppRunner | None = None
+
+    @property
+    def url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"ws://{host}:{self.port}/"
+
+    async def start(self) -> None:
+        """Start the hub (graph watch) and listen.
+
+        Raises:
+            OSError: the port is in use.
+            MrosError: the master does not answer.
+        """
+        await self.hub.start()
+        try:
+            app = web.Application()
+            app.router.add_get("/", self._foxglove)
+            runner = web.AppRunner(app, handle_signals=False, access_log=None)
+            await runner.setup()
+            self._runner = runner
+            site = web.TCPSite(runner, self.host, self.port, reuse_address=True)
+            await site.start()
+            server: Any = site._server
+            if server is not None and server.sockets:
+                self.port = int(server.sockets[0].getsockname()[1])
+        except BaseException:
+            await self.aclose()
+            raise
+        log.info("web: Foxglove WebSocket on %s (master %s)", self.url, self.hub.master_uri)
+
+    def _token(self, request: web.Request) -> str | None:
+        token = request.query.get("token")
+        if token is not None:
+            return token
+        auth = request.headers.get("Authorization", "")
+        return auth[7:] if auth.startswith("Bearer ") else None
+
+    async def _foxglove(self, request: web.Request) -> web.StreamResponse:
+        if not self.policy.token_ok(self._token(request)):
+            raise web.HTTPUnauthorized(text="token required: add ?token=... to the URL\n")
+        if len(self.sessions) >= self.max_clients:
+            raise web.HTTPServiceUnavailable(text=f"at most {self.max_clients} clients\n")
+        offered = [p.strip() for p in request.headers.get("Sec-WebSocket-Protocol", "").split(",") if p.strip()]
+        if fg.choose_subprotocol(offered) is None:
+            raise web.HTTPBadRequest(text=f"offer one of the subprotocols {', '.join(fg.SUBPROTOCOLS)}\n")
+        ws = web.WebSocketResponse(
+            protocols=fg.SUBPROTOCOLS, compress=False, max_msg_size=self.max_frame, heartbeat=30.0
+        )
+        await ws.prepare(request)
+        session = FoxgloveSession(self.hub, ws, self.limits, peer=str(request.remote))
+        self.sessions.add(session)
+        try:
+            await session.run()
+        finally:
+            self.sessions.discard(session)
+            if not ws.closed:
+                await ws.close()
+        return ws
+
+    async def aclose(self) -> None:
+        """Close every client, stop listening, then close the hub (its subscriptions and node)."""
+        runner, self._runner = self._runner, None
+        if runner is not None:
+            await runner.cleanup()
+        await self.hub.aclose()
+
+    async def __aenter__(self) -> WebServer:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.aclose()
