@@ -28,7 +28,7 @@ from aiohttp import WSMsgType, web
 from mrosd.errors import MrosError
 from mrosd.master.client import GraphSnapshot
 from mrosd.web import foxglove as fg
-from mrosd.web.hub import TopicInfo, WebHub
+from mrosd.web.hub import ServiceInfo, TopicInfo, WebHub
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +48,9 @@ class SessionLimits:
     control_bytes: int = 4 * 1024 * 1024
     #: subscriptions, client channels and parameter watches per client
     max_subscriptions: int = 1024
+    #: service calls in flight per client, and how long each may take
+    max_calls: int = 16
+    call_timeout: float = 10.0
 
 
 @dataclass(slots=True)
@@ -67,7 +70,7 @@ class _ClientChannel:
 class FoxgloveSession:
     """One connected Foxglove client."""
 
-    CAPABILITIES = ("clientPublish", "parameters", "parametersSubscribe", "connectionGraph")
+    CAPABILITIES = ("clientPublish", "parameters", "parametersSubscribe", "services", "connectionGraph")
 
     def __init__(self, hub: WebHub, ws: web.WebSocketResponse, limits: SessionLimits, peer: str = "?") -> None:
         from mrosd.web.queue import ByteQueue
@@ -87,6 +90,7 @@ class FoxgloveSession:
         self._wake = asyncio.Event()
         self._rr = 0
         self._closed = False
+        self._calls: set[asyncio.Task[None]] = set()
         self.sent_messages = 0
 
     # --- hub callbacks (never block) -------------------------------------------------------------
@@ -108,6 +112,12 @@ class FoxgloveSession:
 
     def graph_changed(self, graph: GraphSnapshot) -> None:
         pass
+
+    def services_changed(self, added: list[ServiceInfo], removed: list[ServiceInfo]) -> None:
+        if removed:
+            self._send_json(fg.encode_json("unadvertiseServices", serviceIds=[s.id for s in removed]))
+        if added:
+            self._send_json(fg.encode_json("advertiseServices", services=[_service(s) for s in added]))
 
     def _state_changed(self, state: fg.SystemState) -> None:
         if self._graph_state is None:
@@ -187,6 +197,8 @@ class FoxgloveSession:
         hub = self.hub
         self._send_json(fg.server_info("mrosd", self.CAPABILITIES, session_id=uuid.uuid4().hex, metadata={"ros": "1"}))
         self._send_json(fg.encode_json("advertise", channels=[_channel(t) for t in hub.topics.values()]))
+        if hub.services:
+            self._send_json(fg.encode_json("advertiseServices", services=[_service(s) for s in hub.services.values()]))
         hub.listeners.add(self)
         tasks = [
             asyncio.get_running_loop().create_task(self._sender(), name=f"foxglove send {self.peer}"),
@@ -204,6 +216,7 @@ class FoxgloveSession:
                     break
         finally:
             self._closed = True
+            tasks += self._calls
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
@@ -346,15 +359,7 @@ class FoxgloveSession:
             self.status(fg.STATUS_ERROR, str(exc))
             return
         if isinstance(msg, fg.ServiceCallRequest):
-            self._queue_control(
-                True,
-                fg.encode_json(
-                    "serviceCallFailure",
-                    serviceId=msg.service_id,
-                    callId=msg.call_id,
-                    message="service calls are not supported yet",
-                ),
-            )
+            self._start_call(msg)
             return
         channel = self._channels.get(msg.channel_id)
         if channel is None:
@@ -370,6 +375,35 @@ class FoxgloveSession:
             channel.publisher.publish_serialized(body)
         except MrosError as exc:
             self.status(fg.STATUS_ERROR, f"messageData on {channel.topic}: {exc}")
+
+    # --- services --------------------------------------------------------------------------------
+
+    def _start_call(self, msg: fg.ServiceCallRequest) -> None:
+        """Run a call in a task of its own (a slow service must not stop this client's other requests)."""
+        if len(self._calls) >= self.limits.max_calls:
+            self._call_failed(msg, f"at most {self.limits.max_calls} service calls in flight per client")
+            return
+        if msg.encoding != "ros1":
+            self._call_failed(msg, f"encoding {msg.encoding!r} (only ros1)")
+            return
+        info = next((s for s in self.hub.services.values() if s.id == msg.service_id), None)
+        if info is None:
+            self._call_failed(msg, f"no service {msg.service_id}")
+            return
+        task = asyncio.get_running_loop().create_task(self._call(msg, info.name, bytes(msg.data)))
+        self._calls.add(task)
+        task.add_done_callback(self._calls.discard)
+
+    async def _call(self, msg: fg.ServiceCallRequest, name: str, request: bytes) -> None:
+        try:
+            response = await self.hub.call_service(name, request, timeout=self.limits.call_timeout)
+        except (MrosError, OSError, TimeoutError) as exc:
+            self._call_failed(msg, f"{name}: {exc or type(exc).__name__}")
+            return
+        self._queue_control(False, fg.service_call_response(msg.service_id, msg.call_id, "ros1", response))
+
+    def _call_failed(self, msg: fg.ServiceCallRequest, why: str) -> None:
+        self._send_json(fg.encode_json("serviceCallFailure", serviceId=msg.service_id, callId=msg.call_id, message=why))
 
     # --- parameters ------------------------------------------------------------------------------
 
@@ -454,3 +488,18 @@ def _from_parameter(param: fg.Parameter) -> Any:
         except ValueError as exc:
             raise MrosError(f"{param.name}: byte_array value is not base64: {exc}") from None
     return param.value
+
+
+def _service(info: ServiceInfo) -> dict[str, Any]:
+    def half(suffix: str, schema: str) -> dict[str, str]:
+        return {"encoding": "ros1", "schemaName": info.type + suffix, "schemaEncoding": "ros1msg", "schema": schema}
+
+    return {
+        "id": info.id,
+        "name": info.name,
+        "type": info.type,
+        "request": half("Request", info.request_definition),
+        "response": half("Response", info.response_definition),
+        "requestSchema": info.request_definition,
+        "responseSchema": info.response_definition,
+    }

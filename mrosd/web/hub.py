@@ -26,23 +26,38 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from mrosd.errors import MrosError, MsgError
+from mrosd.errors import MrosError, MsgError, RemoteProtocolError
 from mrosd.master.client import GraphSnapshot, MasterClient, watch_graph
-from mrosd.msg import load_type
+from mrosd.msg import get_service_class, load_type
 from mrosd.msg.loader import default_store
 from mrosd.tcpros import Node
 from mrosd.tcpros.subscriber import AnyMsg, RawMessage, Subscriber
 from mrosd.web.access import AccessPolicy
 from mrosd.web.foxglove import SystemState
+from mrosd.wire.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header, encode_header
 
 log = logging.getLogger(__name__)
 
-__all__ = ["GraphListener", "TopicInfo", "TopicSink", "WebHub"]
+__all__ = ["GraphListener", "ServiceInfo", "TopicInfo", "TopicSink", "WebHub", "split_rosrpc"]
 
 #: How long a probe waits for a publisher's connection header before the topic stays unadvertised.
 PROBE_TIMEOUT = 5.0
 #: Probes in flight at once (each is one TCPROS connection to a publisher).
 MAX_PROBES = 8
+
+
+def split_rosrpc(uri: str) -> tuple[str, int]:
+    """``rosrpc://host:port`` -> ``(host, port)`` (IPv6 brackets removed).
+
+    Raises:
+        MrosError: not a rosrpc URI with a port.
+    """
+    if not uri.startswith("rosrpc://"):
+        raise MrosError(f"not a rosrpc URI: {uri!r}")
+    host, _, port = uri[len("rosrpc://") :].rstrip("/").rpartition(":")
+    if not host or not port.isdigit():
+        raise MrosError(f"not a rosrpc URI: {uri!r}")
+    return host.strip("[]"), int(port)
 
 
 class TopicSink(Protocol):
@@ -58,6 +73,8 @@ class GraphListener(Protocol):
 
     def graph_changed(self, graph: GraphSnapshot) -> None: ...
 
+    def services_changed(self, added: list[ServiceInfo], removed: list[ServiceInfo]) -> None: ...
+
 
 @dataclass(frozen=True, slots=True)
 class TopicInfo:
@@ -67,6 +84,17 @@ class TopicInfo:
     name: str
     type: str
     definition: str
+
+
+@dataclass(frozen=True, slots=True)
+class ServiceInfo:
+    """A service a client can call: its type as the server told a probe, and both halves' definitions."""
+
+    id: int
+    name: str
+    type: str
+    request_definition: str
+    response_definition: str
 
 
 @dataclass(slots=True)
@@ -119,6 +147,11 @@ class WebHub:
         self.state_listeners: set[Callable[[SystemState], None]] = set()
         self._state_task: asyncio.Task[None] | None = None
         self._params: dict[str, set[Callable[[str, Any], None]]] = {}
+        #: callable services by name (allowed by the policy, type probed, definitions found)
+        self.services: dict[str, ServiceInfo] = {}
+        self._service_probes: dict[str, asyncio.Task[None]] = {}
+        #: services whose probe failed, with the provider it failed for (probed again when it changes)
+        self._service_failed: dict[str, str] = {}
 
     # --- lifecycle -------------------------------------------------------------------------------
 
@@ -142,7 +175,11 @@ class WebHub:
 
     async def aclose(self) -> None:
         """Stop watching, close every shared subscription and publisher, and the node."""
-        tasks = [t for t in (self._watch, self._state_task, *self._probing.values()) if t is not None]
+        tasks = [
+            t
+            for t in (self._watch, self._state_task, *self._probing.values(), *self._service_probes.values())
+            if t is not None
+        ]
         for task in tasks:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
@@ -191,6 +228,17 @@ class WebHub:
             added.append(info)
         if added or removed:
             self._notify_topics(added, removed)
+        gone = [self.services.pop(n) for n in list(self.services) if n not in graph.services]
+        if gone:
+            self._notify_services([], gone)
+        for name, provider in graph.services.items():
+            if name in self.services or name in self._service_probes or not self.policy.allows_service(name):
+                continue
+            if self._service_failed.get(name) == provider:
+                continue
+            self._service_probes[name] = asyncio.get_running_loop().create_task(
+                self._probe_service(name, provider), name=f"web probe {name}"
+            )
         for listener in list(self.listeners):
             try:
                 listener.graph_changed(graph)
@@ -233,6 +281,76 @@ class WebHub:
                 listener.topics_changed(added, removed)
             except Exception:
                 log.exception("web: a topic listener failed")
+
+    def _notify_services(self, added: list[ServiceInfo], removed: list[ServiceInfo]) -> None:
+        for listener in list(self.listeners):
+            try:
+                listener.services_changed(added, removed)
+            except Exception:
+                log.exception("web: a service listener failed")
+
+    async def _probe_service(self, name: str, provider: str) -> None:
+        """Ask the service its type with a ``probe=1`` connection header, as roscpp's tools do."""
+        try:
+            async with self._probe_slots:
+                srv_type = await self._service_type(name)
+                store = default_store()
+                spec = store.srv_spec(srv_type)
+                info = ServiceInfo(
+                    next(self._ids),
+                    name,
+                    srv_type,
+                    store.full_text(spec.request.full_name),
+                    store.full_text(spec.response.full_name),
+                )
+        except (MrosError, OSError, TimeoutError) as exc:
+            self._service_failed[name] = provider
+            log.info("web: service %s is not offered to clients: %s", name, exc)
+            return
+        finally:
+            self._service_probes.pop(name, None)
+        if self.graph.services.get(name) == provider and name not in self.services:
+            self.services[name] = info
+            self._notify_services([info], [])
+
+    async def _service_type(self, name: str) -> str:
+        uri = await self.node.master.lookup_service(name)
+        host, port = split_rosrpc(uri)
+        async with asyncio.timeout(PROBE_TIMEOUT):
+            reader, writer = await asyncio.open_connection(host, port)
+            try:
+                writer.write(
+                    encode_header(ConnectionHeader(callerid=self.node.name, service=name, md5sum="*", probe="1"))
+                )
+                size = int.from_bytes(await reader.readexactly(4), "little")
+                if size > MAX_HEADER_SIZE:
+                    raise RemoteProtocolError(f"service {name}: header of {size} bytes")
+                header = decode_connection_header(await reader.readexactly(size))
+            finally:
+                writer.close()
+        if header.error:
+            raise RemoteProtocolError(f"service {name} refused the probe: {header.error}")
+        if not header.type:
+            raise RemoteProtocolError(f"service {name} did not say its type")
+        return header.type
+
+    async def call_service(self, name: str, request: bytes | bytearray | memoryview, timeout: float = 10.0) -> bytes:
+        """Call a service with a serialized request; returns the serialized response.
+
+        The request is decoded once before it is sent (a malformed one is refused here, not by the server).
+
+        Raises:
+            MrosError: not offered, a malformed request, or the call failed (ServiceError says why).
+            TimeoutError: no answer within ``timeout`` seconds.
+        """
+        info = self.services.get(name)
+        if info is None:
+            raise MrosError(f"service {name} is not offered (unknown, not allowed, or its type is unknown)")
+        srv_class = get_service_class(info.type)
+        req = srv_class._request_class.deserialize(bytes(request))
+        proxy = self.node.service_proxy(name, srv_class)
+        response = await proxy.call(req, timeout=timeout)
+        return bytes(response.serialize())
 
     def _definition(self, msg_type: str) -> str | None:
         if msg_type in self._unresolved:

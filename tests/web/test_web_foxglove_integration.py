@@ -227,3 +227,31 @@ async def test_a_stalled_client_costs_a_bounded_queue_and_gets_a_drop_report(mas
                 status = await client.until_json("status")
                 if "dropped" in status["message"]:
                     break
+
+
+async def test_service_calls_with_the_probed_type(server: WebServer, master: Master) -> None:
+    from mrosd.msg import get_service_class
+
+    set_bool = get_service_class("std_srvs/SetBool")
+    async with node("provider", master.uri) as provider, aiohttp.ClientSession() as http:
+        await provider.advertise_service(
+            "/enable", set_bool, lambda r: set_bool._response_class(success=r.data, message="ok")
+        )
+        client = await connect(http, server)
+        async with asyncio.timeout(10):
+            svc: dict[str, Any] = {}
+            while not svc:
+                adv = await client.until_json("advertiseServices")
+                svc = next((s for s in adv["services"] if s["name"] == "/enable"), {})
+        assert svc["type"] == "std_srvs/SetBool"
+        assert svc["request"]["schema"] == set_bool._request_class._full_text
+        request = set_bool._request_class(data=True).serialize()
+        await client.ws.send_bytes(struct.pack("<BIII", 2, svc["id"], 42, 4) + b"ros1" + request)
+        frame = await client.until_binary()
+        op, service_id, call_id, enc_len = struct.unpack_from("<BIII", frame)
+        assert (op, service_id, call_id, frame[13 : 13 + enc_len]) == (3, svc["id"], 42, b"ros1")
+        response = set_bool._response_class.deserialize(frame[13 + enc_len :])
+        assert (response.success, response.message) == (True, "ok")
+        await client.ws.send_bytes(struct.pack("<BIII", 2, svc["id"], 43, 4) + b"ros1" + b"\x01\x02")
+        failure = await client.until_json("serviceCallFailure")
+        assert failure["callId"] == 43
