@@ -8,6 +8,8 @@ capped at ``max_frame`` bytes by aiohttp before anything is buffered beyond them
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import logging
 from typing import Any
 
@@ -24,6 +26,8 @@ __all__ = ["WebServer"]
 
 #: Largest WebSocket message a client may send (a client-published image fits; more is refused by aiohttp).
 MAX_CLIENT_FRAME = 64 * 1024 * 1024
+#: Seconds a closing server waits for its clients to take their close frame.
+CLOSE_TIMEOUT = 1.0
 #: Most WebSocket clients at once.
 MAX_CLIENTS = 64
 
@@ -71,7 +75,7 @@ class WebServer:
         try:
             app = web.Application()
             app.router.add_get("/", self._foxglove)
-            runner = web.AppRunner(app, handle_signals=False, access_log=None)
+            runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=CLOSE_TIMEOUT)
             await runner.setup()
             self._runner = runner
             site = web.TCPSite(runner, self.host, self.port, reuse_address=True)
@@ -116,6 +120,12 @@ class WebServer:
     async def aclose(self) -> None:
         """Close every client, stop listening, then close the hub (its subscriptions and node)."""
         runner, self._runner = self._runner, None
+        # Clients first (aiohttp's cleanup would otherwise wait for each open WebSocket handler to end).
+        closing = [s.ws.close(code=1001, message=b"server shutdown") for s in list(self.sessions)]
+        if closing:
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(CLOSE_TIMEOUT):
+                    await asyncio.gather(*closing, return_exceptions=True)
         if runner is not None:
             await runner.cleanup()
         await self.hub.aclose()
