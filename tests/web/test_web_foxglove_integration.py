@@ -255,3 +255,25 @@ async def test_service_calls_with_the_probed_type(server: WebServer, master: Mas
         await client.ws.send_bytes(struct.pack("<BIII", 2, svc["id"], 43, 4) + b"ros1" + b"\x01\x02")
         failure = await client.until_json("serviceCallFailure")
         assert failure["callId"] == 43
+
+
+async def test_a_token_is_required_when_set_and_allow_lists_hide_topics(master: Master) -> None:
+    from mrosd.web.access import AccessPolicy
+
+    policy = AccessPolicy(topics=["/public/*"], token="s3cret")
+    async with (
+        WebServer(master.uri, port=0, node_host="127.0.0.1", policy=policy) as server,
+        node("talker", master.uri) as talker,
+        aiohttp.ClientSession() as http,
+    ):
+        await talker.advertise("/public/a", String)
+        await talker.advertise("/private/b", String)
+        with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
+            await http.ws_connect(server.url, protocols=["foxglove.websocket.v1"])
+        assert refused.value.status == 401
+        ws = await http.ws_connect(server.url + "?token=s3cret", protocols=["foxglove.websocket.v1"])
+        client = Client(ws)
+        await client.until_channel("/public/a")
+        assert "/private/b" not in client.channels
+        await client.send(op="getParameters", parameterNames=[], id="all")
+        await client.until_json("parameterValues", id="all")

@@ -29,6 +29,7 @@ def daemon_env(tmp: Path, notify: str = "", **extra: str) -> dict[str, str]:
         MROSD_IXM_SOCKET=str(tmp / "run" / "ixm.sock"),
         ROS_HOSTNAME="127.0.0.1",
         PYTHONUNBUFFERED="1",
+        MROSD_WEB_PORT="0",  # the web part on a free port: parallel daemons must not fight over 8765
     )
     if notify:
         env["NOTIFY_SOCKET"] = notify
