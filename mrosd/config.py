@@ -118,6 +118,8 @@ class WebConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     params: list[str] = msgspec.field(default_factory=lambda: ["*"])
     #: bytes queued per client subscription (drop-oldest beyond)
     queue_bytes: Count | None = None
+    #: bytes queued per client over all its subscriptions
+    client_bytes: Count | None = None
     max_clients: Count | None = None
 
 

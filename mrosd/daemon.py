@@ -278,7 +278,8 @@ class Daemon:
 
         web = self.cfg.web
         policy = AccessPolicy(topics=web.topics, services=web.services, params=web.params, token=web.token)
-        limits = SessionLimits() if web.queue_bytes is None else SessionLimits(queue_bytes=web.queue_bytes)
+        caps = {"queue_bytes": web.queue_bytes, "client_bytes": web.client_bytes}
+        limits = SessionLimits(**{k: v for k, v in caps.items() if v is not None})
         server = WebServer(self.master_uri, host=web.host, port=web.foxglove_port, policy=policy, limits=limits)
         if web.max_clients is not None:
             server.max_clients = web.max_clients

@@ -44,6 +44,9 @@ class SessionLimits:
 
     #: bytes queued per subscription (drop-oldest beyond; one larger message still passes when empty)
     queue_bytes: int = 16 * 1024 * 1024
+    #: bytes queued for one client over all its subscriptions: without it a client subscribed to N topics
+    #: could hold N x queue_bytes; beyond it the oldest message of its fullest queue goes first
+    client_bytes: int = 64 * 1024 * 1024
     #: bytes of control messages waiting for a client that does not read; beyond it the client is dropped
     control_bytes: int = 4 * 1024 * 1024
     #: subscriptions, client channels and parameter watches per client
@@ -96,9 +99,28 @@ class FoxgloveSession:
     # --- hub callbacks (never block) -------------------------------------------------------------
 
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
-        for sub in self._by_topic.get(topic, ()):
+        subs = self._by_topic.get(topic, ())
+        for sub in subs:
             sub.queue.put((receipt_ns, body), len(body))
-        self._wake.set()
+        if subs:
+            self._enforce_client_budget(subs[-1])
+            self._wake.set()
+
+    def _enforce_client_budget(self, newest: _Subscription) -> None:
+        """Drop the oldest messages of the fullest queues until the client's total fits its budget.
+
+        The message just queued on ``newest`` is kept when it is all that queue holds: a topic whose one
+        message exceeds the budget still reaches the client, one message at a time.
+        """
+        total = sum(s.queue.size for s in self.subs.values())
+        while total > self.limits.client_bytes:
+            victim = max(self.subs.values(), key=lambda s: s.queue.size)
+            if victim is newest and len(victim.queue) <= 1:
+                others = [s for s in self.subs.values() if s is not newest and len(s.queue)]
+                if not others:
+                    return
+                victim = max(others, key=lambda s: s.queue.size)
+            total -= victim.queue.drop_oldest()
 
     def topics_changed(self, added: list[TopicInfo], removed: list[TopicInfo]) -> None:
         if removed:

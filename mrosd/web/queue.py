@@ -60,6 +60,15 @@ class ByteQueue(Generic[T]):
         self.size -= size
         return item
 
+    def drop_oldest(self) -> int:
+        """Drop the oldest item as ``put`` would (counted); returns its size. Raises IndexError when empty."""
+        _, size = self._items.popleft()
+        self.size -= size
+        self.dropped += 1
+        self.dropped_bytes += size
+        self.unreported += 1
+        return size
+
     def clear(self) -> None:
         """Forget every item (not counted as dropped: the client asked for it, by unsubscribing)."""
         self._items.clear()

@@ -124,6 +124,14 @@ def test_queue_drops_oldest_by_bytes_and_counts() -> None:
     assert q.take_unreported() == 0
 
 
+def test_queue_drop_oldest_counts_like_put() -> None:
+    q: ByteQueue[str] = ByteQueue(10)
+    q.put("a", 3)
+    q.put("b", 4)
+    assert q.drop_oldest() == 3
+    assert (len(q), q.size, q.dropped, q.dropped_bytes, q.unreported) == (1, 4, 1, 3, 1)
+
+
 def test_queue_passes_one_oversized_item_when_empty() -> None:
     q: ByteQueue[str] = ByteQueue(10)
     q.put("small", 3)

@@ -1,0 +1,110 @@
+"""Hostile and slow WebSocket clients of mrosd.web: what they can make the daemon hold, and that it answers.
+
+Real sockets and a real master; the server runs in the test's loop so that its state can be inspected.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import AsyncIterator, Callable
+
+import aiohttp
+import pytest
+
+import mrosd
+from mrosd.master import Master
+from mrosd.msg import get_message_class
+from mrosd.web.foxglove_server import SessionLimits
+from mrosd.web.server import WebServer
+
+Image = get_message_class("sensor_msgs/Image")
+MiB = 1024 * 1024
+
+
+async def until(cond: Callable[[], object], timeout: float = 10.0) -> None:
+    async with asyncio.timeout(timeout):
+        while not cond():  # noqa: ASYNC110 - the state lives in the server's callbacks
+            await asyncio.sleep(0.005)
+
+
+@pytest.fixture
+async def master() -> AsyncIterator[Master]:
+    async with Master(host="127.0.0.1", port=0) as m:
+        yield m
+
+
+def node(name: str, master: str) -> mrosd.Node:
+    return mrosd.Node(name, master_uri=master, argv=[], host="127.0.0.1")
+
+
+async def channels_of(ws: aiohttp.ClientWebSocketResponse, topics: set[str]) -> dict[str, int]:
+    found: dict[str, int] = {}
+    async with asyncio.timeout(10):
+        while set(found) != topics:
+            msg = json.loads((await ws.receive()).data)
+            if msg["op"] == "advertise":
+                found.update({c["topic"]: c["id"] for c in msg["channels"] if c["topic"] in topics})
+    return found
+
+
+async def test_a_stalled_client_on_many_topics_costs_at_most_its_client_budget(master: Master) -> None:
+    """Per-subscription bounds alone let one client hold (topics x queue_bytes): its total is bounded too."""
+    limits = SessionLimits(queue_bytes=4 * MiB, client_bytes=8 * MiB)
+    topics = {f"/cam{i}" for i in range(6)}
+    async with (
+        WebServer(master.uri, port=0, node_host="127.0.0.1", limits=limits) as server,
+        node("cameras", master.uri) as cams,
+        aiohttp.ClientSession() as http,
+    ):
+        pubs = [await cams.advertise(t, Image) for t in sorted(topics)]
+        ws = await http.ws_connect(server.url, protocols=["foxglove.websocket.v1"])
+        ids = await channels_of(ws, topics)
+        subs = [{"id": i, "channelId": ids[t]} for i, t in enumerate(sorted(topics))]
+        await ws.send_str(json.dumps({"op": "subscribe", "subscriptions": subs}))
+        await until(lambda: all(server.hub.sink_count(t) == 1 for t in topics))
+        for pub in pubs:
+            await pub.wait_for_subscribers(1, timeout=10)
+        (session,) = server.sessions
+        img = Image(height=1000, width=1000, encoding="mono8", step=1000, data=bytes(1000 * 1000))
+        # The client reads nothing: 6 topics x 12 MB published, far more than the client's budget.
+        peak = 0
+        for _ in range(12):
+            for pub in pubs:
+                await pub.publish(img)
+            await asyncio.sleep(0.01)
+            peak = max(peak, sum(s.queue.size for s in session.subs.values()))
+        await until(lambda: sum(s.queue.dropped for s in session.subs.values()) > 0)
+        await asyncio.sleep(0.2)
+        peak = max(peak, sum(s.queue.size for s in session.subs.values()))
+        assert peak <= limits.client_bytes + 1_000_100, peak
+        await ws.close()
+
+
+async def test_an_oversized_client_frame_closes_only_that_client(master: Master) -> None:
+    async with (
+        WebServer(master.uri, port=0, node_host="127.0.0.1", max_frame=64 * 1024) as server,
+        aiohttp.ClientSession() as http,
+    ):
+        bad = await http.ws_connect(server.url, protocols=["foxglove.websocket.v1"])
+        good = await http.ws_connect(server.url, protocols=["foxglove.websocket.v1"])
+        await bad.send_bytes(b"\x01" + bytes(200 * 1024))
+        async with asyncio.timeout(10):
+            while (await bad.receive()).type not in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED):
+                pass
+        await good.send_str(json.dumps({"op": "getParameters", "parameterNames": ["/nope"], "id": "x"}))
+        async with asyncio.timeout(10):
+            while True:
+                msg = json.loads((await good.receive()).data)
+                if msg["op"] == "parameterValues":
+                    break
+        await until(lambda: len(server.sessions) == 1)
+        await good.close()
+
+
+async def test_a_client_without_the_subprotocol_is_refused_before_any_state(master: Master) -> None:
+    async with WebServer(master.uri, port=0, node_host="127.0.0.1") as server, aiohttp.ClientSession() as http:
+        with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
+            await http.ws_connect(server.url)
+        assert refused.value.status == 400
+        assert not server.sessions
