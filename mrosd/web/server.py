@@ -1,4 +1,4 @@
-"""``WebServer``: the daemon's web part (and ``mros bridge``): one ``WebHub``, the Foxglove WebSocket listener.
+"""``WebServer``: the daemon's web part (and ``mros bridge``): one ``WebHub``, the Foxglove and rosbridge listeners.
 
 An embeddable server with ``start()``/``aclose()`` like the daemon's other parts. It refuses to listen off
 loopback without a token (``AccessPolicy.check_bind``); the token is accepted as ``?token=`` in the URL
@@ -47,6 +47,7 @@ class WebServer:
         max_clients: int = MAX_CLIENTS,
         max_frame: int = MAX_CLIENT_FRAME,
         node_host: str | None = None,
+        rosbridge_port: int | None = None,
     ) -> None:
         self.policy = policy or AccessPolicy()
         self.policy.check_bind(host)
@@ -57,12 +58,21 @@ class WebServer:
         self.max_frame = max_frame
         self.hub = WebHub(master_uri, name=node_name, policy=self.policy, host=node_host)
         self.sessions: set[FoxgloveSession] = set()
+        #: rosbridge v2 port (None: not served); read after start when 0 was asked
+        self.rosbridge_port = rosbridge_port
+        self.rosbridge_sessions: set[Any] = set()
         self._runner: web.AppRunner | None = None
+        self._rosbridge_runner: web.AppRunner | None = None
 
     @property
     def url(self) -> str:
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"ws://{host}:{self.port}/"
+
+    @property
+    def rosbridge_url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"ws://{host}:{self.rosbridge_port}/"
 
     async def start(self) -> None:
         """Start the hub (graph watch) and listen.
@@ -73,20 +83,50 @@ class WebServer:
         """
         await self.hub.start()
         try:
-            app = web.Application()
-            app.router.add_get("/", self._foxglove)
-            runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=CLOSE_TIMEOUT)
-            await runner.setup()
-            self._runner = runner
-            site = web.TCPSite(runner, self.host, self.port, reuse_address=True)
-            await site.start()
-            server: Any = site._server
-            if server is not None and server.sockets:
-                self.port = int(server.sockets[0].getsockname()[1])
+            self._runner, self.port = await self._listen(self._foxglove, self.port)
+            if self.rosbridge_port is not None:
+                self._rosbridge_runner, self.rosbridge_port = await self._listen(self._rosbridge, self.rosbridge_port)
         except BaseException:
             await self.aclose()
             raise
         log.info("web: Foxglove WebSocket on %s (master %s)", self.url, self.hub.master_uri)
+        if self.rosbridge_port is not None:
+            log.info("web: rosbridge v2 on %s", self.rosbridge_url)
+
+    async def _listen(self, handler: Any, port: int) -> tuple[web.AppRunner, int]:
+        app = web.Application()
+        app.router.add_get("/", handler)
+        runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=CLOSE_TIMEOUT)
+        await runner.setup()
+        try:
+            site = web.TCPSite(runner, self.host, port, reuse_address=True)
+            await site.start()
+        except BaseException:
+            await runner.cleanup()
+            raise
+        server: Any = site._server
+        if server is not None and server.sockets:
+            port = int(server.sockets[0].getsockname()[1])
+        return runner, port
+
+    async def _rosbridge(self, request: web.Request) -> web.StreamResponse:
+        from mrosd.web.rosbridge_server import RosbridgeSession
+
+        if len(self.sessions) + len(self.rosbridge_sessions) >= self.max_clients:
+            raise web.HTTPServiceUnavailable(text=f"at most {self.max_clients} clients\n")
+        ws = web.WebSocketResponse(compress=False, max_msg_size=self.max_frame, heartbeat=30.0)
+        await ws.prepare(request)
+        # The token may come in the URL; else the client sends the auth op first.
+        token = "" if self.policy.token_ok(self._token(request)) else self.policy.token
+        session = RosbridgeSession(self.hub, ws, self.limits, token=token, peer=str(request.remote))
+        self.rosbridge_sessions.add(session)
+        try:
+            await session.run()
+        finally:
+            self.rosbridge_sessions.discard(session)
+            if not ws.closed:
+                await ws.close()
+        return ws
 
     def _token(self, request: web.Request) -> str | None:
         token = request.query.get("token")
@@ -119,14 +159,16 @@ class WebServer:
 
     async def aclose(self) -> None:
         """Close every client, stop listening, then close the hub (its subscriptions and node)."""
-        runner, self._runner = self._runner, None
+        runners = [r for r in (self._runner, self._rosbridge_runner) if r is not None]
+        self._runner = self._rosbridge_runner = None
         # Clients first (aiohttp's cleanup would otherwise wait for each open WebSocket handler to end).
-        closing = [s.ws.close(code=1001, message=b"server shutdown") for s in list(self.sessions)]
+        sessions = [*self.sessions, *self.rosbridge_sessions]
+        closing = [s.ws.close(code=1001, message=b"server shutdown") for s in sessions]
         if closing:
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(CLOSE_TIMEOUT):
                     await asyncio.gather(*closing, return_exceptions=True)
-        if runner is not None:
+        for runner in runners:
             await runner.cleanup()
         await self.hub.aclose()
 

@@ -1,0 +1,158 @@
+"""The rosbridge v2 protocol (roslibjs, roslibpy) as pure functions: ops in, JSON out, messages <-> JSON.
+
+No sockets (the shell is ``mrosd.web.rosbridge_server``). Messages are mrosd's msgspec classes, so the JSON
+form is msgspec's: ``uint8[]``/``char[]`` as base64, ``time``/``duration`` as ``{"secs", "nsecs"}``, NaN and
+infinities as ``null`` — what rosbridge sends. A client's message dict may leave fields out (they take
+their defaults, as rosbridge fills them) and is refused with a reason when a value has the wrong type.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+import msgspec
+
+from mrosd.errors import RemoteProtocolError
+
+__all__ = [
+    "Advertise",
+    "Auth",
+    "CallService",
+    "Op",
+    "Publish",
+    "RosbridgeRefusal",
+    "SetLevel",
+    "Subscribe",
+    "Unadvertise",
+    "Unsubscribe",
+    "decode_op",
+    "encode_message",
+    "message_from_json",
+    "op_json",
+]
+
+Name = Annotated[str, msgspec.Meta(max_length=4096)]
+NonNegative = Annotated[int, msgspec.Meta(ge=0, le=2**31)]
+
+
+class RosbridgeRefusal(RemoteProtocolError):
+    """A client op we refuse; answered with a ``status`` (level error) naming the op's id when it has one."""
+
+
+class _Op(msgspec.Struct, tag_field="op", frozen=True):
+    id: str | None = None
+
+
+class Advertise(_Op, tag="advertise", frozen=True):
+    topic: Name = ""
+    type: Name = ""
+    latch: bool = False
+    queue_size: NonNegative = 100
+
+
+class Unadvertise(_Op, tag="unadvertise", frozen=True):
+    topic: Name = ""
+
+
+class Publish(_Op, tag="publish", frozen=True):
+    topic: Name = ""
+    msg: dict[str, Any] = msgspec.field(default_factory=dict)
+
+
+class Subscribe(_Op, tag="subscribe", frozen=True):
+    topic: Name = ""
+    type: Name | None = None
+    throttle_rate: NonNegative = 0
+    queue_length: NonNegative = 0
+    fragment_size: NonNegative | None = None
+    compression: str = "none"
+
+
+class Unsubscribe(_Op, tag="unsubscribe", frozen=True):
+    topic: Name = ""
+
+
+class CallService(_Op, tag="call_service", frozen=True):
+    service: Name = ""
+    args: dict[str, Any] | list[Any] | None = None
+    type: Name | None = None
+    timeout: float | None = None
+    compression: str = "none"
+
+
+class SetLevel(_Op, tag="set_level", frozen=True):
+    level: str = "error"
+
+
+class Auth(_Op, tag="auth", frozen=True):
+    mac: str = ""
+
+
+Op = Advertise | Unadvertise | Publish | Subscribe | Unsubscribe | CallService | SetLevel | Auth
+
+_decoder: msgspec.json.Decoder[Op] = msgspec.json.Decoder(Op)  # type: ignore[arg-type]
+_KNOWN = frozenset(
+    {"advertise", "unadvertise", "publish", "subscribe", "unsubscribe", "call_service", "set_level", "auth"}
+)
+#: Ops of the protocol that mrosd does not serve yet (a refusal says so rather than "unknown op").
+NOT_SERVED = frozenset({"advertise_service", "unadvertise_service", "service_response", "fragment", "png"})
+
+
+class _Peek(msgspec.Struct):
+    op: Any = None
+    id: Any = None
+
+
+_peek = msgspec.json.Decoder(_Peek)
+
+
+def decode_op(data: str | bytes) -> Op:
+    """One client op.
+
+    Raises:
+        RosbridgeRefusal: not a JSON object, an unknown op, or fields of the wrong type.
+    """
+    try:
+        return _decoder.decode(data)
+    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+        try:
+            peek = _peek.decode(data)
+        except (msgspec.DecodeError, msgspec.ValidationError):
+            raise RosbridgeRefusal(f"not a JSON object: {exc}") from None
+        if peek.op in NOT_SERVED:
+            raise RosbridgeRefusal(f"op {peek.op} is not served by mrosd yet") from None
+        if not isinstance(peek.op, str) or peek.op not in _KNOWN:
+            raise RosbridgeRefusal(f"unknown op {peek.op!r:.80}") from None
+        raise RosbridgeRefusal(f"malformed {peek.op}: {exc}") from None
+
+
+_encoder = msgspec.json.Encoder()
+
+
+def op_json(op: str, **fields: Any) -> bytes:
+    """A server op as JSON text (None fields left out)."""
+    return _encoder.encode({"op": op, **{k: v for k, v in fields.items() if v is not None}})
+
+
+def encode_message(msg: Any) -> bytes:
+    """A decoded ROS message as the JSON rosbridge sends (base64 byte arrays, {secs, nsecs}, NaN as null)."""
+    return _encoder.encode(msg)
+
+
+def publish_json(topic: str, msg: Any) -> bytes:
+    """``{"op": "publish", "topic": ..., "msg": ...}`` with the message encoded once, in place."""
+    return b'{"op":"publish","topic":' + _encoder.encode(topic) + b',"msg":' + _encoder.encode(msg) + b"}"
+
+
+def message_from_json(cls: Any, value: Any) -> Any:
+    """A message of ``cls`` from a client's JSON value (missing fields take their defaults).
+
+    Raises:
+        RosbridgeRefusal: a field has the wrong type or range (the message names it).
+    """
+    if value is None:
+        value = {}
+    try:
+        return msgspec.convert(value, cls, strict=False)
+    except msgspec.ValidationError as exc:
+        raise RosbridgeRefusal(f"not a {getattr(cls, '_type', cls)}: {exc}") from None
