@@ -110,6 +110,8 @@ class WebConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     host: str = "127.0.0.1"
     #: Foxglove WebSocket port (0: any free port)
     foxglove_port: int = 8765
+    #: rosbridge v2 port for roslibjs/roslibpy (0: any free port; -1: not served)
+    rosbridge_port: int = 9090
     #: clients pass it as ``?token=`` in the URL or ``Authorization: Bearer``; empty: none (loopback only)
     token: str = ""
     #: shell-style globs of the topics, services and parameters clients may use
@@ -225,6 +227,8 @@ def _validate_web(web: WebConfig, where: str) -> None:
 
     if not 0 <= web.foxglove_port <= 65535:
         raise ConfigError(f"{where}: web.foxglove_port must be 0..65535, got {web.foxglove_port}")
+    if not -1 <= web.rosbridge_port <= 65535:
+        raise ConfigError(f"{where}: web.rosbridge_port must be 0..65535 (or -1: off), got {web.rosbridge_port}")
     if not valid_host(web.host):
         raise ConfigError(f"{where}: web.host is not an IP address or host name: {web.host!r}")
     if web.enabled and not web.token and not is_loopback(web.host):
@@ -280,6 +284,12 @@ def apply_environment(cfg: Config, environ: Mapping[str, str]) -> Config:
             cfg.web.foxglove_port = int(value)
         except ValueError as exc:
             raise ConfigError(f"environment: MROSD_WEB_PORT must be an integer, got {value!r}") from exc
+    if "MROSD_WEB_ROSBRIDGE_PORT" in environ:
+        value = environ["MROSD_WEB_ROSBRIDGE_PORT"]
+        try:
+            cfg.web.rosbridge_port = int(value)
+        except ValueError as exc:
+            raise ConfigError(f"environment: MROSD_WEB_ROSBRIDGE_PORT must be an integer, got {value!r}") from exc
     if "MROSD_WEB_TOKEN" in environ:
         cfg.web.token = environ["MROSD_WEB_TOKEN"]
     if "MROSD_LOG_LEVEL" in environ:

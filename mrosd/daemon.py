@@ -280,7 +280,15 @@ class Daemon:
         policy = AccessPolicy(topics=web.topics, services=web.services, params=web.params, token=web.token)
         caps = {"queue_bytes": web.queue_bytes, "client_bytes": web.client_bytes}
         limits = SessionLimits(**{k: v for k, v in caps.items() if v is not None})
-        server = WebServer(self.master_uri, host=web.host, port=web.foxglove_port, policy=policy, limits=limits)
+        rosbridge = web.rosbridge_port if web.rosbridge_port >= 0 else None
+        server = WebServer(
+            self.master_uri,
+            host=web.host,
+            port=web.foxglove_port,
+            policy=policy,
+            limits=limits,
+            rosbridge_port=rosbridge,
+        )
         if web.max_clients is not None:
             server.max_clients = web.max_clients
         await server.start()
@@ -298,6 +306,8 @@ class Daemon:
             parts.append("rosout")
         if self.web is not None:
             parts.append(f"foxglove {self.web.url}")
+            if self.web.rosbridge_port is not None:
+                parts.append(f"rosbridge {self.web.rosbridge_url}")
         line = ", ".join(parts)
         if not self.failed:
             return "running: " + line

@@ -17,6 +17,9 @@ from mrosd.errors import ConfigError
 @click.command(name="bridge")
 @click.option("--host", default="127.0.0.1", show_default=True, help="bind address (not loopback: --token needed)")
 @click.option("--port", "foxglove_port", type=click.IntRange(0, 65535), default=8765, show_default=True)
+@click.option(
+    "--rosbridge-port", type=click.IntRange(-1, 65535), default=9090, show_default=True, help="rosbridge v2; -1: off"
+)
 @click.option("--token", envvar="MROSD_WEB_TOKEN", default="", help="clients must pass ?token=... ($MROSD_WEB_TOKEN)")
 @click.option("--topics", multiple=True, default=["*"], show_default=True, help="allowed topic glob (repeatable)")
 @click.option("--services", multiple=True, default=["*"], show_default=True, help="allowed service glob (repeatable)")
@@ -26,13 +29,14 @@ def group(
     *,
     host: str,
     foxglove_port: int,
+    rosbridge_port: int,
     token: str,
     topics: tuple[str, ...],
     services: tuple[str, ...],
     params: tuple[str, ...],
     name: str,
 ) -> None:
-    """Serve the ROS graph to browsers over the Foxglove WebSocket protocol (Foxglove, Lichtblick).
+    """Serve the ROS graph to browsers: Foxglove WebSocket (Foxglove, Lichtblick) and rosbridge v2 (roslib).
 
     \b
     Examples:
@@ -50,8 +54,16 @@ def group(
         raise click.UsageError(str(exc)) from None
 
     async def serve() -> None:
-        async with WebServer(master_uri(), host=host, port=foxglove_port, policy=policy, node_name=name) as server:
-            click.echo(f"serving {server.url} (master {master_uri()}); Ctrl-C to stop", err=True)
+        async with WebServer(
+            master_uri(),
+            host=host,
+            port=foxglove_port,
+            policy=policy,
+            node_name=name,
+            rosbridge_port=rosbridge_port if rosbridge_port >= 0 else None,
+        ) as server:
+            also = f", rosbridge {server.rosbridge_url}" if server.rosbridge_port is not None else ""
+            click.echo(f"serving {server.url}{also} (master {master_uri()}); Ctrl-C to stop", err=True)
             await asyncio.Event().wait()
 
     run(serve())

@@ -54,7 +54,7 @@ def test_mros_bridge_serves_rosmaster_graph(procs: Processes, rosmaster: str, tm
     assert talker.stdout.readline().strip() == b"up"
     # Our interpreter with this tree's code (ros_env drops PYTHON*, which a worktree checkout relies on).
     ours = {**env, "PYTHONPATH": os.environ.get("PYTHONPATH", "")}
-    bridge = procs.our_python(["-m", "mros_cli.main", "bridge", "--port", "0"], ours)
+    bridge = procs.our_python(["-m", "mros_cli.main", "bridge", "--port", "0", "--rosbridge-port", "0"], ours)
     assert bridge.stderr is not None
     line = bridge.stderr.readline().decode()
     match = re.search(r"serving (ws://\S+/)", line)

@@ -40,6 +40,7 @@ def test_the_daemon_serves_foxglove_on_loopback_by_default(procs: Processes, tmp
         assert status.startswith("running:"), status
         url = foxglove_url(status)
         assert url.startswith("ws://127.0.0.1:")
+        assert "rosbridge ws://127.0.0.1:" in status
         info = asyncio.run(server_info(url))
         assert info["op"] == "serverInfo"
         code, _ = run.stop()

@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import importlib.util
 import json
 import shutil
 import subprocess
+import sys
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -209,3 +211,47 @@ async def test_foxglove_client_gets_rospys_8mb_image_byte_identical(
     finally:
         rospy_proc.kill()
         await rospy_proc.wait()
+
+
+ROSLIBPY = importlib.util.find_spec("roslibpy") is not None
+
+
+@pytest.mark.skipif(not ROSLIBPY, reason="roslibpy is not installed: pip install -e '.[dev]'")
+async def test_roslibpy_subscribes_publishes_calls_and_reads_a_parameter(master: Master) -> None:
+    async with (
+        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
+        node("robot", master.uri) as robot,
+    ):
+        await robot.set_param("/robot/name", "mrosd-bot")
+        await robot.advertise_service("/enable", SetBool, lambda r: SetBool._response_class(success=r.data))
+        cam = await robot.advertise("/image", Image)
+        listener = await robot.subscribe("/from_roslibpy", String)
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable,
+            str(HERE / "roslibpy_client.py"),
+            "127.0.0.1",
+            str(server.rosbridge_port),
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            limit=1 << 20,
+        )
+        client = NodeClient(proc)  # the same JSON-lines driver
+        try:
+            await client.until("subscribed")
+            await cam.wait_for_subscribers(1, timeout=10)
+            img = Image(height=HEIGHT, width=WIDTH, encoding="rgba8", step=WIDTH * 4, data=PIXELS)
+            await cam.publish(img)
+            got = await client.until("image", timeout=30)
+            assert (got["len"], got["sha256"]) == (len(PIXELS), hashlib.sha256(PIXELS).hexdigest())
+            await listener.wait_for_publishers(1, timeout=10)
+            await client.send(cmd="publish", data="from roslibpy")
+            assert (await listener.next(timeout=10)).data == "from roslibpy"
+            async with asyncio.timeout(10):
+                while "/enable" not in server.hub.services:  # noqa: ASYNC110 - the hub probes the type
+                    await asyncio.sleep(0.01)
+            await client.send(cmd="call")
+            assert (await client.until("response"))["values"]["success"] is True
+            await client.send(cmd="param")
+            assert (await client.until("param"))["value"] == "mrosd-bot"
+        finally:
+            await client.close()

@@ -29,7 +29,8 @@ def daemon_env(tmp: Path, notify: str = "", **extra: str) -> dict[str, str]:
         MROSD_IXM_SOCKET=str(tmp / "run" / "ixm.sock"),
         ROS_HOSTNAME="127.0.0.1",
         PYTHONUNBUFFERED="1",
-        MROSD_WEB_PORT="0",  # the web part on a free port: parallel daemons must not fight over 8765
+        MROSD_WEB_PORT="0",  # the web part on free ports: parallel daemons must not fight over 8765 and 9090
+        MROSD_WEB_ROSBRIDGE_PORT="0",
     )
     if notify:
         env["NOTIFY_SOCKET"] = notify
