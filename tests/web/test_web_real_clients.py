@@ -12,6 +12,7 @@ import asyncio
 import hashlib
 import importlib.util
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -255,3 +256,72 @@ async def test_roslibpy_subscribes_publishes_calls_and_reads_a_parameter(master:
             assert (await client.until("param"))["value"] == "mrosd-bot"
         finally:
             await client.close()
+
+
+CHROMIUM = Path(os.environ.get("CHROMIUM", "/usr/bin/chromium"))
+HAVE_BROWSER_PACKAGES = all((HERE / "node_modules" / p).is_dir() for p in ("roslib", "playwright-core"))
+
+
+@pytest.mark.skipif(
+    NODE is None or not HAVE_BROWSER_PACKAGES or not CHROMIUM.exists(),
+    reason="node, chromium or the npm packages are missing: scripts/install-system-deps.sh "
+    "(nodejs, chromium, then `npm ci --prefix tests/web`)",
+)
+async def test_roslib_in_headless_chromium_subscribes_publishes_calls_and_reads_a_parameter(master: Master) -> None:
+    from aiohttp import web
+
+    async def page(_request: web.Request) -> web.FileResponse:
+        return web.FileResponse(HERE / "roslib_page.html")
+
+    app = web.Application()
+    app.router.add_get("/", page)
+    app.router.add_static("/node_modules/", HERE / "node_modules")
+    runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=1.0)
+    await runner.setup()
+    site = web.TCPSite(runner, "127.0.0.1", 0)
+    await site.start()
+    page_port = site._server.sockets[0].getsockname()[1]  # type: ignore[union-attr]
+    try:
+        async with (
+            WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
+            node("robot", master.uri) as robot,
+        ):
+            await robot.set_param("/robot/name", "mrosd-bot")
+            await robot.advertise_service("/enable", SetBool, lambda r: SetBool._response_class(success=r.data))
+            cam = await robot.advertise("/image", Image)
+            listener = await robot.subscribe("/from_browser", String)
+            assert NODE is not None
+            proc = await asyncio.create_subprocess_exec(
+                NODE,
+                str(HERE / "roslib_browser.mjs"),
+                f"http://127.0.0.1:{page_port}/",
+                server.rosbridge_url,
+                cwd=HERE,
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                limit=1 << 20,
+            )
+            client = NodeClient(proc)
+            try:
+                await client.until("subscribed", timeout=60)
+                await cam.wait_for_subscribers(1, timeout=10)
+                img = Image(height=HEIGHT, width=WIDTH, encoding="rgba8", step=WIDTH * 4, data=PIXELS)
+                await cam.publish(img)
+                got = await client.until("image", timeout=60)
+                assert (got["len"], got["sha256"]) == (len(PIXELS), hashlib.sha256(PIXELS).hexdigest())
+                await client.send(cmd="publish", data="from chromium")
+                await listener.wait_for_publishers(1, timeout=10)
+                await client.send(cmd="publish", data="from chromium")
+                assert (await listener.next(timeout=10)).data == "from chromium"
+                async with asyncio.timeout(10):
+                    while "/enable" not in server.hub.services:  # noqa: ASYNC110 - the hub probes the type
+                        await asyncio.sleep(0.01)
+                await client.send(cmd="call")
+                assert (await client.until("response"))["values"]["success"] is True
+                await client.send(cmd="param")
+                assert (await client.until("param"))["value"] == "mrosd-bot"
+                await client.send(cmd="close")
+            finally:
+                await client.close()
+    finally:
+        await runner.cleanup()
