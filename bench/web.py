@@ -281,7 +281,29 @@ def measure_phase(
     return results[0]
 
 
+def encode_times() -> None:
+    """rosbridge's JSON of a 640x480 RGB image (decode + JSON with base64 data), against rosbridge_suite#367."""
+    import statistics
+
+    from mrosd.msg import get_message_class
+    from mrosd.web import rosbridge as rb
+
+    cls = get_message_class("sensor_msgs/Image")
+    body = make_message("sensor_msgs/Image", 640 * 480 * 3).serialize()
+    times = []
+    for _ in range(50):
+        t0 = time.perf_counter()
+        text = rb.publish_json("/camera/image", cls.deserialize(body))
+        times.append(time.perf_counter() - t0)
+    print(
+        f"rosbridge JSON of a 640x480 rgb8 Image: median {statistics.median(times) * 1e3:.2f} ms, "
+        f"max {max(times) * 1e3:.2f} ms ({len(text) / 1e6:.2f} MB of text; rosbridge_suite#367 measured 269 ms)",
+        flush=True,
+    )
+
+
 def run(args: argparse.Namespace) -> int:
+    encode_times()
     bench = Bench(args.seconds, args.shm)
     print(f"transport between mrosd processes: {'shared memory when offered' if args.shm else 'TCPROS'}")
     port = free_port()

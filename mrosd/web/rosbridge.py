@@ -144,6 +144,34 @@ def publish_json(topic: str, msg: Any) -> bytes:
     return b'{"op":"publish","topic":' + _encoder.encode(topic) + b',"msg":' + _encoder.encode(msg) + b"}"
 
 
+def publish_cbor(topic: str, msg: Any) -> bytes:
+    """The publish op as CBOR (``compression: cbor``): byte arrays as CBOR byte strings, floats as floats."""
+    import cbor2  # only clients that ask for CBOR pay for the import
+
+    fields = msgspec.to_builtins(msg, builtin_types=(bytes, bytearray, memoryview))
+    return bytes(cbor2.dumps({"op": "publish", "topic": topic, "msg": _plain_bytes(fields)}))
+
+
+def publish_cbor_raw(topic: str, body: bytes | bytearray, receipt_ns: int) -> bytes:
+    """The publish op of ``compression: cbor-raw``: the TCPROS body untouched, with its receipt time."""
+    import cbor2
+
+    # bytes and bytearray (a received FrameBuffer) are CBOR byte strings as they are: no copy before dumps
+    msg = {"secs": receipt_ns // 1_000_000_000, "nsecs": receipt_ns % 1_000_000_000, "bytes": body}
+    return bytes(cbor2.dumps({"op": "publish", "topic": topic, "msg": msg}))
+
+
+def _plain_bytes(value: Any) -> Any:
+    """memoryview/bytearray fields (views into a received frame) as bytes, which every CBOR encoder takes."""
+    if isinstance(value, dict):
+        return {k: _plain_bytes(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_plain_bytes(v) for v in value]
+    if isinstance(value, memoryview | bytearray):
+        return bytes(value)
+    return value
+
+
 def message_from_json(cls: Any, value: Any) -> Any:
     """A message of ``cls`` from a client's JSON value (missing fields take their defaults).
 

@@ -41,11 +41,14 @@ __all__ = ["RosbridgeSession"]
 class _Sub:
     topic: str
     msg_class: Any
-    queue: ByteQueue[bytes | bytearray]
+    queue: ByteQueue[tuple[bytes | bytearray, int]]
     ids: set[str | None] = field(default_factory=set)
     throttle: dict[str | None, int] = field(default_factory=dict)
     length: dict[str | None, int] = field(default_factory=dict)
     last_sent: float = 0.0
+    #: "none" (JSON text), "cbor" (the message as CBOR), "cbor-raw" (the TCPROS body untouched, in CBOR)
+    compression: str = "none"
+    receipts: collections.deque[int] = field(default_factory=collections.deque)
 
     @property
     def throttle_s(self) -> float:
@@ -70,7 +73,7 @@ class RosbridgeSession:
         self._token = token
         self.subs: dict[str, _Sub] = {}
         self._published: dict[str, Any] = {}  # topic -> publisher
-        self._control: collections.deque[bytes] = collections.deque()
+        self._control: collections.deque[tuple[bool, bytes]] = collections.deque()
         self._control_bytes = 0
         self._wake = asyncio.Event()
         self._closed = False
@@ -82,7 +85,7 @@ class RosbridgeSession:
         sub = self.subs.get(topic)
         if sub is None:
             return
-        sub.queue.put(body, len(body))
+        sub.queue.put((body, receipt_ns), len(body))
         while len(sub.queue) > sub.queue_length:
             sub.queue.drop_oldest()
         self._wake.set()
@@ -98,10 +101,10 @@ class RosbridgeSession:
 
     # --- sending ---------------------------------------------------------------------------------
 
-    def _send(self, data: bytes) -> None:
+    def _send(self, data: bytes, binary: bool = False) -> None:
         if self._closed:
             return
-        self._control.append(data)
+        self._control.append((binary, data))
         self._control_bytes += len(data)
         if self._control_bytes > self.limits.control_bytes:
             log.warning("web: rosbridge client %s does not read; disconnecting it", self.peer)
@@ -112,7 +115,7 @@ class RosbridgeSession:
     def status(self, level: str, message: str, op_id: str | None = None) -> None:
         self._send(rb.op_json("status", level=level, msg=message, id=op_id))
 
-    def _next_message(self) -> bytes | None:
+    def _next_message(self) -> tuple[bool, bytes] | None:
         now = time.monotonic()
         for sub in list(self.subs.values()):
             if not len(sub.queue):
@@ -122,14 +125,18 @@ class RosbridgeSession:
             if sub.throttle_s:
                 while len(sub.queue) > 1:
                     sub.queue.drop_oldest()
-            body = sub.queue.get()
+            body, receipt_ns = sub.queue.get()
             sub.last_sent = now
+            if sub.compression == "cbor-raw":  # passthrough: the body is never decoded
+                return True, rb.publish_cbor_raw(sub.topic, body, receipt_ns)
             try:
                 msg = sub.msg_class.deserialize(body)
             except MrosError as exc:
                 log.info("web: %s: a message does not decode: %s", sub.topic, exc)
                 continue
-            return rb.publish_json(sub.topic, msg)
+            if sub.compression == "cbor":
+                return True, rb.publish_cbor(sub.topic, msg)
+            return False, rb.publish_json(sub.topic, msg)
         return None
 
     async def _sender(self) -> None:
@@ -139,14 +146,17 @@ class RosbridgeSession:
             self._wake.clear()
             while not self._closed:
                 if self._control:
-                    data = self._control.popleft()
+                    binary, data = self._control.popleft()
                     self._control_bytes -= len(data)
+                else:
+                    frame = self._next_message()
+                    if frame is None:
+                        break
+                    binary, data = frame
+                if binary:
+                    await ws.send_bytes(data)
+                else:
                     await ws.send_str(data.decode())
-                    continue
-                frame = self._next_message()
-                if frame is None:
-                    break
-                await ws.send_str(frame.decode())
             throttled = [s for s in self.subs.values() if len(s.queue) and s.throttle_s]
             if throttled:
                 delay = min(s.throttle_s - (time.monotonic() - s.last_sent) for s in throttled)
@@ -229,8 +239,10 @@ class RosbridgeSession:
         return self.hub.message_class(msg_type)
 
     async def _subscribe(self, op: rb.Subscribe) -> None:
-        if op.compression not in ("none", ""):
-            self.status("warning", f"subscribe {op.topic}: compression {op.compression!r} not served; sending JSON")
+        compression = op.compression or "none"
+        if compression not in ("none", "cbor", "cbor-raw"):
+            self.status("warning", f"subscribe {op.topic}: compression {compression!r} not served; sending JSON")
+            compression = "none"
         sub = self.subs.get(op.topic)
         if sub is None:
             if len(self.subs) >= self.limits.max_subscriptions:
@@ -242,6 +254,7 @@ class RosbridgeSession:
             except MrosError:
                 del self.subs[op.topic]
                 raise
+        sub.compression = compression
         sub.ids.add(op.id)
         sub.throttle[op.id] = op.throttle_rate
         sub.length[op.id] = op.queue_length

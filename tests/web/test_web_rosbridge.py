@@ -122,3 +122,33 @@ async def test_rosbridge_subscribe_publish_services_and_rosapi(master: Master) -
         status = await receive(ws, "status", id="bad")
         assert status["level"] == "error"
         await ws.close()
+
+
+async def test_rosbridge_cbor_and_cbor_raw(master: Master) -> None:
+    import cbor2
+
+    async with (
+        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
+        node("robot", master.uri) as robot,
+        aiohttp.ClientSession() as http,
+    ):
+        cam = await robot.advertise("/image", Image)
+        a = await http.ws_connect(server.rosbridge_url)
+        b = await http.ws_connect(server.rosbridge_url)
+        await a.send_str(
+            json.dumps({"op": "subscribe", "topic": "/image", "type": "sensor_msgs/Image", "compression": "cbor"})
+        )
+        await b.send_str(json.dumps({"op": "subscribe", "topic": "/image", "compression": "cbor-raw"}))
+        async with asyncio.timeout(10):
+            while server.hub.sink_count("/image") < 2:  # noqa: ASYNC110 - the sessions subscribe in the server
+                await asyncio.sleep(0.01)
+        await cam.wait_for_subscribers(1, timeout=10)
+        img = Image(height=2, width=2, encoding="mono8", step=2, data=b"\x01\x02\x03\x04")
+        await cam.publish(img)
+        got_a = cbor2.loads((await a.receive(timeout=10)).data)
+        assert (got_a["op"], got_a["topic"], got_a["msg"]["data"]) == ("publish", "/image", b"\x01\x02\x03\x04")
+        got_b = cbor2.loads((await b.receive(timeout=10)).data)
+        assert got_b["msg"]["bytes"] == img.serialize()
+        assert got_b["msg"]["secs"] > 0
+        await a.close()
+        await b.close()
