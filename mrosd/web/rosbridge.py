@@ -16,14 +16,17 @@ from mrosd.errors import RemoteProtocolError
 
 __all__ = [
     "Advertise",
+    "AdvertiseService",
     "Auth",
     "CallService",
     "Op",
     "Publish",
     "RosbridgeRefusal",
+    "ServiceResponse",
     "SetLevel",
     "Subscribe",
     "Unadvertise",
+    "UnadvertiseService",
     "Unsubscribe",
     "decode_op",
     "encode_message",
@@ -80,6 +83,21 @@ class CallService(_Op, tag="call_service", frozen=True):
     compression: str = "none"
 
 
+class AdvertiseService(_Op, tag="advertise_service", frozen=True):
+    service: Name = ""
+    type: Name = ""
+
+
+class UnadvertiseService(_Op, tag="unadvertise_service", frozen=True):
+    service: Name = ""
+
+
+class ServiceResponse(_Op, tag="service_response", frozen=True):
+    service: Name = ""
+    values: Any = None
+    result: bool = True
+
+
 class SetLevel(_Op, tag="set_level", frozen=True):
     level: str = "error"
 
@@ -88,14 +106,38 @@ class Auth(_Op, tag="auth", frozen=True):
     mac: str = ""
 
 
-Op = Advertise | Unadvertise | Publish | Subscribe | Unsubscribe | CallService | SetLevel | Auth
+Op = (
+    Advertise
+    | Unadvertise
+    | Publish
+    | Subscribe
+    | Unsubscribe
+    | CallService
+    | AdvertiseService
+    | UnadvertiseService
+    | ServiceResponse
+    | SetLevel
+    | Auth
+)
 
 _decoder: msgspec.json.Decoder[Op] = msgspec.json.Decoder(Op)  # type: ignore[arg-type]
 _KNOWN = frozenset(
-    {"advertise", "unadvertise", "publish", "subscribe", "unsubscribe", "call_service", "set_level", "auth"}
+    {
+        "advertise",
+        "unadvertise",
+        "publish",
+        "subscribe",
+        "unsubscribe",
+        "call_service",
+        "advertise_service",
+        "unadvertise_service",
+        "service_response",
+        "set_level",
+        "auth",
+    }
 )
 #: Ops of the protocol that mrosd does not serve yet (a refusal says so rather than "unknown op").
-NOT_SERVED = frozenset({"advertise_service", "unadvertise_service", "service_response", "fragment", "png"})
+NOT_SERVED = frozenset({"fragment", "png"})
 
 
 class _Peek(msgspec.Struct):

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import itertools
 import json
 import logging
 import time
@@ -78,6 +79,10 @@ class RosbridgeSession:
         self._wake = asyncio.Event()
         self._closed = False
         self._calls: set[asyncio.Task[None]] = set()
+        #: services this client provides (advertise_service), and the calls waiting for its service_response
+        self._provided: dict[str, Any] = {}
+        self._pending: dict[str, asyncio.Future[tuple[bool, Any]]] = {}
+        self._request_ids = itertools.count(1)
 
     # --- hub callbacks ---------------------------------------------------------------------------
 
@@ -192,6 +197,13 @@ class RosbridgeSession:
         for topic in list(self._published):
             await self.hub.release_publisher(topic)
         self._published.clear()
+        for future in self._pending.values():
+            if not future.done():
+                future.set_exception(MrosError("the rosbridge client that provides the service disconnected"))
+        self._pending.clear()
+        for service in list(self._provided.values()):
+            await service.aclose()
+        self._provided.clear()
 
     async def _on_text(self, text: str) -> None:
         try:
@@ -227,6 +239,18 @@ class RosbridgeSession:
             await self._publish(op)
         elif isinstance(op, rb.CallService):
             self._start_call(op)
+        elif isinstance(op, rb.AdvertiseService):
+            await self._advertise_service(op)
+        elif isinstance(op, rb.UnadvertiseService):
+            service = self._provided.pop(op.service, None)
+            if service is not None:
+                await service.aclose()
+        elif isinstance(op, rb.ServiceResponse):
+            future = self._pending.pop(op.id or "", None)
+            if future is None:
+                self.status("warning", f"service_response: no call {op.id!r} is waiting", op.id)
+            elif not future.done():
+                future.set_result((op.result, op.values))
         elif isinstance(op, rb.SetLevel):
             pass  # status levels are not filtered: every refusal is an error the client asked about
 
@@ -286,6 +310,37 @@ class RosbridgeSession:
             pub = await self._advertise(op.topic, "")
         msg = rb.message_from_json(pub.msg_class, op.msg)
         pub.publish_nowait(msg)
+
+    # --- services this client provides ----------------------------------------------------------
+
+    async def _advertise_service(self, op: rb.AdvertiseService) -> None:
+        name = op.service if op.service.startswith("/") else "/" + op.service
+        if name in self._provided:
+            return
+        if not self.hub.policy.allows_service(name):
+            raise MrosError(f"service {name} is not allowed by the [web] services allow-list")
+        if len(self._provided) >= self.limits.max_subscriptions:
+            raise MrosError(f"at most {self.limits.max_subscriptions} services per client")
+        srv_class = get_service_class(op.type)
+
+        async def handler(request: Any) -> Any:
+            call_id = f"service_request:{name}:{next(self._request_ids)}"
+            future: asyncio.Future[tuple[bool, Any]] = asyncio.get_running_loop().create_future()
+            self._pending[call_id] = future
+            args = msgspec.to_builtins(request)
+            self._send(rb.op_json("call_service", id=call_id, service=name, args=args))
+            try:
+                async with asyncio.timeout(self.limits.call_timeout):
+                    ok, values = await future
+            except TimeoutError:
+                raise MrosError(f"the rosbridge client did not answer within {self.limits.call_timeout} s") from None
+            finally:
+                self._pending.pop(call_id, None)
+            if not ok:
+                raise MrosError(str(values))
+            return rb.message_from_json(srv_class._response_class, values)
+
+        self._provided[name] = await self.hub.node.advertise_service(name, srv_class, handler)
 
     # --- services --------------------------------------------------------------------------------
 

@@ -44,7 +44,7 @@ def test_client_messages_take_defaults_and_refuse_wrong_types() -> None:
 
 @pytest.mark.parametrize(
     ("text", "why"),
-    [("[]", "not a JSON object"), ('{"op":"nuke"}', "unknown op"), ('{"op":"advertise_service"}', "not served")],
+    [("[]", "not a JSON object"), ('{"op":"nuke"}', "unknown op"), ('{"op":"fragment"}', "not served")],
 )
 def test_bad_ops_are_refused_with_a_reason(text: str, why: str) -> None:
     with pytest.raises(rb.RosbridgeRefusal, match=why):
@@ -152,3 +152,36 @@ async def test_rosbridge_cbor_and_cbor_raw(master: Master) -> None:
         assert got_b["msg"]["secs"] > 0
         await a.close()
         await b.close()
+
+
+async def test_a_rosbridge_client_provides_a_service_to_ros(master: Master) -> None:
+    async with (
+        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
+        node("caller", master.uri) as caller,
+        aiohttp.ClientSession() as http,
+    ):
+        ws = await http.ws_connect(server.rosbridge_url)
+        await ws.send_str(json.dumps({"op": "advertise_service", "service": "/toggle", "type": "std_srvs/SetBool"}))
+        proxy = caller.service_proxy("/toggle", SetBool)
+        await proxy.wait_for_service(timeout=10)
+        call = asyncio.ensure_future(proxy.call(SetBool._request_class(data=True), timeout=10))
+        request = await receive(ws, "call_service", service="/toggle")
+        assert request["args"] == {"data": True}
+        reply = {"op": "service_response", "id": request["id"], "service": "/toggle", "result": True}
+        await ws.send_str(json.dumps({**reply, "values": {"success": True, "message": "toggled"}}))
+        response = await call
+        assert (response.success, response.message) == (True, "toggled")
+        # A refusal from the client reaches the ROS caller as a service error.
+        call = asyncio.ensure_future(proxy.call(SetBool._request_class(data=False), timeout=10))
+        request = await receive(ws, "call_service", service="/toggle")
+        await ws.send_str(json.dumps({**reply, "id": request["id"], "result": False, "values": "no way"}))
+        with pytest.raises(mrosd.errors.ServiceError, match="no way"):
+            await call
+        await ws.close()
+        async with asyncio.timeout(10):
+            while True:  # the client's service is withdrawn when it disconnects
+                try:
+                    await caller.master.lookup_service("/toggle")
+                except mrosd.errors.MasterError:
+                    break
+                await asyncio.sleep(0.02)
