@@ -29,6 +29,7 @@ from mrosd.errors import MrosError
 from mrosd.master.client import GraphSnapshot
 from mrosd.web import foxglove as fg
 from mrosd.web.hub import ServiceInfo, TopicInfo, WebHub
+from mrosd.web.queue import ByteQueue, trim_to_budget
 
 log = logging.getLogger(__name__)
 
@@ -76,8 +77,6 @@ class FoxgloveSession:
     CAPABILITIES = ("clientPublish", "parameters", "parametersSubscribe", "services", "connectionGraph")
 
     def __init__(self, hub: WebHub, ws: web.WebSocketResponse, limits: SessionLimits, peer: str = "?") -> None:
-        from mrosd.web.queue import ByteQueue
-
         self._queue_type = ByteQueue
         self.hub = hub
         self.ws = ws
@@ -103,24 +102,8 @@ class FoxgloveSession:
         for sub in subs:
             sub.queue.put((receipt_ns, body), len(body))
         if subs:
-            self._enforce_client_budget(subs[-1])
+            trim_to_budget([s.queue for s in self.subs.values()], self.limits.client_bytes, subs[-1].queue)
             self._wake.set()
-
-    def _enforce_client_budget(self, newest: _Subscription) -> None:
-        """Drop the oldest messages of the fullest queues until the client's total fits its budget.
-
-        The message just queued on ``newest`` is kept when it is all that queue holds: a topic whose one
-        message exceeds the budget still reaches the client, one message at a time.
-        """
-        total = sum(s.queue.size for s in self.subs.values())
-        while total > self.limits.client_bytes:
-            victim = max(self.subs.values(), key=lambda s: s.queue.size)
-            if victim is newest and len(victim.queue) <= 1:
-                others = [s for s in self.subs.values() if s is not newest and len(s.queue)]
-                if not others:
-                    return
-                victim = max(others, key=lambda s: s.queue.size)
-            total -= victim.queue.drop_oldest()
 
     def topics_changed(self, added: list[TopicInfo], removed: list[TopicInfo]) -> None:
         if removed:

@@ -10,9 +10,9 @@ I/O; the WebSocket shells drain it.
 from __future__ import annotations
 
 import collections
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
-__all__ = ["ByteQueue"]
+__all__ = ["ByteQueue", "trim_to_budget"]
 
 T = TypeVar("T")
 
@@ -78,3 +78,21 @@ class ByteQueue(Generic[T]):
         """Drops since the last call (for one status message per period, not one per drop)."""
         count, self.unreported = self.unreported, 0
         return count
+
+
+def trim_to_budget(queues: list[ByteQueue[Any]], budget: int, newest: ByteQueue[Any]) -> None:
+    """Drop the oldest items of the fullest queues until all of them together hold at most ``budget`` bytes.
+
+    One client's queues share one budget: without it a client subscribed to N topics could hold N times
+    the per-queue bound. The item just put on ``newest`` stays when it is all that queue holds, so a topic
+    whose one message exceeds the budget still flows, one message at a time.
+    """
+    total = sum(q.size for q in queues)
+    while total > budget:
+        victim = max(queues, key=lambda q: q.size)
+        if victim is newest and len(victim) <= 1:
+            others = [q for q in queues if q is not newest and len(q)]
+            if not others:
+                return
+            victim = max(others, key=lambda q: q.size)
+        total -= victim.drop_oldest()

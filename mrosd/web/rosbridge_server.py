@@ -31,7 +31,7 @@ from mrosd.msg import get_service_class, load_type
 from mrosd.web import rosbridge as rb
 from mrosd.web.foxglove_server import SessionLimits
 from mrosd.web.hub import ServiceInfo, TopicInfo, WebHub
-from mrosd.web.queue import ByteQueue
+from mrosd.web.queue import ByteQueue, trim_to_budget
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +93,7 @@ class RosbridgeSession:
         sub.queue.put((body, receipt_ns), len(body))
         while len(sub.queue) > sub.queue_length:
             sub.queue.drop_oldest()
+        trim_to_budget([s.queue for s in self.subs.values()], self.limits.client_bytes, sub.queue)
         self._wake.set()
 
     def topics_changed(self, added: list[TopicInfo], removed: list[TopicInfo]) -> None:

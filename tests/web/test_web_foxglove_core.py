@@ -172,3 +172,21 @@ def test_off_loopback_needs_a_token() -> None:
     AccessPolicy(token="t").check_bind("0.0.0.0")
     with pytest.raises(ConfigError, match="token"):
         AccessPolicy().check_bind("0.0.0.0")
+
+
+def test_trim_to_budget_drops_from_the_fullest_queue_and_keeps_the_newest() -> None:
+    from mrosd.web.queue import trim_to_budget
+
+    a: ByteQueue[str] = ByteQueue(100)
+    b: ByteQueue[str] = ByteQueue(100)
+    for i in range(5):
+        a.put(f"a{i}", 10)
+    b.put("b0", 30)
+    trim_to_budget([a, b], 50, b)
+    assert a.size + b.size <= 50
+    assert b.get() == "b0"  # the newest stays
+    huge: ByteQueue[str] = ByteQueue(10)
+    huge.put("h", 500)
+    trim_to_budget([a, huge], 50, huge)
+    assert len(huge) == 1  # one message larger than the budget still flows
+    assert len(a) == 0
