@@ -226,3 +226,40 @@ def message_from_json(cls: Any, value: Any) -> Any:
         return msgspec.convert(value, cls, strict=False)
     except msgspec.ValidationError as exc:
         raise RosbridgeRefusal(f"not a {getattr(cls, '_type', cls)}: {exc}") from None
+
+
+def typedefs(msg_type: str) -> list[dict[str, Any]]:
+    """rosapi's ``message_details``: the type and every type it nests, with field names, types and lengths.
+
+    Raises:
+        MsgError: the type (or one it uses) is not on the type search path (the message says where it looked).
+    """
+    from mrosd.msg.loader import default_store
+
+    store = default_store()
+    out: list[dict[str, Any]] = []
+    seen: set[str] = set()
+    todo = [msg_type]
+    while todo:
+        name = todo.pop(0)
+        if name in seen:
+            continue
+        seen.add(name)
+        spec = store.msg_spec(name)
+        for f in spec.fields:
+            if "/" in f.base and f.base not in seen:
+                todo.append(f.base)
+        out.append(
+            {
+                "type": spec.full_name,
+                "fieldnames": [f.name for f in spec.fields],
+                "fieldtypes": [f.base for f in spec.fields],
+                "fieldarraylen": [
+                    (-1 if not f.is_array else (f.length if f.length is not None else 0)) for f in spec.fields
+                ],
+                "examples": ["{}" if "/" in f.base else ("[]" if f.is_array else "0") for f in spec.fields],
+                "constnames": [c.name for c in spec.constants],
+                "constvalues": [c.text for c in spec.constants],
+            }
+        )
+    return out

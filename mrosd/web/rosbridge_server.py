@@ -411,6 +411,38 @@ class RosbridgeSession:
                 "subscribing": sorted(t for t, ns in subs if node in ns),
                 "services": sorted(s for s, ns in srvs if node in ns),
             }
+        if method in ("publishers", "subscribers"):
+            pubs, subs, _ = await master.get_system_state()
+            topic = str(args.get("topic", ""))
+            nodes = dict(pubs if method == "publishers" else subs).get(topic, [])
+            return {method: sorted(nodes) if policy.allows_topic(topic) else []}
+        if method in ("service_providers", "service_node"):
+            _, _, srvs = await master.get_system_state()
+            service = str(args.get("service", ""))
+            providers = sorted(dict(srvs).get(service, [])) if policy.allows_service(service) else []
+            return (
+                {"providers": providers}
+                if method == "service_providers"
+                else {"node": providers[0] if providers else ""}
+            )
+        if method == "topics_for_type":
+            wanted = str(args.get("type", ""))
+            return {
+                "topics": sorted(t for t, ty in hub.graph.topics.items() if ty == wanted and policy.allows_topic(t))
+            }
+        if method == "services_for_type":
+            wanted = str(args.get("type", ""))
+            return {"services": sorted(s.name for s in hub.services.values() if s.type == wanted)}
+        if method in ("message_details", "service_request_details", "service_response_details"):
+            name = str(args.get("type", ""))
+            if method != "message_details":
+                name += "Request" if method == "service_request_details" else "Response"
+            return {"typedefs": rb.typedefs(name)}
+        if method == "get_ros_version":
+            return {"version": 1, "distro": "noetic"}
+        if method == "search_param":
+            found = await master.search_param(_param_name(args.get("name", "")))
+            return {"global_name": found or ""}
         if method == "get_time":
             now = time.time_ns()
             return {"time": {"secs": now // 1_000_000_000, "nsecs": now % 1_000_000_000}}

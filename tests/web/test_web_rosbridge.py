@@ -185,3 +185,33 @@ async def test_a_rosbridge_client_provides_a_service_to_ros(master: Master) -> N
                 except mrosd.errors.MasterError:
                     break
                 await asyncio.sleep(0.02)
+
+
+async def test_rosapi_details_and_unknown_types(master: Master) -> None:
+    async with (
+        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
+        node("talker", master.uri) as talker,
+        aiohttp.ClientSession() as http,
+    ):
+        await talker.advertise("/chatter", String)
+        ws = await http.ws_connect(server.rosbridge_url)
+        calls = [
+            ("rosapi/message_details", {"type": "sensor_msgs/Image"}),
+            ("/rosapi/publishers", {"topic": "/chatter"}),
+            ("/rosapi/get_ros_version", {}),
+        ]
+        for i, (service, args) in enumerate(calls):
+            await ws.send_str(json.dumps({"op": "call_service", "service": service, "args": args, "id": str(i)}))
+        answers = {}
+        while len(answers) < len(calls):  # calls run concurrently: answers come in any order
+            reply = await receive(ws, "service_response")
+            answers[reply["id"]] = reply["values"]
+        assert [d["type"] for d in answers["0"]["typedefs"]] == ["sensor_msgs/Image", "std_msgs/Header"]
+        assert answers["1"]["publishers"] == ["/talker"]
+        assert answers["2"]["version"] == 1
+        sub = {"op": "subscribe", "topic": "/x", "type": "nope_msgs/Nope", "id": "u"}
+        await ws.send_str(json.dumps(sub))
+        status = await receive(ws, "status", id="u")
+        assert "nope_msgs/Nope" in status["msg"]
+        assert "searched" in status["msg"]
+        await ws.close()
