@@ -186,6 +186,13 @@ def publish_json(topic: str, msg: Any) -> bytes:
     return b'{"op":"publish","topic":' + _encoder.encode(topic) + b',"msg":' + _encoder.encode(msg) + b"}"
 
 
+def fragments(text: str, fragment_size: int, message_id: str) -> list[bytes]:
+    """rosbridge's ``fragment`` ops for one JSON message longer than ``fragment_size`` characters."""
+    size = max(1, fragment_size)
+    parts = [text[i : i + size] for i in range(0, len(text), size)]
+    return [op_json("fragment", id=message_id, data=part, num=i, total=len(parts)) for i, part in enumerate(parts)]
+
+
 def publish_cbor(topic: str, msg: Any) -> bytes:
     """The publish op as CBOR (``compression: cbor``): byte arrays as CBOR byte strings, floats as floats."""
     import cbor2  # only clients that ask for CBOR pay for the import

@@ -49,6 +49,8 @@ class _Sub:
     last_sent: float = 0.0
     #: "none" (JSON text), "cbor" (the message as CBOR), "cbor-raw" (the TCPROS body untouched, in CBOR)
     compression: str = "none"
+    #: JSON messages longer than this go as rosbridge ``fragment`` ops (None: whole)
+    fragment_size: int | None = None
     receipts: collections.deque[int] = field(default_factory=collections.deque)
 
     @property
@@ -142,7 +144,16 @@ class RosbridgeSession:
                 continue
             if sub.compression == "cbor":
                 return True, rb.publish_cbor(sub.topic, msg)
-            return False, rb.publish_json(sub.topic, msg)
+            data = rb.publish_json(sub.topic, msg)
+            if sub.fragment_size and len(data) > sub.fragment_size:
+                pieces = rb.fragments(
+                    data.decode(), sub.fragment_size, f"publish:{sub.topic}:{next(self._request_ids)}"
+                )
+                # The rest go first in the next turns, ahead of anything else; they are one message's bytes,
+                # already bounded by the queue, so they do not count against the control budget.
+                self._control.extendleft((False, piece) for piece in reversed(pieces[1:]))
+                return False, pieces[0]
+            return False, data
         return None
 
     async def _sender(self) -> None:
@@ -280,6 +291,7 @@ class RosbridgeSession:
                 del self.subs[op.topic]
                 raise
         sub.compression = compression
+        sub.fragment_size = op.fragment_size or None
         sub.ids.add(op.id)
         sub.throttle[op.id] = op.throttle_rate
         sub.length[op.id] = op.queue_length

@@ -215,3 +215,24 @@ async def test_rosapi_details_and_unknown_types(master: Master) -> None:
         assert "nope_msgs/Nope" in status["msg"]
         assert "searched" in status["msg"]
         await ws.close()
+
+
+async def test_fragment_size_splits_a_message_into_fragment_ops(master: Master) -> None:
+    async with (
+        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
+        node("talker", master.uri) as talker,
+        aiohttp.ClientSession() as http,
+    ):
+        pub = await talker.advertise("/long", String)
+        ws = await http.ws_connect(server.rosbridge_url)
+        await ws.send_str(json.dumps({"op": "subscribe", "topic": "/long", "fragment_size": 100}))
+        await pub.wait_for_subscribers(1, timeout=10)
+        await pub.publish(String(data="x" * 1000))
+        first = await receive(ws, "fragment")
+        parts = [first]
+        while len(parts) < first["total"]:
+            parts.append(await receive(ws, "fragment"))
+        assert [p["num"] for p in parts] == list(range(first["total"]))
+        whole = json.loads("".join(p["data"] for p in parts))
+        assert whole == {"op": "publish", "topic": "/long", "msg": {"data": "x" * 1000}}
+        await ws.close()
