@@ -94,6 +94,8 @@ class FoxgloveSession:
         self._closed = False
         self._calls: set[asyncio.Task[None]] = set()
         self.sent_messages = 0
+        #: the latest /clock time not yet sent (a 1 kHz clock costs the client the rate it reads at)
+        self._time_ns: int | None = None
 
     # --- hub callbacks (never block) -------------------------------------------------------------
 
@@ -123,6 +125,10 @@ class FoxgloveSession:
             self._send_json(fg.encode_json("unadvertiseServices", serviceIds=[s.id for s in removed]))
         if added:
             self._send_json(fg.encode_json("advertiseServices", services=[_service(s) for s in added]))
+
+    def _time(self, now_ns: int) -> None:
+        self._time_ns = now_ns
+        self._wake.set()
 
     def _state_changed(self, state: fg.SystemState) -> None:
         if self._graph_state is None:
@@ -168,6 +174,10 @@ class FoxgloveSession:
             await self._wake.wait()
             self._wake.clear()
             while not self._closed:
+                if self._time_ns is not None:
+                    stamp, self._time_ns = self._time_ns, None
+                    await ws.send_bytes(fg.time_message(stamp))
+                    continue
                 if self._control:
                     text, data = self._control.popleft()
                     self._control_bytes -= len(data)
@@ -200,7 +210,10 @@ class FoxgloveSession:
     async def run(self) -> None:
         """Serve the client until it disconnects; always releases what it held."""
         hub = self.hub
-        self._send_json(fg.server_info("mrosd", self.CAPABILITIES, session_id=uuid.uuid4().hex, metadata={"ros": "1"}))
+        capabilities = [*self.CAPABILITIES, "time"] if hub.sim_time else list(self.CAPABILITIES)
+        self._send_json(fg.server_info("mrosd", capabilities, session_id=uuid.uuid4().hex, metadata={"ros": "1"}))
+        if hub.sim_time:
+            hub.time_listeners.add(self._time)
         self._send_json(fg.encode_json("advertise", channels=[_channel(t) for t in hub.topics.values()]))
         if hub.services:
             self._send_json(fg.encode_json("advertiseServices", services=[_service(s) for s in hub.services.values()]))
@@ -231,6 +244,7 @@ class FoxgloveSession:
         hub = self.hub
         hub.listeners.discard(self)
         hub.state_listeners.discard(self._state_changed)
+        hub.time_listeners.discard(self._time)
         for topic in list(self._by_topic):
             await hub.remove_sink(topic, self)
         self._by_topic.clear()

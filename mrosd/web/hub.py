@@ -60,6 +60,29 @@ def split_rosrpc(uri: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
+#: Where simulated time comes from, as in rospy and roscpp.
+CLOCK_TOPIC = "/clock"
+
+
+class _ClockSink:
+    """The hub's own sink on /clock: rosgraph_msgs/Clock is one time (uint32 secs, uint32 nsecs)."""
+
+    def __init__(self, hub: WebHub) -> None:
+        self.hub = hub
+
+    def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
+        if len(body) != 8:
+            return
+        secs = int.from_bytes(body[:4], "little")
+        nsecs = int.from_bytes(body[4:], "little")
+        now = secs * 1_000_000_000 + nsecs
+        for listener in list(self.hub.time_listeners):
+            try:
+                listener(now)
+            except Exception:
+                log.exception("web: a time listener failed")
+
+
 class TopicSink(Protocol):
     """A client's end of a shared subscription; ``deliver`` must not block (queue and return)."""
 
@@ -152,6 +175,10 @@ class WebHub:
         self._service_probes: dict[str, asyncio.Task[None]] = {}
         #: services whose probe failed, with the provider it failed for (probed again when it changes)
         self._service_failed: dict[str, str] = {}
+        #: /use_sim_time was true when the hub started: /clock is followed and its time handed out
+        self.sim_time = False
+        #: called with /clock's time (ns) for every message on it, while sim_time
+        self.time_listeners: set[Callable[[int], None]] = set()
 
     # --- lifecycle -------------------------------------------------------------------------------
 
@@ -163,12 +190,18 @@ class WebHub:
             TimeoutError: the first graph did not arrive within ``timeout`` seconds.
         """
         await self.node.start()
+        try:
+            self.sim_time = bool(await self.node.master.get_param("/use_sim_time"))
+        except MrosError:
+            self.sim_time = False
         loop = asyncio.get_running_loop()
         self._first_graph = loop.create_future()
         self._watch = loop.create_task(self._watch_graph(), name="web graph watch")
         try:
             async with asyncio.timeout(timeout):
                 await asyncio.shield(self._first_graph)
+            if self.sim_time:
+                await self.add_sink(CLOCK_TOPIC, _ClockSink(self), check=False)
         except BaseException:
             await self.aclose()
             raise
@@ -429,13 +462,13 @@ class WebHub:
 
         return deliver
 
-    async def add_sink(self, topic: str, sink: TopicSink) -> None:
+    async def add_sink(self, topic: str, sink: TopicSink, *, check: bool = True) -> None:
         """Give ``sink`` every message of ``topic`` (subscribing on the first sink).
 
         Raises:
             MrosError: the topic is not allowed, or the master refused the subscription.
         """
-        if not self.policy.allows_topic(topic):
+        if check and not self.policy.allows_topic(topic):
             raise MrosError(f"topic {topic} is not allowed by the [web] topics allow-list")
         async with self._lock:
             entry = self._shared.get(topic)

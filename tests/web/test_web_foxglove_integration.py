@@ -277,3 +277,23 @@ async def test_a_token_is_required_when_set_and_allow_lists_hide_topics(master: 
         assert "/private/b" not in client.channels
         await client.send(op="getParameters", parameterNames=[], id="all")
         await client.until_json("parameterValues", id="all")
+
+
+async def test_sim_time_is_offered_and_follows_clock(master: Master) -> None:
+    Clock = get_message_class("rosgraph_msgs/Clock")
+    async with node("sim", master.uri) as sim:
+        await sim.set_param("/use_sim_time", True)
+        clock = await sim.advertise("/clock", Clock)
+        async with (
+            WebServer(master.uri, port=0, node_host="127.0.0.1") as server,
+            aiohttp.ClientSession() as http,
+        ):
+            client = await connect(http, server)
+            info = await client.until_json("serverInfo")
+            assert "time" in info["capabilities"]
+            await clock.wait_for_subscribers(1, timeout=10)
+            msg = Clock()
+            msg.clock.secs, msg.clock.nsecs = 12, 345
+            await clock.publish(msg)
+            frame = await client.until_binary()
+            assert struct.unpack("<BQ", frame) == (2, 12_000_000_345)
