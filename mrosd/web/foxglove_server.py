@@ -28,7 +28,7 @@ from aiohttp import WSMsgType, web
 from mrosd.errors import MrosError
 from mrosd.master.client import GraphSnapshot
 from mrosd.web import foxglove as fg
-from mrosd.web.hub import ServiceInfo, TopicInfo, WebHub
+from mrosd.web.hub import PAUSE_BYTES, ServiceInfo, TopicInfo, WebHub
 from mrosd.web.queue import ByteQueue, trim_to_budget
 
 log = logging.getLogger(__name__)
@@ -99,6 +99,9 @@ class FoxgloveSession:
 
     # --- hub callbacks (never block) -------------------------------------------------------------
 
+    def backlog(self, topic: str) -> int:
+        return sum(s.queue.size for s in self._by_topic.get(topic, ()))
+
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         subs = self._by_topic.get(topic, ())
         for sub in subs:
@@ -165,6 +168,8 @@ class FoxgloveSession:
             if len(sub.queue):
                 self._rr = (self._rr + i + 1) % n
                 receipt_ns, body = sub.queue.get()
+                if self.backlog(sub.topic.name) < PAUSE_BYTES:
+                    self.hub.resume(sub.topic.name)
                 return fg.message_data(sub.id, receipt_ns, body)
         return None
 

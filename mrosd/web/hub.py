@@ -44,6 +44,11 @@ __all__ = ["GraphListener", "ServiceInfo", "TopicInfo", "TopicSink", "WebHub", "
 PROBE_TIMEOUT = 5.0
 #: Probes in flight at once (each is one TCPROS connection to a publisher).
 MAX_PROBES = 8
+#: When every client of a topic holds at least this many bytes of it not yet sent, the hub stops reading the
+#: topic's TCPROS connections until one catches up: the bridge then receives what its fastest client takes,
+#: not everything the publisher sends (the publisher's per-subscriber queue drops the rest, as for any slow
+#: subscriber). Clients that fall further behind still drop from their own queues.
+PAUSE_BYTES = 4 * 1024 * 1024
 
 
 def split_rosrpc(uri: str) -> tuple[str, int]:
@@ -70,6 +75,9 @@ class _ClockSink:
     def __init__(self, hub: WebHub) -> None:
         self.hub = hub
 
+    def backlog(self, topic: str) -> int:
+        return 0
+
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         if len(body) != 8:
             return
@@ -87,6 +95,10 @@ class TopicSink(Protocol):
     """A client's end of a shared subscription; ``deliver`` must not block (queue and return)."""
 
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None: ...
+
+    def backlog(self, topic: str) -> int:
+        """Bytes of ``topic`` this sink holds, not yet sent."""
+        ...
 
 
 class GraphListener(Protocol):
@@ -128,6 +140,8 @@ class _Shared:
     sinks: list[TopicSink] = field(default_factory=list)
     messages: int = 0
     bytes: int = 0
+    #: reading from the publishers is paused: every sink is behind (see WebHub.resume)
+    paused: bool = False
 
 
 @dataclass(slots=True)
@@ -454,13 +468,36 @@ class WebHub:
             body = msg.data
             entry.messages += 1
             entry.bytes += len(body)
+            behind = True
             for sink in entry.sinks:
                 try:
                     sink.deliver(topic, body, now)
+                    behind = behind and sink.backlog(topic) >= PAUSE_BYTES
                 except Exception:
                     log.exception("web: a sink of %s failed", topic)
+            if behind and entry.sinks:
+                self._set_reading(entry, False)
 
         return deliver
+
+    @staticmethod
+    def _set_reading(entry: _Shared, reading: bool) -> None:
+        """Pause or resume reading the topic's TCPROS connections (TCP's own backpressure)."""
+        entry.paused = not reading
+        for link in entry.subscriber.links.values():
+            proto = link.proto
+            transport = proto.transport if proto is not None else None
+            if transport is not None and not transport.is_closing():
+                if reading:
+                    transport.resume_reading()
+                else:
+                    transport.pause_reading()
+
+    def resume(self, topic: str) -> None:
+        """A sink of ``topic`` caught up: read from the publishers again (no-op unless paused)."""
+        entry = self._shared.get(topic)
+        if entry is not None and entry.paused:
+            self._set_reading(entry, True)
 
     async def add_sink(self, topic: str, sink: TopicSink, *, check: bool = True) -> None:
         """Give ``sink`` every message of ``topic`` (subscribing on the first sink).
@@ -489,6 +526,8 @@ class WebHub:
                 return
             with contextlib.suppress(ValueError):
                 entry.sinks.remove(sink)
+            if entry.paused:
+                self._set_reading(entry, True)  # the sink that left may have been the one holding it
             if not entry.sinks:
                 del self._shared[topic]
                 await entry.subscriber.aclose()

@@ -30,7 +30,7 @@ from mrosd.master.client import GraphSnapshot
 from mrosd.msg import get_service_class, load_type
 from mrosd.web import rosbridge as rb
 from mrosd.web.foxglove_server import SessionLimits
-from mrosd.web.hub import ServiceInfo, TopicInfo, WebHub
+from mrosd.web.hub import PAUSE_BYTES, ServiceInfo, TopicInfo, WebHub
 from mrosd.web.queue import ByteQueue, trim_to_budget
 
 log = logging.getLogger(__name__)
@@ -88,6 +88,10 @@ class RosbridgeSession:
 
     # --- hub callbacks ---------------------------------------------------------------------------
 
+    def backlog(self, topic: str) -> int:
+        sub = self.subs.get(topic)
+        return 0 if sub is None else sub.queue.size
+
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         sub = self.subs.get(topic)
         if sub is None:
@@ -135,6 +139,8 @@ class RosbridgeSession:
                     sub.queue.drop_oldest()
             body, receipt_ns = sub.queue.get()
             sub.last_sent = now
+            if sub.queue.size < PAUSE_BYTES:
+                self.hub.resume(sub.topic)
             if sub.compression == "cbor-raw":  # passthrough: the body is never decoded
                 return True, rb.publish_cbor_raw(sub.topic, body, receipt_ns)
             try:

@@ -297,3 +297,26 @@ async def test_sim_time_is_offered_and_follows_clock(master: Master) -> None:
             await clock.publish(msg)
             frame = await client.until_binary()
             assert struct.unpack("<BQ", frame) == (2, 12_000_000_345)
+
+
+async def test_the_hub_stops_reading_when_every_client_is_behind_and_resumes(master: Master) -> None:
+    """TCP's own backpressure: the bridge receives what its fastest client takes, not all the publisher sends."""
+    async with (
+        WebServer(master.uri, port=0, node_host="127.0.0.1") as server,
+        node("camera", master.uri) as camera,
+        aiohttp.ClientSession() as http,
+    ):
+        pub = await camera.advertise("/image", Image)
+        client = await connect(http, server)
+        ch = await client.until_channel("/image")
+        await client.send(op="subscribe", subscriptions=[{"id": 1, "channelId": ch["id"]}])
+        await pub.wait_for_subscribers(1, timeout=10)
+        entry = server.hub._shared["/image"]
+        img = Image(height=1000, width=1000, encoding="mono8", step=1000, data=bytes(1000 * 1000))
+        async with asyncio.timeout(20):
+            while not entry.paused:  # the client reads nothing meanwhile
+                await pub.publish(img)
+                await asyncio.sleep(0.01)
+        async with asyncio.timeout(20):
+            while entry.paused:  # reading again once the client takes its messages
+                await client.until_binary()
