@@ -96,6 +96,7 @@ class FoxgloveSession:
         self.sent_messages = 0
         #: the latest /clock time not yet sent (a 1 kHz clock costs the client the rate it reads at)
         self._time_ns: int | None = None
+        self._close_task: asyncio.Task[bool] | None = None
 
     # --- hub callbacks (never block) -------------------------------------------------------------
 
@@ -154,7 +155,9 @@ class FoxgloveSession:
         if self._control_bytes > self.limits.control_bytes:
             log.warning("web: %s does not read its control messages; disconnecting it", self.peer)
             self._closed = True
-            asyncio.get_running_loop().create_task(self.ws.close(code=1008, message=b"client too slow"))
+            self._close_task = asyncio.get_running_loop().create_task(
+                self.ws.close(code=1008, message=b"client too slow")
+            )
         self._wake.set()
 
     def status(self, level: int, message: str, status_id: str | None = None) -> None:

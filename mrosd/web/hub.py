@@ -42,6 +42,8 @@ __all__ = ["GraphListener", "ServiceInfo", "TopicInfo", "TopicSink", "WebHub", "
 
 #: How long a probe waits for a publisher's connection header before the topic stays unadvertised.
 PROBE_TIMEOUT = 5.0
+#: Seconds before a topic whose probe found no publisher's definition is probed again.
+PROBE_RETRY = 30.0
 #: Probes in flight at once (each is one TCPROS connection to a publisher).
 MAX_PROBES = 8
 #: When every client of a topic holds at least this many bytes of it not yet sent, the hub stops reading the
@@ -177,6 +179,9 @@ class WebHub:
         self._probing: dict[str, asyncio.Task[None]] = {}
         self._probe_slots = asyncio.Semaphore(MAX_PROBES)
         self._unresolved: dict[str, str] = {}
+        #: topic -> when its last probe found no definition (probed again PROBE_RETRY seconds later at most:
+        #: a probe registers a subscriber, which changes the graph, which would start the next probe)
+        self._probe_failed: dict[str, float] = {}
         self._watch: asyncio.Task[None] | None = None
         self._first_graph: asyncio.Future[None] | None = None
         self._lock = asyncio.Lock()
@@ -409,9 +414,10 @@ class WebHub:
             return None
 
     def _start_probe(self, topic: str, msg_type: str) -> None:
-        if topic in self._probing:
+        loop = asyncio.get_running_loop()
+        if topic in self._probing or loop.time() - self._probe_failed.get(topic, -PROBE_RETRY) < PROBE_RETRY:
             return
-        task = asyncio.get_running_loop().create_task(self._probe(topic, msg_type), name=f"web probe {topic}")
+        task = loop.create_task(self._probe(topic, msg_type), name=f"web probe {topic}")
         self._probing[topic] = task
 
     async def _probe(self, topic: str, msg_type: str) -> None:
@@ -419,7 +425,10 @@ class WebHub:
         try:
             async with self._probe_slots:
                 definition = await self._definition_from_publisher(topic)
-            if definition is None or self.graph.topics.get(topic) != msg_type or topic in self.topics:
+            if definition is None:
+                self._probe_failed[topic] = asyncio.get_running_loop().time()
+                return
+            if self.graph.topics.get(topic) != msg_type or topic in self.topics:
                 return
             try:
                 load_type(msg_type, definition)  # refuse a definition that does not parse before advertising it

@@ -85,6 +85,7 @@ class RosbridgeSession:
         self._provided: dict[str, Any] = {}
         self._pending: dict[str, asyncio.Future[tuple[bool, Any]]] = {}
         self._request_ids = itertools.count(1)
+        self._close_task: asyncio.Task[bool] | None = None
 
     # --- hub callbacks ---------------------------------------------------------------------------
 
@@ -121,7 +122,9 @@ class RosbridgeSession:
         if self._control_bytes > self.limits.control_bytes:
             log.warning("web: rosbridge client %s does not read; disconnecting it", self.peer)
             self._closed = True
-            asyncio.get_running_loop().create_task(self.ws.close(code=1008, message=b"client too slow"))
+            self._close_task = asyncio.get_running_loop().create_task(
+                self.ws.close(code=1008, message=b"client too slow")
+            )
         self._wake.set()
 
     def status(self, level: str, message: str, op_id: str | None = None) -> None:

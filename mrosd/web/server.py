@@ -138,7 +138,7 @@ class WebServer:
     async def _foxglove(self, request: web.Request) -> web.StreamResponse:
         if not self.policy.token_ok(self._token(request)):
             raise web.HTTPUnauthorized(text="token required: add ?token=... to the URL\n")
-        if len(self.sessions) >= self.max_clients:
+        if len(self.sessions) + len(self.rosbridge_sessions) >= self.max_clients:
             raise web.HTTPServiceUnavailable(text=f"at most {self.max_clients} clients\n")
         offered = [p.strip() for p in request.headers.get("Sec-WebSocket-Protocol", "").split(",") if p.strip()]
         if fg.choose_subprotocol(offered) is None:

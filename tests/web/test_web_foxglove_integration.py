@@ -320,3 +320,20 @@ async def test_the_hub_stops_reading_when_every_client_is_behind_and_resumes(mas
         async with asyncio.timeout(20):
             while entry.paused:  # reading again once the client takes its messages
                 await client.until_binary()
+
+
+async def test_a_type_on_no_search_path_is_read_from_its_publishers_header(server: WebServer, master: Master) -> None:
+    from mrosd.msg import load_type
+
+    custom = load_type("my_robot_msgs/Battery", "float32 voltage\nstring cell\n")
+    async with node("battery", master.uri) as battery, aiohttp.ClientSession() as http:
+        pub = await battery.advertise("/battery", custom)
+        client = await connect(http, server)
+        channel = await client.until_channel("/battery")
+        assert (channel["schemaName"], channel["schema"]) == ("my_robot_msgs/Battery", "float32 voltage\nstring cell\n")
+        await client.send(op="subscribe", subscriptions=[{"id": 1, "channelId": channel["id"]}])
+        await until(lambda: server.hub.sink_count("/battery") == 1)
+        await pub.wait_for_subscribers(1, timeout=10)
+        msg = custom(voltage=12.5, cell="A")
+        await pub.publish(msg)
+        assert (await client.until_binary())[13:] == msg.serialize()
