@@ -236,3 +236,28 @@ async def test_fragment_size_splits_a_message_into_fragment_ops(master: Master) 
         whole = json.loads("".join(p["data"] for p in parts))
         assert whole == {"op": "publish", "topic": "/long", "msg": {"data": "x" * 1000}}
         await ws.close()
+
+
+async def test_rosbridge_token_by_auth_op_or_url(master: Master) -> None:
+    from mrosd.web.access import AccessPolicy
+
+    async with (
+        WebServer(
+            master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1", policy=AccessPolicy(token="s3cret")
+        ) as server,
+        aiohttp.ClientSession() as http,
+    ):
+        ws = await http.ws_connect(server.rosbridge_url)
+        topics = {"op": "call_service", "service": "/rosapi/topics", "id": "t"}
+        await ws.send_str(json.dumps(topics))
+        assert "authenticate first" in (await receive(ws, "status", id="t"))["msg"]
+        await ws.send_str(json.dumps({"op": "auth", "mac": "wrong", "id": "a"}))
+        assert "wrong token" in (await receive(ws, "status", id="a"))["msg"]
+        await ws.send_str(json.dumps({"op": "auth", "mac": "s3cret"}))
+        await ws.send_str(json.dumps(topics))
+        assert (await receive(ws, "service_response", id="t"))["result"] is True
+        await ws.close()
+        ws = await http.ws_connect(server.rosbridge_url + "?token=s3cret")
+        await ws.send_str(json.dumps(topics))
+        assert (await receive(ws, "service_response", id="t"))["result"] is True
+        await ws.close()
