@@ -351,6 +351,7 @@ class FoxgloveSession:
         with contextlib.suppress(ValueError):
             subs.remove(sub)
         if subs:
+            self.hub.resume(sub.topic.name)  # what this client holds of the topic just shrank
             return False
         del self._by_topic[sub.topic.name]
         return True

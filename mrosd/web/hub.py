@@ -526,6 +526,8 @@ class WebHub:
                 self._shared[topic] = entry
             if sink not in entry.sinks:
                 entry.sinks.append(sink)
+            if entry.paused:
+                self._set_reading(entry, True)  # a newcomer is not behind: nothing else would wake the topic
 
     async def remove_sink(self, topic: str, sink: TopicSink) -> None:
         """Stop giving ``sink`` the topic; the last sink closes the subscription."""

@@ -108,3 +108,44 @@ async def test_a_client_without_the_subprotocol_is_refused_before_any_state(mast
             await http.ws_connect(server.url)
         assert refused.value.status == 400
         assert not server.sessions
+
+
+async def test_a_client_joining_a_topic_that_a_stalled_client_paused_gets_messages(
+    master: Master, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The hub stops reading a topic while every client of it is behind; a newcomer must wake it up."""
+    monkeypatch.setenv("MROSD_SHM", "0")  # TCPROS between the nodes of this process: its reading is what pauses
+    async with (
+        WebServer(master.uri, port=0, node_host="127.0.0.1") as server,
+        node("camera", master.uri) as camera,
+        aiohttp.ClientSession() as http,
+    ):
+        pub = await camera.advertise("/image", Image)
+        stalled = await http.ws_connect(server.url, protocols=["foxglove.websocket.v1"])
+        ids = await channels_of(stalled, {"/image"})
+        subscribe = json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": ids["/image"]}]})
+        await stalled.send_str(subscribe)
+        await pub.wait_for_subscribers(1, timeout=10)
+        img = Image(height=1000, width=1000, encoding="mono8", step=1000, data=bytes(1000 * 1000))
+        entry = server.hub._shared["/image"]
+        async with asyncio.timeout(30):
+            steady = 0
+            while steady < 50:  # paused, and staying paused: the stalled client's socket is full
+                await pub.publish(img)
+                await asyncio.sleep(0.01)
+                steady = steady + 1 if entry.paused else 0
+        live = await http.ws_connect(server.url, protocols=["foxglove.websocket.v1"])
+        await channels_of(live, {"/image"})
+        await live.send_str(subscribe)
+        await until(lambda: server.hub.sink_count("/image") == 2)
+        async with asyncio.timeout(20):
+            while True:
+                await pub.publish(img)
+                try:
+                    msg = await asyncio.wait_for(live.receive(), 0.2)
+                except TimeoutError:
+                    continue
+                if msg.type == aiohttp.WSMsgType.BINARY:
+                    break
+        await live.close()
+        await stalled.close()
