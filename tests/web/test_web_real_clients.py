@@ -325,3 +325,35 @@ async def test_roslib_in_headless_chromium_subscribes_publishes_calls_and_reads_
                 await client.close()
     finally:
         await runner.cleanup()
+
+
+@needs_node
+async def test_a_foxglove_client_that_never_reads_costs_a_bound_and_the_other_keeps_up(
+    master: Master, client_of: Any
+) -> None:
+    from mrosd.web.foxglove_server import SessionLimits
+
+    limits = SessionLimits(queue_bytes=4 * 1024 * 1024, client_bytes=8 * 1024 * 1024)
+    async with (
+        WebServer(master.uri, port=0, node_host="127.0.0.1", limits=limits) as server,
+        node("camera", master.uri) as camera,
+    ):
+        cam = await camera.advertise("/image", Image)
+        stalled, live = await client_of(server), await client_of(server)
+        for c in (stalled, live):
+            await c.until("channel", topic="/image")
+            await c.send(cmd="subscribe", topic="/image")
+            await c.until("subscribed")
+        await stalled.send(cmd="pause")
+        await stalled.until("paused")
+        await cam.wait_for_subscribers(1, timeout=10)
+        img = Image(height=1000, width=1000, encoding="mono8", step=1000, data=bytes(1000 * 1000))
+        received = 0
+        async with asyncio.timeout(60):
+            for _ in range(60):  # 60 MB published; the live client reads them as they come
+                await cam.publish(img)
+                await live.until("message", topic="/image")
+                received += 1
+        assert received == 60
+        paused = next(s for s in server.sessions if any(q.queue.dropped for q in s.subs.values()))
+        assert sum(q.queue.size for q in paused.subs.values()) <= limits.client_bytes + 1_000_100
