@@ -122,6 +122,8 @@ class WebConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     queue_bytes: Count | None = None
     #: bytes queued per client over all its subscriptions
     client_bytes: Count | None = None
+    #: bytes queued for all clients together
+    total_bytes: Count | None = None
     max_clients: Count | None = None
 
 

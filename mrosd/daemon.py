@@ -288,6 +288,7 @@ class Daemon:
             policy=policy,
             limits=limits,
             rosbridge_port=rosbridge,
+            max_queued_bytes=web.total_bytes,
         )
         if web.max_clients is not None:
             server.max_clients = web.max_clients

@@ -103,6 +103,14 @@ class FoxgloveSession:
     def backlog(self, topic: str) -> int:
         return sum(s.queue.size for s in self._by_topic.get(topic, ()))
 
+    def queued(self) -> int:
+        return sum(s.queue.size for s in self.subs.values())
+
+    def shed_oldest(self) -> None:
+        fullest = max(self.subs.values(), key=lambda s: s.queue.size, default=None)
+        if fullest is not None and len(fullest.queue):
+            fullest.queue.drop_oldest()
+
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         subs = self._by_topic.get(topic, ())
         for sub in subs:
@@ -256,6 +264,8 @@ class FoxgloveSession:
         for topic in list(self._by_topic):
             await hub.remove_sink(topic, self)
         self._by_topic.clear()
+        for sub in self.subs.values():
+            sub.queue.clear()  # gives its bytes back to the hub's ledger
         self.subs.clear()
         for channel in list(self._channels.values()):
             await hub.release_publisher(channel.topic)
@@ -331,7 +341,7 @@ class FoxgloveSession:
                 self.status(fg.STATUS_ERROR, f"subscribe: at most {self.limits.max_subscriptions} subscriptions")
                 continue
             first = topic.name not in self._by_topic
-            sub = _Subscription(entry.id, topic, self._queue_type(self.limits.queue_bytes))
+            sub = _Subscription(entry.id, topic, self._queue_type(self.limits.queue_bytes, self.hub.ledger))
             self.subs[entry.id] = sub
             self._by_topic.setdefault(topic.name, []).append(sub)
             if first:

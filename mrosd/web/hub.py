@@ -34,6 +34,7 @@ from mrosd.tcpros import Node
 from mrosd.tcpros.subscriber import AnyMsg, RawMessage, Subscriber
 from mrosd.web.access import AccessPolicy
 from mrosd.web.foxglove import SystemState
+from mrosd.web.queue import Ledger
 from mrosd.wire.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header, encode_header
 
 log = logging.getLogger(__name__)
@@ -42,6 +43,8 @@ __all__ = ["GraphListener", "ServiceInfo", "TopicInfo", "TopicSink", "WebHub", "
 
 #: How long a probe waits for a publisher's connection header before the topic stays unadvertised.
 PROBE_TIMEOUT = 5.0
+#: Bytes queued for all clients together (each client also has its own budget, SessionLimits.client_bytes).
+MAX_QUEUED_BYTES = 256 * 1024 * 1024
 #: Seconds before a topic whose probe found no publisher's definition is probed again.
 PROBE_RETRY = 30.0
 #: Probes in flight at once (each is one TCPROS connection to a publisher).
@@ -80,6 +83,12 @@ class _ClockSink:
     def backlog(self, topic: str) -> int:
         return 0
 
+    def queued(self) -> int:
+        return 0
+
+    def shed_oldest(self) -> None:
+        pass
+
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         if len(body) != 8:
             return
@@ -100,6 +109,14 @@ class TopicSink(Protocol):
 
     def backlog(self, topic: str) -> int:
         """Bytes of ``topic`` this sink holds, not yet sent."""
+        ...
+
+    def queued(self) -> int:
+        """Bytes this sink holds over all its topics."""
+        ...
+
+    def shed_oldest(self) -> None:
+        """Drop the oldest message of this sink's fullest queue (counted as a drop)."""
         ...
 
 
@@ -164,8 +181,13 @@ class WebHub:
         policy: AccessPolicy | None = None,
         poll_interval: float = 0.5,
         host: str | None = None,
+        max_queued_bytes: int = MAX_QUEUED_BYTES,
     ) -> None:
         self.master_uri = master_uri
+        #: every client queue of every protocol counts its bytes here; beyond max_queued_bytes the fullest
+        #: client sheds its oldest messages (per-client budgets alone let N clients hold N budgets)
+        self.ledger = Ledger()
+        self.max_queued_bytes = max_queued_bytes
         self.policy = policy or AccessPolicy()
         self.poll_interval = poll_interval
         self.node = Node(name, master_uri=master_uri, argv=[], rosout=False, logger_services=False, host=host)
@@ -486,8 +508,19 @@ class WebHub:
                     log.exception("web: a sink of %s failed", topic)
             if behind and entry.sinks:
                 self._set_reading(entry, False)
+            if self.ledger.size > self.max_queued_bytes:
+                self._shed()
 
         return deliver
+
+    def _shed(self) -> None:
+        """Bring the server-wide queued bytes under the bound, oldest messages of the fullest client first."""
+        sinks = {id(s): s for e in self._shared.values() for s in e.sinks}.values()
+        while self.ledger.size > self.max_queued_bytes:
+            fullest = max(sinks, key=lambda s: s.queued(), default=None)
+            if fullest is None or fullest.queued() == 0:
+                return
+            fullest.shed_oldest()
 
     @staticmethod
     def _set_reading(entry: _Shared, reading: bool) -> None:

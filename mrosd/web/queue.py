@@ -12,9 +12,18 @@ from __future__ import annotations
 import collections
 from typing import Any, Generic, TypeVar
 
-__all__ = ["ByteQueue", "trim_to_budget"]
+__all__ = ["ByteQueue", "Ledger", "trim_to_budget"]
 
 T = TypeVar("T")
+
+
+class Ledger:
+    """The bytes held by many queues together (every client's queues of one server), kept up to date by them."""
+
+    __slots__ = ("size",)
+
+    def __init__(self) -> None:
+        self.size = 0
 
 
 class ByteQueue(Generic[T]):
@@ -24,12 +33,14 @@ class ByteQueue(Generic[T]):
     ``dropped`` nobody has reported to the client yet (``take_unreported`` resets it).
     """
 
-    __slots__ = ("_items", "dropped", "dropped_bytes", "max_bytes", "size", "unreported")
+    __slots__ = ("_items", "dropped", "dropped_bytes", "ledger", "max_bytes", "size", "unreported")
 
-    def __init__(self, max_bytes: int) -> None:
+    def __init__(self, max_bytes: int, ledger: Ledger | None = None) -> None:
         if max_bytes < 1:
             raise ValueError(f"max_bytes must be >= 1, got {max_bytes}")
         self.max_bytes = max_bytes
+        #: where the bytes held are also counted (the server-wide total), or None
+        self.ledger = ledger
         self._items: collections.deque[tuple[T, int]] = collections.deque()
         self.size = 0
         self.dropped = 0
@@ -43,6 +54,7 @@ class ByteQueue(Generic[T]):
         """Queue ``item`` (``size`` bytes), dropping the oldest items until it fits; returns how many dropped."""
         items = self._items
         dropped = 0
+        before = self.size
         while items and self.size + size > self.max_bytes:
             _, old = items.popleft()
             self.size -= old
@@ -50,6 +62,8 @@ class ByteQueue(Generic[T]):
             dropped += 1
         items.append((item, size))
         self.size += size
+        if self.ledger is not None:
+            self.ledger.size += self.size - before
         self.dropped += dropped
         self.unreported += dropped
         return dropped
@@ -58,12 +72,16 @@ class ByteQueue(Generic[T]):
         """The oldest item. Raises IndexError when empty."""
         item, size = self._items.popleft()
         self.size -= size
+        if self.ledger is not None:
+            self.ledger.size -= size
         return item
 
     def drop_oldest(self) -> int:
         """Drop the oldest item as ``put`` would (counted); returns its size. Raises IndexError when empty."""
         _, size = self._items.popleft()
         self.size -= size
+        if self.ledger is not None:
+            self.ledger.size -= size
         self.dropped += 1
         self.dropped_bytes += size
         self.unreported += 1
@@ -72,6 +90,8 @@ class ByteQueue(Generic[T]):
     def clear(self) -> None:
         """Forget every item (not counted as dropped: the client asked for it, by unsubscribing)."""
         self._items.clear()
+        if self.ledger is not None:
+            self.ledger.size -= self.size
         self.size = 0
 
     def take_unreported(self) -> int:

@@ -93,6 +93,14 @@ class RosbridgeSession:
         sub = self.subs.get(topic)
         return 0 if sub is None else sub.queue.size
 
+    def queued(self) -> int:
+        return sum(s.queue.size for s in self.subs.values())
+
+    def shed_oldest(self) -> None:
+        fullest = max(self.subs.values(), key=lambda s: s.queue.size, default=None)
+        if fullest is not None and len(fullest.queue):
+            fullest.queue.drop_oldest()
+
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         sub = self.subs.get(topic)
         if sub is None:
@@ -212,7 +220,8 @@ class RosbridgeSession:
 
     async def _release(self) -> None:
         self.hub.listeners.discard(self)
-        for topic in list(self.subs):
+        for topic, sub in list(self.subs.items()):
+            sub.queue.clear()  # gives its bytes back to the hub's ledger
             await self.hub.remove_sink(topic, self)
         self.subs.clear()
         for topic in list(self._published):
@@ -292,7 +301,9 @@ class RosbridgeSession:
         if sub is None:
             if len(self.subs) >= self.limits.max_subscriptions:
                 raise MrosError(f"at most {self.limits.max_subscriptions} subscriptions")
-            sub = _Sub(op.topic, self._topic_class(op.topic, op.type), ByteQueue(self.limits.queue_bytes))
+            sub = _Sub(
+                op.topic, self._topic_class(op.topic, op.type), ByteQueue(self.limits.queue_bytes, self.hub.ledger)
+            )
             self.subs[op.topic] = sub
             try:
                 await self.hub.add_sink(op.topic, self)
@@ -315,6 +326,7 @@ class RosbridgeSession:
             sub.length.pop(key, None)
         if not sub.ids:
             del self.subs[op.topic]
+            sub.queue.clear()
             await self.hub.remove_sink(op.topic, self)
 
     async def _advertise(self, topic: str, msg_type: str) -> Any:

@@ -48,6 +48,7 @@ class WebServer:
         max_frame: int = MAX_CLIENT_FRAME,
         node_host: str | None = None,
         rosbridge_port: int | None = None,
+        max_queued_bytes: int | None = None,
     ) -> None:
         self.policy = policy or AccessPolicy()
         self.policy.check_bind(host)
@@ -57,6 +58,8 @@ class WebServer:
         self.max_clients = max_clients
         self.max_frame = max_frame
         self.hub = WebHub(master_uri, name=node_name, policy=self.policy, host=node_host)
+        if max_queued_bytes is not None:
+            self.hub.max_queued_bytes = max_queued_bytes
         self.sessions: set[FoxgloveSession] = set()
         #: rosbridge v2 port (None: not served); read after start when 0 was asked
         self.rosbridge_port = rosbridge_port

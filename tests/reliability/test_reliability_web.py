@@ -149,3 +149,31 @@ async def test_a_client_joining_a_topic_that_a_stalled_client_paused_gets_messag
                     break
         await live.close()
         await stalled.close()
+
+
+async def test_stalled_clients_together_cost_at_most_the_global_budget(master: Master) -> None:
+    """Per-client budgets alone let N clients hold N x client_bytes: the hub bounds the sum too."""
+    limits = SessionLimits(queue_bytes=4 * MiB, client_bytes=4 * MiB)
+    async with (
+        WebServer(master.uri, port=0, node_host="127.0.0.1", limits=limits, max_queued_bytes=6 * MiB) as server,
+        node("camera", master.uri) as camera,
+        aiohttp.ClientSession() as http,
+    ):
+        pub = await camera.advertise("/image", Image)
+        clients = [await http.ws_connect(server.url, protocols=["foxglove.websocket.v1"]) for _ in range(4)]
+        for ws in clients:
+            ids = await channels_of(ws, {"/image"})
+            await ws.send_str(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": ids["/image"]}]}))
+        await until(lambda: server.hub.sink_count("/image") == 4)
+        await pub.wait_for_subscribers(1, timeout=10)
+        img = Image(height=1000, width=1000, encoding="mono8", step=1000, data=bytes(1000 * 1000))
+        peak = 0
+        for _ in range(40):  # nobody reads
+            await pub.publish(img)
+            await asyncio.sleep(0.01)
+            peak = max(peak, sum(q.queue.size for s in server.sessions for q in s.subs.values()))
+        assert peak <= 6 * MiB + 4 * 1_000_100, peak
+        for ws in clients:
+            await ws.close()
+        await until(lambda: not server.sessions)
+        assert server.hub.ledger.size == 0  # every byte counted was given back

@@ -152,6 +152,10 @@ async def test_rosbridge_cbor_and_cbor_raw(master: Master) -> None:
         assert got_b["msg"]["secs"] > 0
         await a.close()
         await b.close()
+        async with asyncio.timeout(10):
+            while server.rosbridge_sessions:  # noqa: ASYNC110 - the server ends the sessions
+                await asyncio.sleep(0.01)
+        assert server.hub.ledger.size == 0
 
 
 async def test_a_rosbridge_client_provides_a_service_to_ros(master: Master) -> None:
