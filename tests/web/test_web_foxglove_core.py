@@ -190,3 +190,22 @@ def test_trim_to_budget_drops_from_the_fullest_queue_and_keeps_the_newest() -> N
     trim_to_budget([a, huge], 50, huge)
     assert len(huge) == 1  # one message larger than the budget still flows
     assert len(a) == 0
+
+
+@given(st.lists(st.tuples(st.sampled_from(["put", "get", "drop", "clear"]), st.integers(0, 1), st.integers(0, 50))))
+def test_a_ledger_always_holds_the_sum_of_its_queues(ops: list[tuple[str, int, int]]) -> None:
+    from mrosd.web.queue import Ledger
+
+    ledger = Ledger()
+    queues: list[ByteQueue[int]] = [ByteQueue(100, ledger), ByteQueue(60, ledger)]
+    for op, which, size in ops:
+        q = queues[which]
+        if op == "put":
+            q.put(size, size)
+        elif op == "get" and len(q):
+            q.get()
+        elif op == "drop" and len(q):
+            q.drop_oldest()
+        elif op == "clear":
+            q.clear()
+        assert ledger.size == sum(x.size for x in queues)
