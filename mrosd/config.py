@@ -32,6 +32,7 @@ __all__ = [
     "LogConfig",
     "MasterConfig",
     "RosoutConfig",
+    "WebConfig",
     "default_ixm_socket",
     "load_config",
     "parse_config",
@@ -98,6 +99,34 @@ class RosoutConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     enabled: bool = True
 
 
+class WebConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """``[web]``: browser clients over WebSocket (Foxglove protocol; ``mrosd.web``, docs/web.md).
+
+    Loopback only unless a ``token`` is set: a WebSocket reachable from the network can publish on the robot.
+    """
+
+    enabled: bool = True
+    #: bind address; anything but loopback needs ``token``
+    host: str = "127.0.0.1"
+    #: Foxglove WebSocket port (0: any free port)
+    foxglove_port: int = 8765
+    #: rosbridge v2 port for roslibjs/roslibpy (0: any free port; -1: not served)
+    rosbridge_port: int = 9090
+    #: clients pass it as ``?token=`` in the URL or ``Authorization: Bearer``; empty: none (loopback only)
+    token: str = ""
+    #: shell-style globs of the topics, services and parameters clients may use
+    topics: list[str] = msgspec.field(default_factory=lambda: ["*"])
+    services: list[str] = msgspec.field(default_factory=lambda: ["*"])
+    params: list[str] = msgspec.field(default_factory=lambda: ["*"])
+    #: bytes queued per client subscription (drop-oldest beyond)
+    queue_bytes: Count | None = None
+    #: bytes queued per client over all its subscriptions
+    client_bytes: Count | None = None
+    #: bytes queued for all clients together
+    total_bytes: Count | None = None
+    max_clients: Count | None = None
+
+
 class LogConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """``[log]``: the daemon's own log verbosity, and the log files roscore users look for.
 
@@ -120,6 +149,7 @@ class Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     master: MasterConfig = msgspec.field(default_factory=MasterConfig)
     ixm: IxmConfig = msgspec.field(default_factory=IxmConfig)
     rosout: RosoutConfig = msgspec.field(default_factory=RosoutConfig)
+    web: WebConfig = msgspec.field(default_factory=WebConfig)
     log: LogConfig = msgspec.field(default_factory=LogConfig)
     #: the file this came from, or "" for defaults only (not a TOML key).
     source: str = ""
@@ -203,6 +233,20 @@ def _validate(cfg: Config) -> None:
             ipaddress.ip_network(net, strict=False)
         except ValueError as exc:
             raise ConfigError(f"{where}: master.allow[{i}] is not a network: {net!r}") from exc
+    _validate_web(cfg.web, where)
+
+
+def _validate_web(web: WebConfig, where: str) -> None:
+    from mrosd.web.access import is_loopback  # pure; imported here so config stays light
+
+    if not 0 <= web.foxglove_port <= 65535:
+        raise ConfigError(f"{where}: web.foxglove_port must be 0..65535, got {web.foxglove_port}")
+    if not -1 <= web.rosbridge_port <= 65535:
+        raise ConfigError(f"{where}: web.rosbridge_port must be 0..65535 (or -1: off), got {web.rosbridge_port}")
+    if not valid_host(web.host):
+        raise ConfigError(f"{where}: web.host is not an IP address or host name: {web.host!r}")
+    if web.enabled and not web.token and not is_loopback(web.host):
+        raise ConfigError(f"{where}: web.host {web.host!r} is not loopback: set web.token (clients must present it)")
 
 
 def _bool(name: str, value: str) -> bool:
@@ -244,6 +288,24 @@ def apply_environment(cfg: Config, environ: Mapping[str, str]) -> Config:
         cfg.ixm.enabled = _bool("MROSD_IXM", environ["MROSD_IXM"])
     if "MROSD_ROSOUT" in environ:
         cfg.rosout.enabled = _bool("MROSD_ROSOUT", environ["MROSD_ROSOUT"])
+    if "MROSD_WEB" in environ:
+        cfg.web.enabled = _bool("MROSD_WEB", environ["MROSD_WEB"])
+    if "MROSD_WEB_HOST" in environ:
+        cfg.web.host = environ["MROSD_WEB_HOST"]
+    if "MROSD_WEB_PORT" in environ:
+        value = environ["MROSD_WEB_PORT"]
+        try:
+            cfg.web.foxglove_port = int(value)
+        except ValueError as exc:
+            raise ConfigError(f"environment: MROSD_WEB_PORT must be an integer, got {value!r}") from exc
+    if "MROSD_WEB_ROSBRIDGE_PORT" in environ:
+        value = environ["MROSD_WEB_ROSBRIDGE_PORT"]
+        try:
+            cfg.web.rosbridge_port = int(value)
+        except ValueError as exc:
+            raise ConfigError(f"environment: MROSD_WEB_ROSBRIDGE_PORT must be an integer, got {value!r}") from exc
+    if "MROSD_WEB_TOKEN" in environ:
+        cfg.web.token = environ["MROSD_WEB_TOKEN"]
     if "MROSD_LOG_LEVEL" in environ:
         level = environ["MROSD_LOG_LEVEL"].strip().lower()
         if level not in ("debug", "info", "warning", "error"):

@@ -7,7 +7,8 @@ when installed), POSIX signals and the systemd protocol. The parts it composes (
 
 Lifecycle, as systemd sees it (``Type=notify``):
   1. raise the soft descriptor limit to the hard one; start the master and check it answers ``getPid``
-     over XML-RPC (if not: exit 1); then IXM, its topic bridges and rosout, each of which may fail alone:
+     over XML-RPC (if not: exit 1); then IXM, its topic bridges, rosout and web (the Foxglove WebSocket
+     server, loopback unless a token is set), each of which may fail alone:
      one error line naming the part and why, and the daemon runs degraded (``--strict``: exit 1);
   2. send ``READY=1`` with a status line (``running: ...`` or ``degraded: ...``); ping ``WATCHDOG=1`` at
      half ``WATCHDOG_USEC`` while the master still answers its own ``getPid``;
@@ -50,6 +51,7 @@ if TYPE_CHECKING:
     from mrosd.master import Master
     from mrosd.rosout import RosoutAggregator
     from mrosd.tcpros.admission import AdmissionLimits
+    from mrosd.web.server import WebServer
     from mrosd.xmlrpc import XmlRpcClient
 
 log = logging.getLogger("mrosd")
@@ -194,6 +196,7 @@ class Daemon:
         #: this run's log files (``<log dir>/<run_id>/``), None when ``[log] dir = "off"`` or not writable
         self.logs: RunLogs | None = None
         self.run_id = ""
+        self.web: WebServer | None = None
         self.master_uri = ""
         #: each part's share of RLIMIT_NOFILE, given to it as its cap (``mrosd.fdbudget``); set by ``start()``
         self.budgets: FdBudgets | None = None
@@ -223,6 +226,8 @@ class Daemon:
                     await self._optional("ixm-bridge", self._start_bridges)
             if not self.master_only and self.cfg.rosout.enabled:
                 await self._optional("rosout", self._start_rosout)
+            if not self.master_only and self.cfg.web.enabled:
+                await self._optional("web", self._start_web)
         except BaseException:
             await self.aclose()
             raise
@@ -349,6 +354,33 @@ class Daemon:
             max_pending_per_address=max(1, min(128, cap // 4)),
         )
 
+    async def _start_web(self) -> None:
+        from mrosd.web.access import AccessPolicy
+        from mrosd.web.foxglove_server import SessionLimits
+        from mrosd.web.server import WebServer
+
+        web = self.cfg.web
+        policy = AccessPolicy(topics=web.topics, services=web.services, params=web.params, token=web.token)
+        caps = {"queue_bytes": web.queue_bytes, "client_bytes": web.client_bytes}
+        limits = SessionLimits(**{k: v for k, v in caps.items() if v is not None})
+        rosbridge = web.rosbridge_port if web.rosbridge_port >= 0 else None
+        server = WebServer(
+            self.master_uri,
+            host=web.host,
+            port=web.foxglove_port,
+            policy=policy,
+            limits=limits,
+            rosbridge_port=rosbridge,
+            max_queued_bytes=web.total_bytes,
+        )
+        if web.max_clients is not None:
+            server.max_clients = web.max_clients
+        if self.budgets is not None:  # half the web budget for clients' sockets, half for the hub's TCPROS links
+            server.max_clients = max(1, min(server.max_clients, self.budgets.web // 2))
+        await server.start()
+        self.web = server
+        self._parts.append(("web", server))
+
     def status_line(self) -> str:
         """The one-line status for ``systemctl status``: ``running: ...`` or ``degraded: ...; ixm failed: why``."""
         parts = [f"master {self.master_uri}"]
@@ -358,6 +390,10 @@ class Daemon:
             parts.append(f"{len(self.bridge.bridges)} ixm bridge(s)")
         if self.rosout is not None:
             parts.append("rosout")
+        if self.web is not None:
+            parts.append(f"foxglove {self.web.url}")
+            if self.web.rosbridge_port is not None:
+                parts.append(f"rosbridge {self.web.rosbridge_url}")
         line = ", ".join(parts)
         if not self.failed:
             return "running: " + line
@@ -382,7 +418,7 @@ class Daemon:
         """
         rules = load_ixm_rules(cfg.ixm.rules, cfg.source)
         old = self.cfg
-        if (cfg.master, cfg.rosout) != (old.master, old.rosout) or cfg.ixm.socket != old.ixm.socket:
+        if (cfg.master, cfg.rosout, cfg.web) != (old.master, old.rosout, old.web) or cfg.ixm.socket != old.ixm.socket:
             log.warning("SIGHUP: only [ixm.rules] is reloaded; restart mrosd to apply the other changes")
         if cfg.ixm.rules.get("bridges") != old.ixm.rules.get("bridges"):
             log.warning("SIGHUP: [ixm.rules.bridges] changed; restart mrosd to apply it")
@@ -406,6 +442,8 @@ class Daemon:
             await self._optional("ixm-bridge", self._start_bridges)
         if "rosout" in retry:
             await self._optional("rosout", self._start_rosout)
+        if "web" in retry:
+            await self._optional("web", self._start_web)
 
     async def aclose(self, timeout: float = SHUTDOWN_TIMEOUT) -> bool:
         """Close the parts in reverse start order within ``timeout`` seconds in all; True when all closed.
@@ -619,7 +657,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--master-only", action="store_true", help="run only the master and parameter server")
     parser.add_argument(
-        "--strict", action="store_true", help="exit 1 when IXM, a bridge or rosout cannot start (default: run degraded)"
+        "--strict",
+        action="store_true",
+        help="exit 1 when IXM, a bridge, rosout or web cannot start (default: run degraded)",
     )
     parser.add_argument("--port", "-p", type=int, help="master port (overrides the file and environment)")
     parser.add_argument("--log-level", choices=["debug", "info", "warning", "error"], help="log verbosity")

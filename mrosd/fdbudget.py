@@ -31,7 +31,7 @@ class FdBudgets(msgspec.Struct, frozen=True, kw_only=True):
         ixm: the IXM registry's connections and the descriptors of keys it holds.
         tcpros: inbound TCPROS connections of the nodes inside the daemon (rosout aggregator, bridges).
         shm: shared-memory topic segments and control sockets of those nodes.
-        web: the web bridge (reserved; no part uses it yet).
+        web: the web part: half for browser clients' sockets (its ``max_clients``), half for its TCPROS links.
     """
 
     limit: int

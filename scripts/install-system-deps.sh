@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Debian packages the tests and benchmarks use: real ROS 1 (ros_comm 1.15) as interop partner and golden
-# reference, a C++ toolchain for the roscpp test node, iproute2 for network-namespace tests.
+# reference, a C++ toolchain for the roscpp test node, iproute2 for network-namespace tests, node and
+# chromium for the browser-side clients of mrosd.web (their npm packages come from tests/web/package-lock.json).
 # mrosd itself needs none of these.
 set -euo pipefail
 SUDO=""
@@ -14,4 +15,7 @@ $SUDO apt-get install -y -q \
     ros-std-msgs ros-geometry-msgs ros-sensor-msgs ros-rosgraph-msgs ros-actionlib-msgs ros-diagnostic-msgs \
     ros-nav-msgs ros-shape-msgs ros-stereo-msgs ros-trajectory-msgs ros-visualization-msgs ros-tf2-msgs \
     ros-map-msgs ros-std-srvs python3-std-srvs \
-    g++ cmake pkg-config iproute2 procps
+    g++ cmake pkg-config iproute2 procps \
+    nodejs npm chromium
+# The real WebSocket clients the tests drive (@foxglove/ws-protocol, ...), exactly as locked.
+npm ci --prefix "$(dirname "$0")/../tests/web" --no-audit --no-fund

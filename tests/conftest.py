@@ -11,6 +11,11 @@ import pytest
 
 from tests.rosenv import Processes, start_rosmaster
 
+# Every mrosd daemon a test starts (and that inherits this environment) serves its web part on a free port:
+# tests run in parallel, and the default 8765 may belong to a daemon the developer runs.
+os.environ.setdefault("MROSD_WEB_PORT", "0")
+os.environ.setdefault("MROSD_WEB_ROSBRIDGE_PORT", "0")
+
 
 @pytest.fixture(autouse=True, scope="session")
 def _log_files_in_a_temporary_directory(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:

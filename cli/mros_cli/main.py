@@ -38,6 +38,7 @@ SUBCOMMANDS = {
     "daemon": "mros_cli.daemon",
     "bag": "mros_cli.bag",
     "graph": "mros_cli.graph",
+    "bridge": "mros_cli.bridge",
 }
 
 EXIT_OK = 0

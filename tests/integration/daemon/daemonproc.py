@@ -30,6 +30,8 @@ def daemon_env(tmp: Path, notify: str = "", **extra: str) -> dict[str, str]:
         ROS_HOSTNAME="127.0.0.1",
         ROS_LOG_DIR=str(tmp / "ros_log"),
         PYTHONUNBUFFERED="1",
+        MROSD_WEB_PORT="0",  # the web part on free ports: parallel daemons must not fight over 8765 and 9090
+        MROSD_WEB_ROSBRIDGE_PORT="0",
     )
     if notify:
         env["NOTIFY_SOCKET"] = notify

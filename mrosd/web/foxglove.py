@@ -1,0 +1,370 @@
+"""The Foxglove WebSocket protocol (``foxglove.websocket.v1``) as pure functions over text and bytes.
+
+No sockets here (the aiohttp shell is ``mrosd.web.foxglove_server``): client text frames decode into
+typed ops, client binary frames into ``ClientMessageData`` / ``ServiceCallRequest``, and every server
+message has an encoder. Everything a client sends is untrusted: sizes are checked against the bytes that
+actually arrived, ids are bounded to uint32, lists are bounded, and every refusal is a ``ProtocolRefusal``
+whose text goes back to the client in a status message (the connection stays up).
+
+Binary layouts (little-endian), as the protocol specification defines them:
+  server: 1 messageData   op u8, subscriptionId u32, receiptTimestamp u64 (ns), payload
+          2 time          op u8, timestamp u64 (ns)
+          3 serviceCallResponse  op u8, serviceId u32, callId u32, encodingLength u32, encoding, payload
+  client: 1 messageData   op u8, channelId u32, payload
+          2 serviceCallRequest   op u8, serviceId u32, callId u32, encodingLength u32, encoding, payload
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterable, Sequence
+from typing import Annotated, Any, Final, Literal
+
+import msgspec
+
+from mrosd.errors import RemoteProtocolError
+
+__all__ = [
+    "SUBPROTOCOLS",
+    "Channel",
+    "ClientAdvertise",
+    "ClientChannel",
+    "ClientMessageData",
+    "ClientOp",
+    "ClientUnadvertise",
+    "FetchAsset",
+    "GetParameters",
+    "Parameter",
+    "ProtocolRefusal",
+    "ServiceCallRequest",
+    "SetParameters",
+    "Subscribe",
+    "SubscribeConnectionGraph",
+    "SubscribeParameterUpdates",
+    "Unsubscribe",
+    "UnsubscribeConnectionGraph",
+    "UnsubscribeParameterUpdates",
+    "choose_subprotocol",
+    "decode_client_binary",
+    "decode_client_text",
+    "encode_json",
+    "message_data",
+    "message_data_prefix",
+    "service_call_response",
+    "time_message",
+]
+
+#: Subprotocols we speak; the reply names the one the client offered (Foxglove's SDK offers the second).
+SUBPROTOCOLS: Final = ("foxglove.websocket.v1", "foxglove.sdk.v1")
+
+STATUS_INFO: Final = 0
+STATUS_WARNING: Final = 1
+STATUS_ERROR: Final = 2
+
+OP_MESSAGE_DATA: Final = 1
+OP_TIME: Final = 2
+OP_SERVICE_CALL_RESPONSE: Final = 3
+CLIENT_OP_MESSAGE_DATA: Final = 1
+CLIENT_OP_SERVICE_CALL_REQUEST: Final = 2
+
+#: Most entries one client op may list (subscriptions, channels, parameter names): a request for more is
+#: refused whole, so one frame cannot make the daemon allocate per-entry state without bound.
+MAX_LIST: Final = 4096
+#: Longest encoding name in a service call request (real ones are "ros1", "cdr", "json").
+MAX_ENCODING: Final = 64
+
+U32 = Annotated[int, msgspec.Meta(ge=0, le=0xFFFFFFFF)]
+Name = Annotated[str, msgspec.Meta(max_length=4096)]
+
+_MESSAGE_DATA = struct.Struct("<BIQ")
+_TIME = struct.Struct("<BQ")
+_CALL = struct.Struct("<BIII")
+_CLIENT_DATA = struct.Struct("<BI")
+
+
+class ProtocolRefusal(RemoteProtocolError):
+    """A client frame we refuse; the text goes back in a status message and the connection stays up."""
+
+
+def choose_subprotocol(offered: Iterable[str]) -> str | None:
+    """The first subprotocol the client offered that we speak (its spelling kept), or None."""
+    for proto in offered:
+        if proto.strip() in SUBPROTOCOLS:
+            return proto.strip()
+    return None
+
+
+# --- client ops (JSON text frames) ------------------------------------------------------------------
+
+
+class _Op(msgspec.Struct, tag_field="op", frozen=True):
+    pass
+
+
+class Subscription(msgspec.Struct, frozen=True):
+    id: U32
+    channelId: U32
+
+
+class Subscribe(_Op, tag="subscribe", frozen=True):
+    subscriptions: Annotated[list[Subscription], msgspec.Meta(max_length=MAX_LIST)]
+
+
+class Unsubscribe(_Op, tag="unsubscribe", frozen=True):
+    subscriptionIds: Annotated[list[U32], msgspec.Meta(max_length=MAX_LIST)]
+
+
+class ClientChannel(msgspec.Struct, frozen=True):
+    id: U32
+    topic: Name
+    encoding: Name
+    schemaName: Name
+    schema: str | None = None
+    schemaEncoding: str | None = None
+
+
+class ClientAdvertise(_Op, tag="advertise", frozen=True):
+    channels: Annotated[list[ClientChannel], msgspec.Meta(max_length=MAX_LIST)]
+
+
+class ClientUnadvertise(_Op, tag="unadvertise", frozen=True):
+    channelIds: Annotated[list[U32], msgspec.Meta(max_length=MAX_LIST)]
+
+
+class Parameter(msgspec.Struct, frozen=True, omit_defaults=True):
+    name: Name
+    value: Any = None
+    type: Literal["byte_array", "float64", "float64_array"] | None = None
+
+
+class GetParameters(_Op, tag="getParameters", frozen=True):
+    parameterNames: Annotated[list[Name], msgspec.Meta(max_length=MAX_LIST)]
+    id: str | None = None
+
+
+class SetParameters(_Op, tag="setParameters", frozen=True):
+    parameters: Annotated[list[Parameter], msgspec.Meta(max_length=MAX_LIST)]
+    id: str | None = None
+
+
+class SubscribeParameterUpdates(_Op, tag="subscribeParameterUpdates", frozen=True):
+    parameterNames: Annotated[list[Name], msgspec.Meta(max_length=MAX_LIST)]
+
+
+class UnsubscribeParameterUpdates(_Op, tag="unsubscribeParameterUpdates", frozen=True):
+    parameterNames: Annotated[list[Name], msgspec.Meta(max_length=MAX_LIST)]
+
+
+class SubscribeConnectionGraph(_Op, tag="subscribeConnectionGraph", frozen=True):
+    pass
+
+
+class UnsubscribeConnectionGraph(_Op, tag="unsubscribeConnectionGraph", frozen=True):
+    pass
+
+
+class FetchAsset(_Op, tag="fetchAsset", frozen=True):
+    uri: Name
+    requestId: U32
+
+
+ClientOp = (
+    Subscribe
+    | Unsubscribe
+    | ClientAdvertise
+    | ClientUnadvertise
+    | GetParameters
+    | SetParameters
+    | SubscribeParameterUpdates
+    | UnsubscribeParameterUpdates
+    | SubscribeConnectionGraph
+    | UnsubscribeConnectionGraph
+    | FetchAsset
+)
+
+_OP_NAMES = frozenset(
+    {
+        "subscribe",
+        "unsubscribe",
+        "advertise",
+        "unadvertise",
+        "getParameters",
+        "setParameters",
+        "subscribeParameterUpdates",
+        "unsubscribeParameterUpdates",
+        "subscribeConnectionGraph",
+        "unsubscribeConnectionGraph",
+        "fetchAsset",
+    }
+)
+_op_decoder: msgspec.json.Decoder[ClientOp] = msgspec.json.Decoder(ClientOp)  # type: ignore[arg-type]
+
+
+class _OpOnly(msgspec.Struct):
+    op: Any = None
+
+
+_op_peek = msgspec.json.Decoder(_OpOnly)
+
+
+def decode_client_text(data: str | bytes) -> ClientOp:
+    """One client JSON op.
+
+    Raises:
+        ProtocolRefusal: not JSON, an unknown op, or fields of the wrong shape (the message says which).
+    """
+    try:
+        return _op_decoder.decode(data)
+    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+        try:
+            op = _op_peek.decode(data).op
+        except (msgspec.DecodeError, msgspec.ValidationError):
+            raise ProtocolRefusal(f"not a JSON object: {exc}") from None
+        if not isinstance(op, str) or op not in _OP_NAMES:
+            raise ProtocolRefusal(f"unknown op {op!r:.80}") from None
+        raise ProtocolRefusal(f"malformed {op}: {exc}") from None
+
+
+# --- client binary frames ---------------------------------------------------------------------------
+
+
+class ClientMessageData(msgspec.Struct, frozen=True):
+    """A message a client publishes on one of the channels it advertised; ``data`` is a view of the frame."""
+
+    channel_id: int
+    data: memoryview
+
+
+class ServiceCallRequest(msgspec.Struct, frozen=True):
+    service_id: int
+    call_id: int
+    encoding: str
+    data: memoryview
+
+
+def decode_client_binary(frame: bytes | bytearray | memoryview) -> ClientMessageData | ServiceCallRequest:
+    """One client binary frame (views into ``frame``, no copy of the payload).
+
+    Raises:
+        ProtocolRefusal: empty, unknown opcode, truncated, or an encoding length beyond the frame.
+    """
+    view = memoryview(frame).cast("B") if not isinstance(frame, memoryview) else frame.cast("B")
+    if not view:
+        raise ProtocolRefusal("empty binary message")
+    op = view[0]
+    if op == CLIENT_OP_MESSAGE_DATA:
+        if len(view) < _CLIENT_DATA.size:
+            raise ProtocolRefusal(f"truncated messageData ({len(view)} bytes)")
+        _, channel = _CLIENT_DATA.unpack_from(view)
+        return ClientMessageData(channel, view[_CLIENT_DATA.size :])
+    if op == CLIENT_OP_SERVICE_CALL_REQUEST:
+        if len(view) < _CALL.size:
+            raise ProtocolRefusal(f"truncated serviceCallRequest ({len(view)} bytes)")
+        _, service, call, enc_len = _CALL.unpack_from(view)
+        start = _CALL.size
+        if enc_len > MAX_ENCODING or start + enc_len > len(view):
+            raise ProtocolRefusal(f"serviceCallRequest encoding length {enc_len} exceeds the frame or limit")
+        try:
+            encoding = bytes(view[start : start + enc_len]).decode("utf-8")
+        except UnicodeDecodeError:
+            raise ProtocolRefusal("serviceCallRequest encoding is not UTF-8") from None
+        return ServiceCallRequest(service, call, encoding, view[start + enc_len :])
+    raise ProtocolRefusal(f"unknown binary opcode {op}")
+
+
+# --- server messages --------------------------------------------------------------------------------
+
+
+class Channel(msgspec.Struct, frozen=True):
+    """One advertised topic: ``schema`` is the full TCPROS message_definition, encoding ``ros1``."""
+
+    id: int
+    topic: str
+    encoding: str
+    schemaName: str
+    schema: str
+    schemaEncoding: str = "ros1msg"
+
+
+_json = msgspec.json.Encoder()
+
+
+def encode_json(op: str, **fields: Any) -> bytes:
+    """A server JSON message ``{"op": op, **fields}`` (None fields are left out)."""
+    return _json.encode({"op": op, **{k: v for k, v in fields.items() if v is not None}})
+
+
+def server_info(
+    name: str, capabilities: Sequence[str], *, session_id: str, metadata: dict[str, str] | None = None
+) -> bytes:
+    return encode_json(
+        "serverInfo",
+        name=name,
+        capabilities=list(capabilities),
+        supportedEncodings=["ros1"],
+        metadata=metadata or {},
+        sessionId=session_id,
+    )
+
+
+def status(level: int, message: str, status_id: str | None = None) -> bytes:
+    return encode_json("status", level=level, message=message, id=status_id)
+
+
+def message_data_prefix(subscription_id: int, timestamp_ns: int) -> bytes:
+    """The 13 bytes before a messageData payload."""
+    return _MESSAGE_DATA.pack(OP_MESSAGE_DATA, subscription_id, timestamp_ns)
+
+
+def message_data(subscription_id: int, timestamp_ns: int, payload: bytes | bytearray | memoryview) -> bytes:
+    """A whole messageData frame: the prefix and the payload exactly as received from TCPROS."""
+    return _MESSAGE_DATA.pack(OP_MESSAGE_DATA, subscription_id, timestamp_ns) + payload
+
+
+def time_message(timestamp_ns: int) -> bytes:
+    return _TIME.pack(OP_TIME, timestamp_ns)
+
+
+def service_call_response(
+    service_id: int, call_id: int, encoding: str, payload: bytes | bytearray | memoryview
+) -> bytes:
+    enc = encoding.encode()
+    return _CALL.pack(OP_SERVICE_CALL_RESPONSE, service_id, call_id, len(enc)) + enc + payload
+
+
+#: ``(publishers, subscribers, services)`` as getSystemState gives them: ``{name: [node, ...]}`` each.
+SystemState = tuple[dict[str, list[str]], dict[str, list[str]], dict[str, list[str]]]
+EMPTY_STATE: SystemState = ({}, {}, {})
+
+
+def connection_graph_update(old: SystemState, new: SystemState) -> bytes | None:
+    """The ``connectionGraphUpdate`` that turns ``old`` into ``new`` (None when nothing changed).
+
+    Entries are sent whole for every topic or service whose node list changed; topics that lost their last
+    publisher and subscriber, and services that vanished, are listed as removed.
+    """
+    (old_pubs, old_subs, old_srvs), (pubs, subs, srvs) = old, new
+    gone_topics = sorted((set(old_pubs) | set(old_subs)) - (set(pubs) | set(subs)))
+    gone_services = sorted(set(old_srvs) - set(srvs))
+    kept = (set(old_pubs) | set(old_subs) | set(pubs) | set(subs)) - set(gone_topics)
+    published = [
+        {"name": n, "publisherIds": sorted(pubs.get(n, []))}
+        for n in sorted(kept)
+        if sorted(old_pubs.get(n, [])) != sorted(pubs.get(n, []))
+    ]
+    subscribed = [
+        {"name": n, "subscriberIds": sorted(subs.get(n, []))}
+        for n in sorted(kept)
+        if sorted(old_subs.get(n, [])) != sorted(subs.get(n, []))
+    ]
+    services = [{"name": n, "providerIds": sorted(ids)} for n, ids in sorted(srvs.items()) if old_srvs.get(n) != ids]
+    if not (published or subscribed or services or gone_topics or gone_services):
+        return None
+    return encode_json(
+        "connectionGraphUpdate",
+        publishedTopics=published,
+        subscribedTopics=subscribed,
+        advertisedServices=services,
+        removedTopics=gone_topics,
+        removedServices=gone_services,
+    )

@@ -1,0 +1,543 @@
+"""The Foxglove WebSocket shell: one ``FoxgloveSession`` per aiohttp WebSocket, over one shared ``WebHub``.
+
+Two tasks per client. The reader decodes each frame with ``mrosd.web.foxglove`` and acts on the hub; a
+refused frame is answered with a status message and costs nothing more. The sender drains, in this order,
+control messages (JSON and service responses, bounded in bytes: a client that lets them pile up past
+``CONTROL_MAX_BYTES`` is disconnected) and then the subscriptions' byte-bounded drop-oldest queues, one
+message per subscription per round so that a fast topic cannot starve a slow one. Message bodies are the
+hub's raw TCPROS bodies, held by reference until sent; the only copy is the frame aiohttp writes.
+
+A stalled client blocks only its own sender (in aiohttp's drain); its queues keep dropping their oldest
+messages, counted and reported once per ``REPORT_PERIOD`` as a warning status. Disconnecting releases
+every subscription, publisher and parameter watch the client held.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import collections
+import contextlib
+import logging
+import uuid
+from dataclasses import dataclass
+from typing import Any
+
+from aiohttp import WSMsgType, web
+
+from mrosd.errors import MrosError
+from mrosd.master.client import GraphSnapshot
+from mrosd.web import foxglove as fg
+from mrosd.web.hub import PAUSE_BYTES, ServiceInfo, TopicInfo, WebHub
+from mrosd.web.queue import ByteQueue, trim_to_budget
+
+log = logging.getLogger(__name__)
+
+__all__ = ["FoxgloveSession", "SessionLimits"]
+
+#: Seconds between two drop reports of one client.
+REPORT_PERIOD = 1.0
+
+
+@dataclass(frozen=True, slots=True)
+class SessionLimits:
+    """What one client may make the daemon hold."""
+
+    #: bytes queued per subscription (drop-oldest beyond; one larger message still passes when empty)
+    queue_bytes: int = 16 * 1024 * 1024
+    #: bytes queued for one client over all its subscriptions: without it a client subscribed to N topics
+    #: could hold N x queue_bytes; beyond it the oldest message of its fullest queue goes first
+    client_bytes: int = 64 * 1024 * 1024
+    #: bytes of control messages waiting for a client that does not read; beyond it the client is dropped
+    control_bytes: int = 4 * 1024 * 1024
+    #: subscriptions, client channels and parameter watches per client
+    max_subscriptions: int = 1024
+    #: service calls in flight per client, and how long each may take
+    max_calls: int = 16
+    call_timeout: float = 10.0
+
+
+@dataclass(slots=True)
+class _Subscription:
+    id: int
+    topic: TopicInfo
+    queue: Any  # ByteQueue[tuple[int, bytes | bytearray]]
+
+
+@dataclass(slots=True)
+class _ClientChannel:
+    topic: str
+    msg_class: Any
+    publisher: Any
+
+
+class FoxgloveSession:
+    """One connected Foxglove client."""
+
+    CAPABILITIES = ("clientPublish", "parameters", "parametersSubscribe", "services", "connectionGraph")
+
+    def __init__(self, hub: WebHub, ws: web.WebSocketResponse, limits: SessionLimits, peer: str = "?") -> None:
+        self._queue_type = ByteQueue
+        self.hub = hub
+        self.ws = ws
+        self.limits = limits
+        self.peer = peer
+        self.subs: dict[int, _Subscription] = {}
+        self._by_topic: dict[str, list[_Subscription]] = {}
+        self._channels: dict[int, _ClientChannel] = {}
+        self._params: set[str] = set()
+        self._graph_state: fg.SystemState | None = None
+        self._control: collections.deque[tuple[bool, bytes]] = collections.deque()
+        self._control_bytes = 0
+        self._wake = asyncio.Event()
+        self._rr = 0
+        self._closed = False
+        self._calls: set[asyncio.Task[None]] = set()
+        self.sent_messages = 0
+        #: the latest /clock time not yet sent (a 1 kHz clock costs the client the rate it reads at)
+        self._time_ns: int | None = None
+        self._close_task: asyncio.Task[bool] | None = None
+
+    # --- hub callbacks (never block) -------------------------------------------------------------
+
+    def backlog(self, topic: str) -> int:
+        return sum(s.queue.size for s in self._by_topic.get(topic, ()))
+
+    def queued(self) -> int:
+        return sum(s.queue.size for s in self.subs.values())
+
+    def shed_oldest(self) -> None:
+        fullest = max(self.subs.values(), key=lambda s: s.queue.size, default=None)
+        if fullest is not None and len(fullest.queue):
+            fullest.queue.drop_oldest()
+
+    def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
+        subs = self._by_topic.get(topic, ())
+        for sub in subs:
+            sub.queue.put((receipt_ns, body), len(body))
+        if subs:
+            trim_to_budget([s.queue for s in self.subs.values()], self.limits.client_bytes, subs[-1].queue)
+            self._wake.set()
+
+    def topics_changed(self, added: list[TopicInfo], removed: list[TopicInfo]) -> None:
+        if removed:
+            ids = {t.id for t in removed}
+            for sub in [s for s in self.subs.values() if s.topic.id in ids]:
+                if self._forget(sub):
+                    asyncio.get_running_loop().create_task(self._drop_sink(sub.topic.name))
+            self._send_json(fg.encode_json("unadvertise", channelIds=sorted(ids)))
+        if added:
+            self._send_json(fg.encode_json("advertise", channels=[_channel(t) for t in added]))
+
+    def graph_changed(self, graph: GraphSnapshot) -> None:
+        pass
+
+    def services_changed(self, added: list[ServiceInfo], removed: list[ServiceInfo]) -> None:
+        if removed:
+            self._send_json(fg.encode_json("unadvertiseServices", serviceIds=[s.id for s in removed]))
+        if added:
+            self._send_json(fg.encode_json("advertiseServices", services=[_service(s) for s in added]))
+
+    def _time(self, now_ns: int) -> None:
+        self._time_ns = now_ns
+        self._wake.set()
+
+    def _state_changed(self, state: fg.SystemState) -> None:
+        if self._graph_state is None:
+            return
+        update = fg.connection_graph_update(self._graph_state, state)
+        self._graph_state = state
+        if update is not None:
+            self._send_json(update)
+
+    # --- sending ---------------------------------------------------------------------------------
+
+    def _send_json(self, data: bytes) -> None:
+        self._queue_control(True, data)
+
+    def _queue_control(self, text: bool, data: bytes) -> None:
+        if self._closed:
+            return
+        self._control.append((text, data))
+        self._control_bytes += len(data)
+        if self._control_bytes > self.limits.control_bytes:
+            log.warning("web: %s does not read its control messages; disconnecting it", self.peer)
+            self._closed = True
+            self._close_task = asyncio.get_running_loop().create_task(
+                self.ws.close(code=1008, message=b"client too slow")
+            )
+        self._wake.set()
+
+    def status(self, level: int, message: str, status_id: str | None = None) -> None:
+        self._send_json(fg.status(level, message, status_id))
+
+    def _next_message(self) -> bytes | None:
+        subs = list(self.subs.values())
+        n = len(subs)
+        for i in range(n):
+            sub = subs[(self._rr + i) % n]
+            if len(sub.queue):
+                self._rr = (self._rr + i + 1) % n
+                receipt_ns, body = sub.queue.get()
+                if self.backlog(sub.topic.name) < PAUSE_BYTES:
+                    self.hub.resume(sub.topic.name)
+                return fg.message_data(sub.id, receipt_ns, body)
+        return None
+
+    async def _sender(self) -> None:
+        ws = self.ws
+        while not self._closed:
+            await self._wake.wait()
+            self._wake.clear()
+            while not self._closed:
+                if self._time_ns is not None:
+                    stamp, self._time_ns = self._time_ns, None
+                    await ws.send_bytes(fg.time_message(stamp))
+                    continue
+                if self._control:
+                    text, data = self._control.popleft()
+                    self._control_bytes -= len(data)
+                    if text:
+                        await ws.send_str(data.decode())
+                    else:
+                        await ws.send_bytes(data)
+                    continue
+                frame = self._next_message()
+                if frame is None:
+                    break
+                await ws.send_bytes(frame)
+                self.sent_messages += 1
+
+    async def _reporter(self) -> None:
+        while not self._closed:
+            await asyncio.sleep(REPORT_PERIOD)
+            for sub in list(self.subs.values()):
+                dropped = sub.queue.take_unreported()
+                if dropped:
+                    self.status(
+                        fg.STATUS_WARNING,
+                        f"dropped {dropped} message(s) of {sub.topic.name} (subscription {sub.id}): this client "
+                        f"reads slower than the topic is published; {sub.queue.dropped} dropped in all",
+                        f"dropped:{sub.id}",
+                    )
+
+    # --- the connection --------------------------------------------------------------------------
+
+    async def run(self) -> None:
+        """Serve the client until it disconnects; always releases what it held."""
+        hub = self.hub
+        capabilities = [*self.CAPABILITIES, "time"] if hub.sim_time else list(self.CAPABILITIES)
+        self._send_json(fg.server_info("mrosd", capabilities, session_id=uuid.uuid4().hex, metadata={"ros": "1"}))
+        if hub.sim_time:
+            hub.time_listeners.add(self._time)
+        self._send_json(fg.encode_json("advertise", channels=[_channel(t) for t in hub.topics.values()]))
+        if hub.services:
+            self._send_json(fg.encode_json("advertiseServices", services=[_service(s) for s in hub.services.values()]))
+        hub.listeners.add(self)
+        tasks = [
+            asyncio.get_running_loop().create_task(self._sender(), name=f"foxglove send {self.peer}"),
+            asyncio.get_running_loop().create_task(self._reporter(), name=f"foxglove report {self.peer}"),
+        ]
+        try:
+            async for msg in self.ws:
+                if msg.type == WSMsgType.TEXT:
+                    await self._on_text(msg.data)
+                elif msg.type == WSMsgType.BINARY:
+                    await self._on_binary(msg.data)
+                elif msg.type == WSMsgType.ERROR:
+                    break
+                if tasks[0].done():
+                    break
+        finally:
+            self._closed = True
+            tasks += self._calls
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            await self._release()
+
+    async def _release(self) -> None:
+        hub = self.hub
+        hub.listeners.discard(self)
+        hub.state_listeners.discard(self._state_changed)
+        hub.time_listeners.discard(self._time)
+        for topic in list(self._by_topic):
+            await hub.remove_sink(topic, self)
+        self._by_topic.clear()
+        for sub in self.subs.values():
+            sub.queue.clear()  # gives its bytes back to the hub's ledger
+        self.subs.clear()
+        for channel in list(self._channels.values()):
+            await hub.release_publisher(channel.topic)
+        self._channels.clear()
+        for name in list(self._params):
+            await hub.unwatch_param(name, self._param_update)
+        self._params.clear()
+
+    # --- client ops ------------------------------------------------------------------------------
+
+    async def _on_text(self, text: str) -> None:
+        try:
+            op = fg.decode_client_text(text)
+        except fg.ProtocolRefusal as exc:
+            self.status(fg.STATUS_ERROR, str(exc))
+            return
+        try:
+            await self._dispatch(op)
+        except MrosError as exc:
+            self.status(fg.STATUS_ERROR, str(exc))
+
+    async def _dispatch(self, op: fg.ClientOp) -> None:
+        if isinstance(op, fg.Subscribe):
+            await self._subscribe(op)
+        elif isinstance(op, fg.Unsubscribe):
+            for sub_id in op.subscriptionIds:
+                sub = self.subs.get(sub_id)
+                if sub is None:
+                    self.status(fg.STATUS_WARNING, f"unsubscribe: no subscription {sub_id}")
+                    continue
+                if self._forget(sub):
+                    await self.hub.remove_sink(sub.topic.name, self)
+        elif isinstance(op, fg.ClientAdvertise):
+            await self._advertise(op)
+        elif isinstance(op, fg.ClientUnadvertise):
+            for ch_id in op.channelIds:
+                channel = self._channels.pop(ch_id, None)
+                if channel is not None:
+                    await self.hub.release_publisher(channel.topic)
+        elif isinstance(op, fg.GetParameters):
+            await self._get_parameters(op.parameterNames, op.id)
+        elif isinstance(op, fg.SetParameters):
+            await self._set_parameters(op)
+        elif isinstance(op, fg.SubscribeParameterUpdates):
+            await self._subscribe_params(op.parameterNames)
+        elif isinstance(op, fg.UnsubscribeParameterUpdates):
+            for name in op.parameterNames:
+                if name in self._params:
+                    self._params.discard(name)
+                    await self.hub.unwatch_param(name, self._param_update)
+        elif isinstance(op, fg.SubscribeConnectionGraph):
+            if self._graph_state is None:
+                self._graph_state = fg.EMPTY_STATE
+                self.hub.state_listeners.add(self._state_changed)
+                self.hub.refresh_state()
+        elif isinstance(op, fg.UnsubscribeConnectionGraph):
+            self._graph_state = None
+            self.hub.state_listeners.discard(self._state_changed)
+        elif isinstance(op, fg.FetchAsset):
+            self.status(fg.STATUS_ERROR, "fetchAsset is not supported (no assets capability)")
+
+    async def _subscribe(self, op: fg.Subscribe) -> None:
+        by_id = {t.id: t for t in self.hub.topics.values()}
+        for entry in op.subscriptions:
+            if entry.id in self.subs:
+                self.status(fg.STATUS_ERROR, f"subscribe: subscription id {entry.id} is already in use")
+                continue
+            topic = by_id.get(entry.channelId)
+            if topic is None:
+                self.status(fg.STATUS_ERROR, f"subscribe: no channel {entry.channelId}")
+                continue
+            if len(self.subs) >= self.limits.max_subscriptions:
+                self.status(fg.STATUS_ERROR, f"subscribe: at most {self.limits.max_subscriptions} subscriptions")
+                continue
+            first = topic.name not in self._by_topic
+            sub = _Subscription(entry.id, topic, self._queue_type(self.limits.queue_bytes, self.hub.ledger))
+            self.subs[entry.id] = sub
+            self._by_topic.setdefault(topic.name, []).append(sub)
+            if first:
+                try:
+                    await self.hub.add_sink(topic.name, self)
+                except MrosError as exc:
+                    self._forget(sub)  # the hub holds nothing for us: no sink to release
+                    self.status(fg.STATUS_ERROR, f"subscribe {topic.name}: {exc}")
+
+    def _forget(self, sub: _Subscription) -> bool:
+        """Drop one subscription; True when it was this client's last one of its topic (release the sink)."""
+        self.subs.pop(sub.id, None)
+        sub.queue.clear()
+        subs = self._by_topic.get(sub.topic.name)
+        if subs is None:
+            return False
+        with contextlib.suppress(ValueError):
+            subs.remove(sub)
+        if subs:
+            self.hub.resume(sub.topic.name)  # what this client holds of the topic just shrank
+            return False
+        del self._by_topic[sub.topic.name]
+        return True
+
+    async def _drop_sink(self, topic: str) -> None:
+        if topic not in self._by_topic:
+            await self.hub.remove_sink(topic, self)
+
+    async def _advertise(self, op: fg.ClientAdvertise) -> None:
+        for ch in op.channels:
+            if ch.id in self._channels:
+                self.status(fg.STATUS_ERROR, f"advertise: client channel {ch.id} is already advertised")
+                continue
+            if ch.encoding != "ros1":
+                self.status(fg.STATUS_ERROR, f"advertise {ch.topic}: encoding {ch.encoding!r} (only ros1)")
+                continue
+            if len(self._channels) >= self.limits.max_subscriptions:
+                self.status(fg.STATUS_ERROR, f"advertise: at most {self.limits.max_subscriptions} channels")
+                continue
+            try:
+                schema = ch.schema if ch.schemaEncoding in (None, "ros1msg") else None
+                msg_class = self.hub.message_class(ch.schemaName, schema)
+                publisher = await self.hub.acquire_publisher(ch.topic, msg_class)
+            except MrosError as exc:
+                self.status(fg.STATUS_ERROR, f"advertise {ch.topic}: {exc}")
+                continue
+            self._channels[ch.id] = _ClientChannel(publisher.topic, msg_class, publisher)
+
+    async def _on_binary(self, data: bytes) -> None:
+        try:
+            msg = fg.decode_client_binary(data)
+        except fg.ProtocolRefusal as exc:
+            self.status(fg.STATUS_ERROR, str(exc))
+            return
+        if isinstance(msg, fg.ServiceCallRequest):
+            self._start_call(msg)
+            return
+        channel = self._channels.get(msg.channel_id)
+        if channel is None:
+            self.status(fg.STATUS_ERROR, f"messageData: client channel {msg.channel_id} is not advertised")
+            return
+        body = bytes(msg.data)
+        try:
+            channel.msg_class.deserialize(body)  # never forward bytes that subscribers cannot decode
+        except MrosError as exc:
+            self.status(fg.STATUS_ERROR, f"messageData on {channel.topic}: not a {channel.msg_class._type}: {exc}")
+            return
+        try:
+            channel.publisher.publish_serialized(body)
+        except MrosError as exc:
+            self.status(fg.STATUS_ERROR, f"messageData on {channel.topic}: {exc}")
+
+    # --- services --------------------------------------------------------------------------------
+
+    def _start_call(self, msg: fg.ServiceCallRequest) -> None:
+        """Run a call in a task of its own (a slow service must not stop this client's other requests)."""
+        if len(self._calls) >= self.limits.max_calls:
+            self._call_failed(msg, f"at most {self.limits.max_calls} service calls in flight per client")
+            return
+        if msg.encoding != "ros1":
+            self._call_failed(msg, f"encoding {msg.encoding!r} (only ros1)")
+            return
+        info = next((s for s in self.hub.services.values() if s.id == msg.service_id), None)
+        if info is None:
+            self._call_failed(msg, f"no service {msg.service_id}")
+            return
+        task = asyncio.get_running_loop().create_task(self._call(msg, info.name, bytes(msg.data)))
+        self._calls.add(task)
+        task.add_done_callback(self._calls.discard)
+
+    async def _call(self, msg: fg.ServiceCallRequest, name: str, request: bytes) -> None:
+        try:
+            response = await self.hub.call_service(name, request, timeout=self.limits.call_timeout)
+        except (MrosError, OSError, TimeoutError) as exc:
+            self._call_failed(msg, f"{name}: {exc or type(exc).__name__}")
+            return
+        self._queue_control(False, fg.service_call_response(msg.service_id, msg.call_id, "ros1", response))
+
+    def _call_failed(self, msg: fg.ServiceCallRequest, why: str) -> None:
+        self._send_json(fg.encode_json("serviceCallFailure", serviceId=msg.service_id, callId=msg.call_id, message=why))
+
+    # --- parameters ------------------------------------------------------------------------------
+
+    async def _param_names(self, names: list[str]) -> list[str]:
+        if names:
+            return names
+        return [n for n in await self.hub.node.master.get_param_names() if self.hub.policy.allows_param(n)]
+
+    async def _get_parameters(self, names: list[str], request_id: str | None) -> None:
+        values = []
+        for name in await self._param_names(names):
+            if not self.hub.policy.allows_param(name):
+                self.status(fg.STATUS_WARNING, f"getParameters: {name} is not allowed by the [web] params allow-list")
+                continue
+            try:
+                value = await self.hub.node.master.get_param(name)
+            except MrosError:
+                continue  # unset: left out, as ROS 2 bridges do
+            values.append(_parameter(name, value))
+        self._send_json(fg.encode_json("parameterValues", parameters=values, id=request_id))
+
+    async def _set_parameters(self, op: fg.SetParameters) -> None:
+        master = self.hub.node.master
+        done = []
+        for param in op.parameters:
+            if not self.hub.policy.allows_param(param.name):
+                self.status(
+                    fg.STATUS_ERROR, f"setParameters: {param.name} is not allowed by the [web] params allow-list"
+                )
+                continue
+            try:
+                if param.value is None:
+                    await master.delete_param(param.name)
+                else:
+                    await master.set_param(param.name, _from_parameter(param))
+            except MrosError as exc:
+                self.status(fg.STATUS_ERROR, f"setParameters {param.name}: {exc}")
+                continue
+            done.append(param.name)
+        if op.id is None:
+            return
+        if done:
+            await self._get_parameters(done, op.id)
+        else:
+            self._send_json(fg.encode_json("parameterValues", parameters=[], id=op.id))
+
+    async def _subscribe_params(self, names: list[str]) -> None:
+        for name in names:
+            if name in self._params:
+                continue
+            if len(self._params) >= self.limits.max_subscriptions:
+                self.status(fg.STATUS_ERROR, f"subscribeParameterUpdates: at most {self.limits.max_subscriptions}")
+                return
+            try:
+                await self.hub.watch_param(name, self._param_update)
+            except MrosError as exc:
+                self.status(fg.STATUS_ERROR, f"subscribeParameterUpdates {name}: {exc}")
+                continue
+            self._params.add(name)
+
+    def _param_update(self, key: str, value: Any) -> None:
+        self._send_json(fg.encode_json("parameterValues", parameters=[_parameter(key, value)]))
+
+
+def _channel(topic: TopicInfo) -> fg.Channel:
+    return fg.Channel(topic.id, topic.name, "ros1", topic.type, topic.definition)
+
+
+def _parameter(name: str, value: Any) -> dict[str, Any]:
+    """A ROS parameter value as a Foxglove parameter (binary values as base64 byte_array)."""
+    if isinstance(value, bytes | bytearray):
+        return {"name": name, "value": base64.b64encode(value).decode(), "type": "byte_array"}
+    if isinstance(value, dict) and value == {}:
+        return {"name": name, "value": {}}
+    return {"name": name, "value": value}
+
+
+def _from_parameter(param: fg.Parameter) -> Any:
+    if param.type == "byte_array" and isinstance(param.value, str):
+        try:
+            return base64.b64decode(param.value, validate=True)
+        except ValueError as exc:
+            raise MrosError(f"{param.name}: byte_array value is not base64: {exc}") from None
+    return param.value
+
+
+def _service(info: ServiceInfo) -> dict[str, Any]:
+    def half(suffix: str, schema: str) -> dict[str, str]:
+        return {"encoding": "ros1", "schemaName": info.type + suffix, "schemaEncoding": "ros1msg", "schema": schema}
+
+    return {
+        "id": info.id,
+        "name": info.name,
+        "type": info.type,
+        "request": half("Request", info.request_definition),
+        "response": half("Response", info.response_definition),
+        "requestSchema": info.request_definition,
+        "responseSchema": info.response_definition,
+    }

@@ -1,0 +1,272 @@
+"""The rosbridge v2 protocol (roslibjs, roslibpy) as pure functions: ops in, JSON out, messages <-> JSON.
+
+No sockets (the shell is ``mrosd.web.rosbridge_server``). Messages are mrosd's msgspec classes, so the JSON
+form is msgspec's: ``uint8[]``/``char[]`` as base64, ``time``/``duration`` as ``{"secs", "nsecs"}``, NaN and
+infinities as ``null`` — what rosbridge sends. A client's message dict may leave fields out (they take
+their defaults, as rosbridge fills them) and is refused with a reason when a value has the wrong type.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+import msgspec
+
+from mrosd.errors import RemoteProtocolError
+
+__all__ = [
+    "Advertise",
+    "AdvertiseService",
+    "Auth",
+    "CallService",
+    "Op",
+    "Publish",
+    "RosbridgeRefusal",
+    "ServiceResponse",
+    "SetLevel",
+    "Subscribe",
+    "Unadvertise",
+    "UnadvertiseService",
+    "Unsubscribe",
+    "decode_op",
+    "encode_message",
+    "message_from_json",
+    "op_json",
+]
+
+Name = Annotated[str, msgspec.Meta(max_length=4096)]
+NonNegative = Annotated[int, msgspec.Meta(ge=0, le=2**31)]
+
+
+class RosbridgeRefusal(RemoteProtocolError):
+    """A client op we refuse; answered with a ``status`` (level error) naming the op's id when it has one."""
+
+
+class _Op(msgspec.Struct, tag_field="op", frozen=True):
+    id: str | None = None
+
+
+class Advertise(_Op, tag="advertise", frozen=True):
+    topic: Name = ""
+    type: Name = ""
+    latch: bool = False
+    queue_size: NonNegative = 100
+
+
+class Unadvertise(_Op, tag="unadvertise", frozen=True):
+    topic: Name = ""
+
+
+class Publish(_Op, tag="publish", frozen=True):
+    topic: Name = ""
+    msg: dict[str, Any] = msgspec.field(default_factory=dict)
+
+
+class Subscribe(_Op, tag="subscribe", frozen=True):
+    topic: Name = ""
+    type: Name | None = None
+    throttle_rate: NonNegative = 0
+    queue_length: NonNegative = 0
+    fragment_size: NonNegative | None = None
+    compression: str = "none"
+
+
+class Unsubscribe(_Op, tag="unsubscribe", frozen=True):
+    topic: Name = ""
+
+
+class CallService(_Op, tag="call_service", frozen=True):
+    service: Name = ""
+    args: dict[str, Any] | list[Any] | None = None
+    type: Name | None = None
+    timeout: float | None = None
+    compression: str = "none"
+
+
+class AdvertiseService(_Op, tag="advertise_service", frozen=True):
+    service: Name = ""
+    type: Name = ""
+
+
+class UnadvertiseService(_Op, tag="unadvertise_service", frozen=True):
+    service: Name = ""
+
+
+class ServiceResponse(_Op, tag="service_response", frozen=True):
+    service: Name = ""
+    values: Any = None
+    result: bool = True
+
+
+class SetLevel(_Op, tag="set_level", frozen=True):
+    level: str = "error"
+
+
+class Auth(_Op, tag="auth", frozen=True):
+    mac: str = ""
+
+
+Op = (
+    Advertise
+    | Unadvertise
+    | Publish
+    | Subscribe
+    | Unsubscribe
+    | CallService
+    | AdvertiseService
+    | UnadvertiseService
+    | ServiceResponse
+    | SetLevel
+    | Auth
+)
+
+_decoder: msgspec.json.Decoder[Op] = msgspec.json.Decoder(Op)  # type: ignore[arg-type]
+_KNOWN = frozenset(
+    {
+        "advertise",
+        "unadvertise",
+        "publish",
+        "subscribe",
+        "unsubscribe",
+        "call_service",
+        "advertise_service",
+        "unadvertise_service",
+        "service_response",
+        "set_level",
+        "auth",
+    }
+)
+#: Ops of the protocol that mrosd does not serve yet (a refusal says so rather than "unknown op").
+NOT_SERVED = frozenset({"fragment", "png"})
+
+
+class _Peek(msgspec.Struct):
+    op: Any = None
+    id: Any = None
+
+
+_peek = msgspec.json.Decoder(_Peek)
+
+
+def decode_op(data: str | bytes) -> Op:
+    """One client op.
+
+    Raises:
+        RosbridgeRefusal: not a JSON object, an unknown op, or fields of the wrong type.
+    """
+    try:
+        return _decoder.decode(data)
+    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+        try:
+            peek = _peek.decode(data)
+        except (msgspec.DecodeError, msgspec.ValidationError):
+            raise RosbridgeRefusal(f"not a JSON object: {exc}") from None
+        if peek.op in NOT_SERVED:
+            raise RosbridgeRefusal(f"op {peek.op} is not served by mrosd yet") from None
+        if not isinstance(peek.op, str) or peek.op not in _KNOWN:
+            raise RosbridgeRefusal(f"unknown op {peek.op!r:.80}") from None
+        raise RosbridgeRefusal(f"malformed {peek.op}: {exc}") from None
+
+
+_encoder = msgspec.json.Encoder()
+
+
+def op_json(op: str, **fields: Any) -> bytes:
+    """A server op as JSON text (None fields left out)."""
+    return _encoder.encode({"op": op, **{k: v for k, v in fields.items() if v is not None}})
+
+
+def encode_message(msg: Any) -> bytes:
+    """A decoded ROS message as the JSON rosbridge sends (base64 byte arrays, {secs, nsecs}, NaN as null)."""
+    return _encoder.encode(msg)
+
+
+def publish_json(topic: str, msg: Any) -> bytes:
+    """``{"op": "publish", "topic": ..., "msg": ...}`` with the message encoded once, in place."""
+    return b'{"op":"publish","topic":' + _encoder.encode(topic) + b',"msg":' + _encoder.encode(msg) + b"}"
+
+
+def fragments(text: str, fragment_size: int, message_id: str) -> list[bytes]:
+    """rosbridge's ``fragment`` ops for one JSON message longer than ``fragment_size`` characters."""
+    size = max(1, fragment_size)
+    parts = [text[i : i + size] for i in range(0, len(text), size)]
+    return [op_json("fragment", id=message_id, data=part, num=i, total=len(parts)) for i, part in enumerate(parts)]
+
+
+def publish_cbor(topic: str, msg: Any) -> bytes:
+    """The publish op as CBOR (``compression: cbor``): byte arrays as CBOR byte strings, floats as floats."""
+    import cbor2  # only clients that ask for CBOR pay for the import
+
+    fields = msgspec.to_builtins(msg, builtin_types=(bytes, bytearray, memoryview))
+    return bytes(cbor2.dumps({"op": "publish", "topic": topic, "msg": _plain_bytes(fields)}))
+
+
+def publish_cbor_raw(topic: str, body: bytes | bytearray, receipt_ns: int) -> bytes:
+    """The publish op of ``compression: cbor-raw``: the TCPROS body untouched, with its receipt time."""
+    import cbor2
+
+    # bytes and bytearray (a received FrameBuffer) are CBOR byte strings as they are: no copy before dumps
+    msg = {"secs": receipt_ns // 1_000_000_000, "nsecs": receipt_ns % 1_000_000_000, "bytes": body}
+    return bytes(cbor2.dumps({"op": "publish", "topic": topic, "msg": msg}))
+
+
+def _plain_bytes(value: Any) -> Any:
+    """memoryview/bytearray fields (views into a received frame) as bytes, which every CBOR encoder takes."""
+    if isinstance(value, dict):
+        return {k: _plain_bytes(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_plain_bytes(v) for v in value]
+    if isinstance(value, memoryview | bytearray):
+        return bytes(value)
+    return value
+
+
+def message_from_json(cls: Any, value: Any) -> Any:
+    """A message of ``cls`` from a client's JSON value (missing fields take their defaults).
+
+    Raises:
+        RosbridgeRefusal: a field has the wrong type or range (the message names it).
+    """
+    if value is None:
+        value = {}
+    try:
+        return msgspec.convert(value, cls, strict=False)
+    except msgspec.ValidationError as exc:
+        raise RosbridgeRefusal(f"not a {getattr(cls, '_type', cls)}: {exc}") from None
+
+
+def typedefs(msg_type: str) -> list[dict[str, Any]]:
+    """rosapi's ``message_details``: the type and every type it nests, with field names, types and lengths.
+
+    Raises:
+        MsgError: the type (or one it uses) is not on the type search path (the message says where it looked).
+    """
+    from mrosd.msg.loader import default_store
+
+    store = default_store()
+    out: list[dict[str, Any]] = []
+    seen: set[str] = set()
+    todo = [msg_type]
+    while todo:
+        name = todo.pop(0)
+        if name in seen:
+            continue
+        seen.add(name)
+        spec = store.msg_spec(name)
+        for f in spec.fields:
+            if "/" in f.base and f.base not in seen:
+                todo.append(f.base)
+        out.append(
+            {
+                "type": spec.full_name,
+                "fieldnames": [f.name for f in spec.fields],
+                "fieldtypes": [f.base for f in spec.fields],
+                "fieldarraylen": [
+                    (-1 if not f.is_array else (f.length if f.length is not None else 0)) for f in spec.fields
+                ],
+                "examples": ["{}" if "/" in f.base else ("[]" if f.is_array else "0") for f in spec.fields],
+                "constnames": [c.name for c in spec.constants],
+                "constvalues": [c.text for c in spec.constants],
+            }
+        )
+    return out

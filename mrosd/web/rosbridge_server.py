@@ -1,0 +1,527 @@
+"""The rosbridge v2 shell: one ``RosbridgeSession`` per aiohttp WebSocket, over the same ``WebHub`` as Foxglove.
+
+Subscriptions take the hub's raw bodies like every other client; a body is decoded only when it is about
+to be sent (a message dropped by the client's queue or its ``throttle_rate`` is never decoded). Several
+``subscribe`` ops for one topic merge as rosbridge merges them: one stream, the smallest throttle_rate,
+the largest queue_length, and it ends with the last ``unsubscribe``. Each subscription's queue is bounded in
+messages (``queue_length``, at least 1) and in bytes (the session limits), drop-oldest. Answers go only to
+what the client asked: ``service_response`` to a ``call_service``, ``status`` to a refused op.
+
+The ``/rosapi/*`` services that roslibjs, roslibpy and Lichtblick call are answered here from the master
+(``rosapi/get_param`` and other relative names resolve to them, as rosbridge's own rosapi node is found).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import itertools
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import msgspec
+from aiohttp import WSMsgType, web
+
+from mrosd.errors import MrosError
+from mrosd.master.client import GraphSnapshot
+from mrosd.msg import get_service_class, load_type
+from mrosd.web import rosbridge as rb
+from mrosd.web.foxglove_server import SessionLimits
+from mrosd.web.hub import PAUSE_BYTES, ServiceInfo, TopicInfo, WebHub
+from mrosd.web.queue import ByteQueue, trim_to_budget
+
+log = logging.getLogger(__name__)
+
+__all__ = ["RosbridgeSession"]
+
+
+@dataclass(slots=True)
+class _Sub:
+    topic: str
+    msg_class: Any
+    queue: ByteQueue[tuple[bytes | bytearray, int]]
+    ids: set[str | None] = field(default_factory=set)
+    throttle: dict[str | None, int] = field(default_factory=dict)
+    length: dict[str | None, int] = field(default_factory=dict)
+    last_sent: float = 0.0
+    #: "none" (JSON text), "cbor" (the message as CBOR), "cbor-raw" (the TCPROS body untouched, in CBOR)
+    compression: str = "none"
+    #: JSON messages longer than this go as rosbridge ``fragment`` ops (None: whole)
+    fragment_size: int | None = None
+    receipts: collections.deque[int] = field(default_factory=collections.deque)
+
+    @property
+    def throttle_s(self) -> float:
+        return min(self.throttle.values(), default=0) / 1000.0
+
+    @property
+    def queue_length(self) -> int:
+        return max(1, max(self.length.values(), default=1))
+
+
+class RosbridgeSession:
+    """One connected rosbridge client."""
+
+    def __init__(
+        self, hub: WebHub, ws: web.WebSocketResponse, limits: SessionLimits, *, token: str = "", peer: str = "?"
+    ) -> None:
+        self.hub = hub
+        self.ws = ws
+        self.limits = limits
+        self.peer = peer
+        self.authed = not token
+        self._token = token
+        self.subs: dict[str, _Sub] = {}
+        self._published: dict[str, Any] = {}  # topic -> publisher
+        self._control: collections.deque[tuple[bool, bytes]] = collections.deque()
+        self._control_bytes = 0
+        self._wake = asyncio.Event()
+        self._closed = False
+        self._calls: set[asyncio.Task[None]] = set()
+        #: services this client provides (advertise_service), and the calls waiting for its service_response
+        self._provided: dict[str, Any] = {}
+        self._pending: dict[str, asyncio.Future[tuple[bool, Any]]] = {}
+        self._request_ids = itertools.count(1)
+        self._close_task: asyncio.Task[bool] | None = None
+
+    # --- hub callbacks ---------------------------------------------------------------------------
+
+    def backlog(self, topic: str) -> int:
+        sub = self.subs.get(topic)
+        return 0 if sub is None else sub.queue.size
+
+    def queued(self) -> int:
+        return sum(s.queue.size for s in self.subs.values())
+
+    def shed_oldest(self) -> None:
+        fullest = max(self.subs.values(), key=lambda s: s.queue.size, default=None)
+        if fullest is not None and len(fullest.queue):
+            fullest.queue.drop_oldest()
+
+    def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
+        sub = self.subs.get(topic)
+        if sub is None:
+            return
+        sub.queue.put((body, receipt_ns), len(body))
+        while len(sub.queue) > sub.queue_length:
+            sub.queue.drop_oldest()
+        trim_to_budget([s.queue for s in self.subs.values()], self.limits.client_bytes, sub.queue)
+        self._wake.set()
+
+    def topics_changed(self, added: list[TopicInfo], removed: list[TopicInfo]) -> None:
+        pass
+
+    def graph_changed(self, graph: GraphSnapshot) -> None:
+        pass
+
+    def services_changed(self, added: list[ServiceInfo], removed: list[ServiceInfo]) -> None:
+        pass
+
+    # --- sending ---------------------------------------------------------------------------------
+
+    def _send(self, data: bytes, binary: bool = False) -> None:
+        if self._closed:
+            return
+        self._control.append((binary, data))
+        self._control_bytes += len(data)
+        if self._control_bytes > self.limits.control_bytes:
+            log.warning("web: rosbridge client %s does not read; disconnecting it", self.peer)
+            self._closed = True
+            self._close_task = asyncio.get_running_loop().create_task(
+                self.ws.close(code=1008, message=b"client too slow")
+            )
+        self._wake.set()
+
+    def status(self, level: str, message: str, op_id: str | None = None) -> None:
+        self._send(rb.op_json("status", level=level, msg=message, id=op_id))
+
+    def _next_message(self) -> tuple[bool, bytes] | None:
+        now = time.monotonic()
+        for sub in list(self.subs.values()):
+            if not len(sub.queue):
+                continue
+            if sub.throttle_s and now - sub.last_sent < sub.throttle_s:
+                continue  # the newest waits for its turn; older ones are dropped by the queue bound
+            if sub.throttle_s:
+                while len(sub.queue) > 1:
+                    sub.queue.drop_oldest()
+            body, receipt_ns = sub.queue.get()
+            sub.last_sent = now
+            if sub.queue.size < PAUSE_BYTES:
+                self.hub.resume(sub.topic)
+            if sub.compression == "cbor-raw":  # passthrough: the body is never decoded
+                return True, rb.publish_cbor_raw(sub.topic, body, receipt_ns)
+            try:
+                msg = sub.msg_class.deserialize(body)
+            except MrosError as exc:
+                log.info("web: %s: a message does not decode: %s", sub.topic, exc)
+                continue
+            if sub.compression == "cbor":
+                return True, rb.publish_cbor(sub.topic, msg)
+            data = rb.publish_json(sub.topic, msg)
+            if sub.fragment_size and len(data) > sub.fragment_size:
+                pieces = rb.fragments(
+                    data.decode(), sub.fragment_size, f"publish:{sub.topic}:{next(self._request_ids)}"
+                )
+                # The rest go first in the next turns, ahead of anything else; they are one message's bytes,
+                # already bounded by the queue, so they do not count against the control budget.
+                self._control.extendleft((False, piece) for piece in reversed(pieces[1:]))
+                return False, pieces[0]
+            return False, data
+        return None
+
+    async def _sender(self) -> None:
+        ws = self.ws
+        while not self._closed:
+            await self._wake.wait()
+            self._wake.clear()
+            while not self._closed:
+                if self._control:
+                    binary, data = self._control.popleft()
+                    self._control_bytes -= len(data)
+                else:
+                    frame = self._next_message()
+                    if frame is None:
+                        break
+                    binary, data = frame
+                if binary:
+                    await ws.send_bytes(data)
+                else:
+                    await ws.send_str(data.decode())
+            throttled = [s for s in self.subs.values() if len(s.queue) and s.throttle_s]
+            if throttled:
+                delay = min(s.throttle_s - (time.monotonic() - s.last_sent) for s in throttled)
+                asyncio.get_running_loop().call_later(max(delay, 0.001), self._wake.set)
+
+    # --- the connection --------------------------------------------------------------------------
+
+    async def run(self) -> None:
+        self.hub.listeners.add(self)
+        sender = asyncio.get_running_loop().create_task(self._sender(), name=f"rosbridge send {self.peer}")
+        try:
+            async for msg in self.ws:
+                if msg.type == WSMsgType.TEXT:
+                    await self._on_text(msg.data)
+                elif msg.type == WSMsgType.BINARY:
+                    self.status("error", "binary (CBOR) ops from clients are not served; send JSON text")
+                elif msg.type == WSMsgType.ERROR:
+                    break
+                if sender.done():
+                    break
+        finally:
+            self._closed = True
+            for task in (sender, *self._calls):
+                task.cancel()
+            await asyncio.gather(sender, *self._calls, return_exceptions=True)
+            await self._release()
+
+    async def _release(self) -> None:
+        self.hub.listeners.discard(self)
+        for topic, sub in list(self.subs.items()):
+            sub.queue.clear()  # gives its bytes back to the hub's ledger
+            await self.hub.remove_sink(topic, self)
+        self.subs.clear()
+        for topic in list(self._published):
+            await self.hub.release_publisher(topic)
+        self._published.clear()
+        for future in self._pending.values():
+            if not future.done():
+                future.set_exception(MrosError("the rosbridge client that provides the service disconnected"))
+        self._pending.clear()
+        for service in list(self._provided.values()):
+            await service.aclose()
+        self._provided.clear()
+
+    async def _on_text(self, text: str) -> None:
+        try:
+            op = rb.decode_op(text)
+        except rb.RosbridgeRefusal as exc:
+            self.status("error", str(exc))
+            return
+        if not self.authed and not isinstance(op, rb.Auth):
+            self.status("error", f"{type(op).__name__.lower()}: authenticate first (op auth with the token)", op.id)
+            return
+        try:
+            await self._dispatch(op)
+        except (MrosError, rb.RosbridgeRefusal) as exc:
+            self.status("error", f"{_op_name(op)}: {exc}", op.id)
+
+    async def _dispatch(self, op: rb.Op) -> None:
+        if isinstance(op, rb.Auth):
+            from mrosd.web.access import AccessPolicy
+
+            self.authed = AccessPolicy(token=self._token).token_ok(op.mac)
+            if not self.authed:
+                self.status("error", "auth: wrong token", op.id)
+        elif isinstance(op, rb.Subscribe):
+            await self._subscribe(op)
+        elif isinstance(op, rb.Unsubscribe):
+            await self._unsubscribe(op)
+        elif isinstance(op, rb.Advertise):
+            await self._advertise(op.topic, op.type)
+        elif isinstance(op, rb.Unadvertise):
+            if self._published.pop(op.topic, None) is not None:
+                await self.hub.release_publisher(op.topic)
+        elif isinstance(op, rb.Publish):
+            await self._publish(op)
+        elif isinstance(op, rb.CallService):
+            self._start_call(op)
+        elif isinstance(op, rb.AdvertiseService):
+            await self._advertise_service(op)
+        elif isinstance(op, rb.UnadvertiseService):
+            service = self._provided.pop(op.service, None)
+            if service is not None:
+                await service.aclose()
+        elif isinstance(op, rb.ServiceResponse):
+            future = self._pending.pop(op.id or "", None)
+            if future is None:
+                self.status("warning", f"service_response: no call {op.id!r} is waiting", op.id)
+            elif not future.done():
+                future.set_result((op.result, op.values))
+        elif isinstance(op, rb.SetLevel):
+            pass  # status levels are not filtered: every refusal is an error the client asked about
+
+    def _topic_class(self, topic: str, msg_type: str | None) -> Any:
+        info = self.hub.topics.get(topic)
+        if info is not None and (not msg_type or msg_type == info.type):
+            return load_type(info.type, info.definition)
+        if not msg_type:
+            raise MrosError(f"{topic}: the type is unknown (no publisher yet): give it with 'type'")
+        return self.hub.message_class(msg_type)
+
+    async def _subscribe(self, op: rb.Subscribe) -> None:
+        compression = op.compression or "none"
+        if compression not in ("none", "cbor", "cbor-raw"):
+            self.status("warning", f"subscribe {op.topic}: compression {compression!r} not served; sending JSON")
+            compression = "none"
+        sub = self.subs.get(op.topic)
+        if sub is None:
+            if len(self.subs) >= self.limits.max_subscriptions:
+                raise MrosError(f"at most {self.limits.max_subscriptions} subscriptions")
+            sub = _Sub(
+                op.topic, self._topic_class(op.topic, op.type), ByteQueue(self.limits.queue_bytes, self.hub.ledger)
+            )
+            self.subs[op.topic] = sub
+            try:
+                await self.hub.add_sink(op.topic, self)
+            except MrosError:
+                del self.subs[op.topic]
+                raise
+        sub.compression = compression
+        sub.fragment_size = op.fragment_size or None
+        sub.ids.add(op.id)
+        sub.throttle[op.id] = op.throttle_rate
+        sub.length[op.id] = op.queue_length
+
+    async def _unsubscribe(self, op: rb.Unsubscribe) -> None:
+        sub = self.subs.get(op.topic)
+        if sub is None:
+            return
+        for key in [op.id] if op.id is not None and op.id in sub.ids else list(sub.ids):
+            sub.ids.discard(key)
+            sub.throttle.pop(key, None)
+            sub.length.pop(key, None)
+        if not sub.ids:
+            del self.subs[op.topic]
+            sub.queue.clear()
+            await self.hub.remove_sink(op.topic, self)
+
+    async def _advertise(self, topic: str, msg_type: str) -> Any:
+        pub = self._published.get(topic)
+        if pub is not None:
+            return pub
+        cls = self._topic_class(topic, msg_type or None)
+        pub = await self.hub.acquire_publisher(topic, cls)
+        self._published[topic] = pub
+        return pub
+
+    async def _publish(self, op: rb.Publish) -> None:
+        pub = self._published.get(op.topic)
+        if pub is None:  # rosbridge advertises on the first publish when the topic's type is known
+            pub = await self._advertise(op.topic, "")
+        msg = rb.message_from_json(pub.msg_class, op.msg)
+        pub.publish_nowait(msg)
+
+    # --- services this client provides ----------------------------------------------------------
+
+    async def _advertise_service(self, op: rb.AdvertiseService) -> None:
+        name = op.service if op.service.startswith("/") else "/" + op.service
+        if name in self._provided:
+            return
+        if not self.hub.policy.allows_service(name):
+            raise MrosError(f"service {name} is not allowed by the [web] services allow-list")
+        if len(self._provided) >= self.limits.max_subscriptions:
+            raise MrosError(f"at most {self.limits.max_subscriptions} services per client")
+        srv_class = get_service_class(op.type)
+
+        async def handler(request: Any) -> Any:
+            call_id = f"service_request:{name}:{next(self._request_ids)}"
+            future: asyncio.Future[tuple[bool, Any]] = asyncio.get_running_loop().create_future()
+            self._pending[call_id] = future
+            args = msgspec.to_builtins(request)
+            self._send(rb.op_json("call_service", id=call_id, service=name, args=args))
+            try:
+                async with asyncio.timeout(self.limits.call_timeout):
+                    ok, values = await future
+            except TimeoutError:
+                raise MrosError(f"the rosbridge client did not answer within {self.limits.call_timeout} s") from None
+            finally:
+                self._pending.pop(call_id, None)
+            if not ok:
+                raise MrosError(str(values))
+            return rb.message_from_json(srv_class._response_class, values)
+
+        self._provided[name] = await self.hub.node.advertise_service(name, srv_class, handler)
+
+    # --- services --------------------------------------------------------------------------------
+
+    def _start_call(self, op: rb.CallService) -> None:
+        if len(self._calls) >= self.limits.max_calls:
+            self._call_done(op, False, f"at most {self.limits.max_calls} service calls in flight")
+            return
+        task = asyncio.get_running_loop().create_task(self._call(op))
+        self._calls.add(task)
+        task.add_done_callback(self._calls.discard)
+
+    def _call_done(self, op: rb.CallService, ok: bool, values: Any) -> None:
+        self._send(rb.op_json("service_response", service=op.service, values=values, result=ok, id=op.id))
+
+    async def _call(self, op: rb.CallService) -> None:
+        name = op.service if op.service.startswith("/") else "/" + op.service
+        try:
+            if name.startswith("/rosapi/"):
+                values = await self._rosapi(name[len("/rosapi/") :], _args(op.args))
+            else:
+                values = await self._call_ros(name, op)
+        except (MrosError, rb.RosbridgeRefusal, OSError, TimeoutError) as exc:
+            self._call_done(op, False, str(exc) or type(exc).__name__)
+            return
+        self._call_done(op, True, values)
+
+    async def _call_ros(self, name: str, op: rb.CallService) -> Any:
+        info = self.hub.services.get(name)
+        srv_type = op.type or (info.type if info is not None else "")
+        if not srv_type:
+            raise MrosError(f"service {name} is not offered (unknown, not allowed, or its type is unknown)")
+        if not self.hub.policy.allows_service(name):
+            raise MrosError(f"service {name} is not allowed by the [web] services allow-list")
+        srv_class = get_service_class(srv_type)
+        args = op.args
+        if isinstance(args, list):
+            args = dict(zip(srv_class._request_class.__struct_fields__, args, strict=False))
+        request = rb.message_from_json(srv_class._request_class, args)
+        proxy = self.hub.node.service_proxy(name, srv_class)
+        timeout = op.timeout if op.timeout and op.timeout > 0 else self.limits.call_timeout
+        response = await proxy.call(request, timeout=min(timeout, self.limits.call_timeout))
+        return msgspec.to_builtins(response)
+
+    async def _rosapi(self, method: str, args: dict[str, Any]) -> Any:
+        """The rosapi node's services, answered from the master (values as rosapi gives them)."""
+        hub, master, policy = self.hub, self.hub.node.master, self.hub.policy
+        if method in ("topics", "topics_and_raw_types"):
+            topics = sorted((t, ty) for t, ty in hub.graph.topics.items() if policy.allows_topic(t))
+            out: dict[str, Any] = {"topics": [t for t, _ in topics], "types": [ty for _, ty in topics]}
+            if method == "topics_and_raw_types":
+                out["typedefs_full_text"] = [hub.topics[t].definition if t in hub.topics else "" for t, _ in topics]
+            return out
+        if method == "topic_type":
+            return {"type": hub.graph.topics.get(str(args.get("topic", "")), "")}
+        if method == "nodes":
+            return {"nodes": sorted(hub.graph.nodes)}
+        if method == "services":
+            return {"services": sorted(s for s in hub.graph.services if policy.allows_service(s))}
+        if method == "service_type":
+            info = hub.services.get(str(args.get("service", "")))
+            return {"type": info.type if info is not None else ""}
+        if method == "node_details":
+            node = str(args.get("node", ""))
+            pubs, subs, srvs = await master.get_system_state()
+            return {
+                "publishing": sorted(t for t, ns in pubs if node in ns),
+                "subscribing": sorted(t for t, ns in subs if node in ns),
+                "services": sorted(s for s, ns in srvs if node in ns),
+            }
+        if method in ("publishers", "subscribers"):
+            pubs, subs, _ = await master.get_system_state()
+            topic = str(args.get("topic", ""))
+            nodes = dict(pubs if method == "publishers" else subs).get(topic, [])
+            return {method: sorted(nodes) if policy.allows_topic(topic) else []}
+        if method in ("service_providers", "service_node"):
+            _, _, srvs = await master.get_system_state()
+            service = str(args.get("service", ""))
+            providers = sorted(dict(srvs).get(service, [])) if policy.allows_service(service) else []
+            return (
+                {"providers": providers}
+                if method == "service_providers"
+                else {"node": providers[0] if providers else ""}
+            )
+        if method == "topics_for_type":
+            wanted = str(args.get("type", ""))
+            return {
+                "topics": sorted(t for t, ty in hub.graph.topics.items() if ty == wanted and policy.allows_topic(t))
+            }
+        if method == "services_for_type":
+            wanted = str(args.get("type", ""))
+            return {"services": sorted(s.name for s in hub.services.values() if s.type == wanted)}
+        if method in ("message_details", "service_request_details", "service_response_details"):
+            name = str(args.get("type", ""))
+            if method != "message_details":
+                name += "Request" if method == "service_request_details" else "Response"
+            return {"typedefs": rb.typedefs(name)}
+        if method == "get_ros_version":
+            return {"version": 1, "distro": "noetic"}
+        if method == "search_param":
+            found = await master.search_param(_param_name(args.get("name", "")))
+            return {"global_name": found or ""}
+        if method == "get_time":
+            now = time.time_ns()
+            return {"time": {"secs": now // 1_000_000_000, "nsecs": now % 1_000_000_000}}
+        if method == "get_param_names":
+            return {"names": [n for n in await master.get_param_names() if policy.allows_param(n)]}
+        name = _param_name(args.get("name", ""))
+        if method in ("get_param", "has_param", "set_param", "delete_param") and not policy.allows_param(name):
+            raise MrosError(f"parameter {name} is not allowed by the [web] params allow-list")
+        if method == "get_param":
+            try:
+                value = await master.get_param(name)
+            except MrosError:
+                default = args.get("default", "")
+                return {"value": default if default != "" else "null"}
+            return {"value": json.dumps(value, default=_json_default)}
+        if method == "has_param":
+            return {"exists": await master.has_param(name)}
+        if method == "set_param":
+            try:
+                value = json.loads(str(args.get("value", "null")))
+            except ValueError as exc:
+                raise MrosError(f"set_param {name}: value is not JSON: {exc}") from None
+            await master.set_param(name, value)
+            return {}
+        if method == "delete_param":
+            await master.delete_param(name)
+            return {}
+        raise MrosError(f"/rosapi/{method} is not served by mrosd")
+
+
+def _op_name(op: rb.Op) -> str:
+    return str(type(op).__struct_config__.tag)
+
+
+def _args(args: Any) -> dict[str, Any]:
+    return args if isinstance(args, dict) else {}
+
+
+def _param_name(name: Any) -> str:
+    text = str(name)
+    return text if text.startswith("/") else "/" + text
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, bytes | bytearray):
+        import base64
+
+        return base64.b64encode(value).decode()
+    raise TypeError(f"cannot encode {type(value).__name__}")

@@ -1,0 +1,183 @@
+"""``WebServer``: the daemon's web part (and ``mros bridge``): one ``WebHub``, the Foxglove and rosbridge listeners.
+
+An embeddable server with ``start()``/``aclose()`` like the daemon's other parts. It refuses to listen off
+loopback without a token (``AccessPolicy.check_bind``); the token is accepted as ``?token=`` in the URL
+(browsers cannot set headers on a WebSocket) or as ``Authorization: Bearer <token>``. WebSocket frames are
+capped at ``max_frame`` bytes by aiohttp before anything is buffered beyond them.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from typing import Any
+
+from aiohttp import web
+
+from mrosd.web import foxglove as fg
+from mrosd.web.access import AccessPolicy
+from mrosd.web.foxglove_server import FoxgloveSession, SessionLimits
+from mrosd.web.hub import WebHub
+
+log = logging.getLogger(__name__)
+
+__all__ = ["WebServer"]
+
+#: Largest WebSocket message a client may send (a client-published image fits; more is refused by aiohttp).
+MAX_CLIENT_FRAME = 64 * 1024 * 1024
+#: Seconds a closing server waits for its clients to take their close frame.
+CLOSE_TIMEOUT = 1.0
+#: Most WebSocket clients at once.
+MAX_CLIENTS = 64
+
+
+class WebServer:
+    """Serves Foxglove WebSocket on ``host:port`` (port 0: any free port, read ``port`` after start)."""
+
+    def __init__(
+        self,
+        master_uri: str,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 8765,
+        policy: AccessPolicy | None = None,
+        limits: SessionLimits | None = None,
+        node_name: str = "mrosd_web",
+        max_clients: int = MAX_CLIENTS,
+        max_frame: int = MAX_CLIENT_FRAME,
+        node_host: str | None = None,
+        rosbridge_port: int | None = None,
+        max_queued_bytes: int | None = None,
+    ) -> None:
+        self.policy = policy or AccessPolicy()
+        self.policy.check_bind(host)
+        self.host = host
+        self.port = port
+        self.limits = limits or SessionLimits()
+        self.max_clients = max_clients
+        self.max_frame = max_frame
+        self.hub = WebHub(master_uri, name=node_name, policy=self.policy, host=node_host)
+        if max_queued_bytes is not None:
+            self.hub.max_queued_bytes = max_queued_bytes
+        self.sessions: set[FoxgloveSession] = set()
+        #: rosbridge v2 port (None: not served); read after start when 0 was asked
+        self.rosbridge_port = rosbridge_port
+        self.rosbridge_sessions: set[Any] = set()
+        self._runner: web.AppRunner | None = None
+        self._rosbridge_runner: web.AppRunner | None = None
+
+    @property
+    def url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"ws://{host}:{self.port}/"
+
+    @property
+    def rosbridge_url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"ws://{host}:{self.rosbridge_port}/"
+
+    async def start(self) -> None:
+        """Start the hub (graph watch) and listen.
+
+        Raises:
+            OSError: the port is in use.
+            MrosError: the master does not answer.
+        """
+        await self.hub.start()
+        try:
+            self._runner, self.port = await self._listen(self._foxglove, self.port)
+            if self.rosbridge_port is not None:
+                self._rosbridge_runner, self.rosbridge_port = await self._listen(self._rosbridge, self.rosbridge_port)
+        except BaseException:
+            await self.aclose()
+            raise
+        log.info("web: Foxglove WebSocket on %s (master %s)", self.url, self.hub.master_uri)
+        if self.rosbridge_port is not None:
+            log.info("web: rosbridge v2 on %s", self.rosbridge_url)
+
+    async def _listen(self, handler: Any, port: int) -> tuple[web.AppRunner, int]:
+        app = web.Application()
+        app.router.add_get("/", handler)
+        runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=CLOSE_TIMEOUT)
+        await runner.setup()
+        try:
+            site = web.TCPSite(runner, self.host, port, reuse_address=True)
+            await site.start()
+        except BaseException:
+            await runner.cleanup()
+            raise
+        server: Any = site._server
+        if server is not None and server.sockets:
+            port = int(server.sockets[0].getsockname()[1])
+        return runner, port
+
+    async def _rosbridge(self, request: web.Request) -> web.StreamResponse:
+        from mrosd.web.rosbridge_server import RosbridgeSession
+
+        if len(self.sessions) + len(self.rosbridge_sessions) >= self.max_clients:
+            raise web.HTTPServiceUnavailable(text=f"at most {self.max_clients} clients\n")
+        ws = web.WebSocketResponse(compress=False, max_msg_size=self.max_frame, heartbeat=30.0)
+        await ws.prepare(request)
+        # The token may come in the URL; else the client sends the auth op first.
+        token = "" if self.policy.token_ok(self._token(request)) else self.policy.token
+        session = RosbridgeSession(self.hub, ws, self.limits, token=token, peer=str(request.remote))
+        self.rosbridge_sessions.add(session)
+        try:
+            await session.run()
+        finally:
+            self.rosbridge_sessions.discard(session)
+            if not ws.closed:
+                await ws.close()
+        return ws
+
+    def _token(self, request: web.Request) -> str | None:
+        token = request.query.get("token")
+        if token is not None:
+            return token
+        auth = request.headers.get("Authorization", "")
+        return auth[7:] if auth.startswith("Bearer ") else None
+
+    async def _foxglove(self, request: web.Request) -> web.StreamResponse:
+        if not self.policy.token_ok(self._token(request)):
+            raise web.HTTPUnauthorized(text="token required: add ?token=... to the URL\n")
+        if len(self.sessions) + len(self.rosbridge_sessions) >= self.max_clients:
+            raise web.HTTPServiceUnavailable(text=f"at most {self.max_clients} clients\n")
+        offered = [p.strip() for p in request.headers.get("Sec-WebSocket-Protocol", "").split(",") if p.strip()]
+        if fg.choose_subprotocol(offered) is None:
+            raise web.HTTPBadRequest(text=f"offer one of the subprotocols {', '.join(fg.SUBPROTOCOLS)}\n")
+        ws = web.WebSocketResponse(
+            protocols=fg.SUBPROTOCOLS, compress=False, max_msg_size=self.max_frame, heartbeat=30.0
+        )
+        await ws.prepare(request)
+        session = FoxgloveSession(self.hub, ws, self.limits, peer=str(request.remote))
+        self.sessions.add(session)
+        try:
+            await session.run()
+        finally:
+            self.sessions.discard(session)
+            if not ws.closed:
+                await ws.close()
+        return ws
+
+    async def aclose(self) -> None:
+        """Close every client, stop listening, then close the hub (its subscriptions and node)."""
+        runners = [r for r in (self._runner, self._rosbridge_runner) if r is not None]
+        self._runner = self._rosbridge_runner = None
+        # Clients first (aiohttp's cleanup would otherwise wait for each open WebSocket handler to end).
+        sessions = [*self.sessions, *self.rosbridge_sessions]
+        closing = [s.ws.close(code=1001, message=b"server shutdown") for s in sessions]
+        if closing:
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(CLOSE_TIMEOUT):
+                    await asyncio.gather(*closing, return_exceptions=True)
+        for runner in runners:
+            await runner.cleanup()
+        await self.hub.aclose()
+
+    async def __aenter__(self) -> WebServer:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.aclose()
