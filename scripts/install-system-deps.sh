@@ -7,6 +7,10 @@ set -euo pipefail
 SUDO=""
 [ "$(id -u)" -eq 0 ] || SUDO="sudo"
 export DEBIAN_FRONTEND=noninteractive
+# Debian's npm conflicts with a nodejs that bundles its own npm (NodeSource's, as on these machines): ask for it
+# only where no npm came with node.
+NPM=""
+command -v npm >/dev/null 2>&1 || NPM="npm"
 $SUDO apt-get update -q
 $SUDO apt-get install -y -q \
     python3-rospy python3-rostopic python3-rosnode python3-rosparam python3-rosmaster python3-rosservice \
@@ -16,6 +20,6 @@ $SUDO apt-get install -y -q \
     ros-nav-msgs ros-shape-msgs ros-stereo-msgs ros-trajectory-msgs ros-visualization-msgs ros-tf2-msgs \
     ros-map-msgs ros-std-srvs python3-std-srvs \
     g++ cmake pkg-config iproute2 procps \
-    nodejs npm chromium
+    nodejs $NPM chromium
 # The real WebSocket clients the tests drive (@foxglove/ws-protocol, ...), exactly as locked.
 npm ci --prefix "$(dirname "$0")/../tests/web" --no-audit --no-fund
