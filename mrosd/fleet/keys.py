@@ -224,6 +224,11 @@ def _glob_regex(pattern: str) -> re.Pattern[str]:
     return re.compile("^" + "".join(out) + "$")
 
 
+def glob_match(pattern: str, name: str) -> bool:
+    """True if ``name`` matches ``pattern`` (``*`` within a segment, ``**`` across, ``?`` one character)."""
+    return _glob_regex(pattern).match(name) is not None
+
+
 @dataclass(frozen=True, slots=True)
 class NameFilter:
     """Which names cross in one direction: ``include`` globs minus ``exclude`` globs.
