@@ -41,6 +41,7 @@ from mrosd.loop import event_loop_factory
 from mrosd.sdnotify import Notifier, watchdog_interval
 
 if TYPE_CHECKING:
+    from mrosd.fleet.bridge import FleetBridge
     from mrosd.ixm.bridge import Bridge, IxmBridge
     from mrosd.ixm.rules import AccessRules
     from mrosd.ixm.server import IxmServer
@@ -173,6 +174,7 @@ class Daemon:
         self.ixm: IxmServer | None = None
         self.bridge: IxmBridge | None = None
         self.rosout: RosoutAggregator | None = None
+        self.fleet: FleetBridge | None = None
         self.master_uri = ""
         #: part name -> why it did not start (the daemon runs degraded without it)
         self.failed: dict[str, str] = {}
@@ -195,6 +197,8 @@ class Daemon:
                     await self._optional("ixm-bridge", self._start_bridges)
             if not self.master_only and self.cfg.rosout.enabled:
                 await self._optional("rosout", self._start_rosout)
+            if not self.master_only and self.cfg.fleet.enabled:
+                await self._optional("fleet", self._start_fleet)
         except BaseException:
             await self.aclose()
             raise
@@ -266,6 +270,16 @@ class Daemon:
         self._parts.append(("rosout", agg))
         log.info("rosout aggregator running (/rosout -> /rosout_agg)")
 
+    async def _start_fleet(self) -> None:
+        from mrosd.fleet.bridge import FleetBridge
+        from mrosd.fleet.options import fleet_options
+
+        fleet = FleetBridge(fleet_options(self.cfg.fleet, self.cfg.source or "configuration"), self.master_uri)
+        await fleet.start()
+        self.fleet = fleet
+        self._parts.append(("fleet", fleet))
+        log.info("fleet: robot %s linked over Zenoh", self.cfg.fleet.robot)
+
     def status_line(self) -> str:
         """The one-line status for ``systemctl status``: ``running: ...`` or ``degraded: ...; ixm failed: why``."""
         parts = [f"master {self.master_uri}"]
@@ -275,6 +289,8 @@ class Daemon:
             parts.append(f"{len(self.bridge.bridges)} ixm bridge(s)")
         if self.rosout is not None:
             parts.append("rosout")
+        if self.fleet is not None:
+            parts.append(f"fleet {self.cfg.fleet.robot}")
         line = ", ".join(parts)
         if not self.failed:
             return "running: " + line
@@ -323,6 +339,8 @@ class Daemon:
             await self._optional("ixm-bridge", self._start_bridges)
         if "rosout" in retry:
             await self._optional("rosout", self._start_rosout)
+        if "fleet" in retry:
+            await self._optional("fleet", self._start_fleet)
 
     async def aclose(self, timeout: float = SHUTDOWN_TIMEOUT) -> bool:
         """Close the parts in reverse start order within ``timeout`` seconds in all; True when all closed.

@@ -37,6 +37,7 @@ SUBCOMMANDS = {
     "daemon": "mros_cli.daemon",
     "bag": "mros_cli.bag",
     "graph": "mros_cli.graph",
+    "fleet": "mros_cli.fleet",
 }
 
 EXIT_OK = 0

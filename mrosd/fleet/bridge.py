@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import importlib
+import json
 import logging
 import struct
 import time
@@ -56,6 +57,8 @@ TICK_PERIOD = 0.25
 QUERY_TIMEOUT = 10.0
 #: Service calls from the fleet in flight at once; more are refused at once.
 MAX_INFLIGHT_CALLS = 64
+#: The fleet node's service that answers its status as JSON.
+STATUS_SERVICE = "~status"
 #: Seconds allowed to probe a local service for its type.
 PROBE_TIMEOUT = 3.0
 
@@ -273,6 +276,7 @@ class FleetBridge:
             lambda sample: self._inbox_put("@discovery", str(sample.key_expr)),
             allowed_origin=zenoh.Locality.REMOTE,
         )
+        await self._advertise_status()
         self._tasks = [
             asyncio.create_task(self._graph_loop(), name="fleet-graph"),
             asyncio.create_task(self._tick_loop(), name="fleet-tick"),
@@ -712,6 +716,21 @@ class FleetBridge:
             return await done
 
     # --- status ----------------------------------------------------------------------------------
+
+    async def _advertise_status(self) -> None:
+        """``~status`` (std_srvs/Trigger): ``status()`` as JSON in ``message``; what ``mros fleet status`` reads.
+
+        A ROS service, so any tool (``rosservice call /mrosd_fleet/status``) and any host that reaches the
+        master can ask, with no extra port or protocol.
+        """
+        from mrosd.msg import get_service_class
+
+        trigger = get_service_class("std_srvs/Trigger")
+
+        def answer(_request: Any) -> Any:
+            return trigger._response_class(success=True, message=json.dumps(self.status()))
+
+        await self.node.advertise_service(STATUS_SERVICE, trigger, answer)
 
     def status(self) -> dict[str, Any]:
         """Peers, links and per-topic counts, as ``mros fleet status`` prints them (plain data)."""

@@ -7,6 +7,7 @@ import json
 import re
 from dataclasses import dataclass, field
 
+from mrosd.config import FleetConfig
 from mrosd.errors import ConfigError
 from mrosd.fleet.keys import NameFilter, RenameRule, glob_match
 from mrosd.fleet.limits import RateLimit
@@ -120,3 +121,34 @@ def zenoh_settings(opts: FleetOptions) -> list[tuple[str, str]]:
         out.append(("transport/link/tls/listen_private_key", json.dumps(opts.tls_private_key)))
         out.append(("transport/link/tls/connect_private_key", json.dumps(opts.tls_private_key)))
     return out
+
+
+def fleet_options(section: FleetConfig, source: str = "configuration") -> FleetOptions:
+    """The options of a ``[fleet]`` section.
+
+    Raises:
+        ConfigError: naming the key: no robot name, a bad endpoint, mode, queue or lease.
+    """
+    if not section.robot:
+        raise ConfigError(f"{source}: fleet.robot must name this robot (it prefixes its topics on the others)")
+    try:
+        return FleetOptions(
+            robot=section.robot,
+            mode=section.mode,
+            listen=tuple(section.listen),
+            connect=tuple(section.connect),
+            multicast_scouting=section.multicast_scouting,
+            send_topics=NameFilter(tuple(section.send_topics), tuple(section.send_topics_exclude)),
+            receive_topics=NameFilter(tuple(section.receive_topics), tuple(section.receive_topics_exclude)),
+            send_services=NameFilter(tuple(section.send_services)),
+            receive_services=NameFilter(tuple(section.receive_services)),
+            rename=RenameRule(prefix=section.prefix, wildcard_robot=section.bridge_robot),
+            limits=tuple(TopicLimit(lim.topic, lim.max_hz, lim.max_bytes_per_s) for lim in section.limits),
+            queue_size=section.queue_size,
+            lease=section.lease,
+            tls_root_ca=section.tls_root_ca,
+            tls_certificate=section.tls_certificate,
+            tls_private_key=section.tls_private_key,
+        )
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from exc
