@@ -234,7 +234,7 @@ class FleetBridge:
     ) -> None:
         self.options = options
         self.master_uri = master_uri
-        self.node = Node(node_name, master_uri, argv=[], host=host, rosout=False, logger_services=False, environ={})
+        self.node = Node(node_name, master_uri, argv=[], host=host, rosout=False, logger_services=False)
         self.session: Any = None
         self.sent: dict[str, SentTopic] = {}
         self.received: dict[str, ReceivedTopic] = {}

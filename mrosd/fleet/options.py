@@ -93,7 +93,8 @@ def zenoh_settings(opts: FleetOptions) -> list[tuple[str, str]]:
 
     Multicast scouting stays off unless asked (a robot does not advertise itself on every network it joins);
     the lease is short so a cut link is noticed within seconds, and reconnection attempts to the configured
-    endpoints never stop and never wait longer than ``retry_max``.
+    endpoints never stop and never wait longer than ``retry_max``. (``connect/timeout_ms`` stays Zenoh's: set to
+    0 it also ends the background attempts, and a robot started before its peer would never link.)
     """
     lease_ms = int(opts.lease * 1000)
     retry_ms = int(opts.retry_max * 1000)
@@ -109,8 +110,6 @@ def zenoh_settings(opts: FleetOptions) -> list[tuple[str, str]]:
             json.dumps({"period_init_ms": min(250, retry_ms), "period_max_ms": retry_ms, "period_increase_factor": 2}),
         ),
         ("listen/retry", json.dumps({"period_init_ms": min(250, retry_ms), "period_max_ms": retry_ms})),
-        ("connect/exit_on_failure", json.dumps({"peer": False, "client": False})),
-        ("connect/timeout_ms", json.dumps({"peer": 0, "client": 0})),
     ]
     if opts.tls_root_ca:
         out.append(("transport/link/tls/root_ca_certificate", json.dumps(opts.tls_root_ca)))

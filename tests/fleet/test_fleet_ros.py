@@ -44,8 +44,10 @@ async def test_rospy_to_rostopic_echo_service_and_latched_map(procs: Processes, 
     async with fleet("robot1", "robot2") as (r1, r2):
         procs.python(TALKER, ros_env(r1.master.uri, tmp_path))
         await r2.bridge.wait_until(
-            lambda: {"/robot1/chatter", "/robot1/map"} <= set(r2.bridge.received)
-            and "/robot1/set" in r2.bridge.received_services,
+            lambda: (
+                {"/robot1/chatter", "/robot1/map"} <= set(r2.bridge.received)
+                and "/robot1/set" in r2.bridge.received_services
+            ),
             30,
         )
         env2 = ros_env(r2.master.uri, tmp_path)
