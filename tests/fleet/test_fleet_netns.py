@@ -102,7 +102,6 @@ def test_link_cut_for_10s_then_data_resumes_within_5s(netns_lab: NetnsLab, procs
     env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "MROSD_"))}
     env["ROS_HOSTNAME"] = "127.0.0.1"  # each robot's nodes talk to their own master only
     env["PYTHONPATH"] = os.pathsep.join([str(Path.cwd()), str(Path.cwd() / "cli")])
-    daemons: list[object] = []
     for i, (robot, connect, extra) in enumerate(
         [
             ("robot1", "", 'send_topics = ["/chatter"]\n'),
@@ -110,9 +109,10 @@ def test_link_cut_for_10s_then_data_resumes_within_5s(netns_lab: NetnsLab, procs
         ]
     ):
         cfg = daemon_config(tmp_path, robot, lab.addrs[i], connect, extra)
-        log = open(tmp_path / f"{robot}.log", "wb")  # noqa: SIM115 (the daemon writes it until teardown)
-        daemons.append(log)
-        procs.start(lab.argv(i, [sys.executable, "-m", "mrosd.daemon", "--config", str(cfg)]), env, stderr=log.fileno())
+        with open(tmp_path / f"{robot}.log", "wb") as log:  # the daemon keeps its own copy of the descriptor
+            procs.start(
+                lab.argv(i, [sys.executable, "-m", "mrosd.daemon", "--config", str(cfg)]), env, stderr=log.fileno()
+            )
     master = f"http://127.0.0.1:{MASTER_PORT}/"
     for i in range(2):
         lab.exec_ok(
