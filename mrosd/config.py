@@ -129,6 +129,7 @@ class FleetConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     prefix: str = "/{robot}"
     bridge_robot: str = ""
     queue_size: Count = 16
+    max_received: Count = 256
     lease: Seconds = 3.0
     tls_root_ca: str = ""
     tls_certificate: str = ""

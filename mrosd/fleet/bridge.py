@@ -21,6 +21,7 @@ import importlib
 import json
 import logging
 import struct
+import threading
 import time
 import urllib.parse
 from collections.abc import Callable, Coroutine
@@ -57,6 +58,10 @@ TICK_PERIOD = 0.25
 QUERY_TIMEOUT = 10.0
 #: Service calls from the fleet in flight at once; more are refused at once.
 MAX_INFLIGHT_CALLS = 64
+#: The inbox's name for announcements, and how many may wait for the loop (each item repeats every second, so
+#: one lost in a burst comes again; a flood of names costs this many strings at most).
+DISCOVERY = "@discovery"
+DISCOVERY_QUEUE = 4096
 #: The fleet node's service that answers its status as JSON.
 STATUS_SERVICE = "~status"
 #: Seconds allowed to probe a local service for its type.
@@ -105,6 +110,18 @@ def _definition(msg_type: str) -> str:
 
     try:
         return str(get_message_class(msg_type)._full_text)
+    except MrosError:
+        return ""
+
+
+def _known_md5(msg_type: str) -> str:
+    """The md5 of a type on the search path, or "" (then the first message's header tells it)."""
+    from mrosd.msg import get_message_class
+
+    if not msg_type or msg_type == "*":
+        return ""
+    try:
+        return str(get_message_class(msg_type)._md5sum)
     except MrosError:
         return ""
 
@@ -166,6 +183,8 @@ class SentTopic:
     topic: str
     limit: RateLimit | None
     subscriber: Any = None
+    msg_type: str = ""
+    md5sum: str = ""
     key: str = ""
     publisher: Any = None
     matching: Any = None
@@ -216,6 +235,7 @@ class ReceivedService:
 @dataclass
 class _Counters:
     bad_keys: int = 0
+    refused_items: int = 0
     refused_calls: int = 0
     inflight: int = 0
     started: float = field(default_factory=time.monotonic)
@@ -249,6 +269,8 @@ class FleetBridge:
         self._closed = False
         self._background: set[asyncio.Task[None]] = set()
         self._changed = asyncio.Event()
+        #: calls from the fleet in flight are counted by Zenoh's threads and the loop alike
+        self._inflight_lock = threading.Lock()
 
     # --- lifecycle ---------------------------------------------------------------------------------
 
@@ -268,12 +290,12 @@ class FleetBridge:
         except Exception as exc:
             await self.node.aclose()
             raise ConfigError(f"fleet: cannot open the Zenoh session: {exc}") from exc
-        self._inbox = Inbox(loop, self._deliver, self.options.queue_size)
+        self._inbox = Inbox(loop, self._deliver, self.options.queue_size, {DISCOVERY: DISCOVERY_QUEUE})
         self._outbox = Outbox(self.session, self.options.queue_size)
         self._outbox.start()
         self._discovery_sub = self.session.declare_subscriber(
             discovery_subscription(),
-            lambda sample: self._inbox_put("@discovery", str(sample.key_expr)),
+            lambda sample: self._inbox_put(DISCOVERY, str(sample.key_expr)),
             allowed_origin=zenoh.Locality.REMOTE,
         )
         await self._advertise_status()
@@ -386,7 +408,7 @@ class FleetBridge:
             if topic in self.options.send_topics and topic not in received and any(n != own for n in nodes)
         }
         for topic in want - set(self.sent):
-            await self._add_sent(topic)
+            await self._add_sent(topic, types.get(topic, ""))
         for topic in set(self.sent) - want:
             await self._drop_sent(self.sent.pop(topic))
         services = {
@@ -405,7 +427,7 @@ class FleetBridge:
 
     # --- sending topics --------------------------------------------------------------------------
 
-    async def _add_sent(self, topic: str) -> None:
+    async def _add_sent(self, topic: str, msg_type: str) -> None:
         st = SentTopic(topic, self.options.limit_for(topic))
         self.sent[topic] = st
         try:
@@ -415,10 +437,22 @@ class FleetBridge:
         except MrosError as exc:
             _ratelog.warning(f"sub {topic}", "fleet: cannot subscribe to %s: %s", topic, exc)
             self.sent.pop(topic, None)
+            return
+        # A known type is announced at once (a topic that publishes rarely is seen before its first message);
+        # an unknown one when its first message tells the md5.
+        md5sum = _known_md5(msg_type)
+        if md5sum:
+            self._declare_sent(st, msg_type, md5sum)
 
     def _local_message(self, st: SentTopic, msg: RawMessage) -> None:
+        msg_type, md5sum = msg.header.type or "", msg.header.md5sum or ""
+        told = bool(msg_type) and md5sum not in ("", "*")
+        if st.publisher is not None and told and (msg_type, md5sum) != (st.msg_type, st.md5sum):
+            self._undeclare_sent(st)  # the publisher's definition differs from ours: its own md5 is the key
         if st.publisher is None:
-            self._declare_sent(st, msg.header.type or "", msg.header.md5sum or "")
+            if not told:
+                return  # a publisher that does not say its type and md5 cannot be announced
+            self._declare_sent(st, msg_type, md5sum)
             if st.publisher is None:
                 return
         body = bytes(msg.data)
@@ -436,6 +470,7 @@ class FleetBridge:
 
     def _declare_sent(self, st: SentTopic, msg_type: str, md5sum: str) -> None:
         zenoh = require_zenoh()
+        st.msg_type, st.md5sum = msg_type, md5sum
         try:
             st.key = data_key(msg_type, md5sum, self.options.robot, st.topic)
         except ValueError as exc:
@@ -469,12 +504,17 @@ class FleetBridge:
 
         st.latch_queryable = self.session.declare_queryable(key, answer, allowed_origin=zenoh.Locality.REMOTE)
 
-    async def _drop_sent(self, st: SentTopic) -> None:
+    def _undeclare_sent(self, st: SentTopic) -> None:
         for entity in (st.latch_queryable, st.matching, st.publisher):
             self._undeclare(entity)
         st.publisher = st.latch_queryable = st.matching = None
+        st.matched = False
+        st.announced = ""
         if self._outbox is not None and st.key:
             self._outbox.forget(st.key)
+
+    async def _drop_sent(self, st: SentTopic) -> None:
+        self._undeclare_sent(st)
         if st.subscriber is not None:
             with contextlib.suppress(MrosError, OSError):
                 await st.subscriber.aclose()
@@ -482,7 +522,7 @@ class FleetBridge:
     # --- receiving topics ------------------------------------------------------------------------
 
     def _deliver(self, name: str, items: list[Any]) -> None:
-        if name == "@discovery":
+        if name == DISCOVERY:
             self._heard(items)
             return
         rt = self.received.get(name)
@@ -508,11 +548,15 @@ class FleetBridge:
                 self.counters.bad_keys += 1
                 _ratelog.warning("badkey", "fleet: ignoring an announcement: %s", exc)
                 continue
-            if item.namespace == self.options.robot or not self.presence.heard(item, now):
+            if item.namespace == self.options.robot:
                 continue
+            self.presence.heard(item, now)
+            if item not in self.presence:
+                continue  # the table is full: not bridged, and not remembered either
+            # Every announcement is checked, not only the first: an item refused while full gets in later.
             local = self.options.rename.local_name(item.namespace, item.topic)
             if item.kind is ItemKind.PUBLISHER and local in self.options.receive_topics:
-                if local not in self.received and local not in self.sent:
+                if local not in self.received and local not in self.sent and self._room_for(item):
                     self.received[local] = ReceivedTopic(local, item)
                     self._spawn(self._add_received(self.received[local]))
             elif (
@@ -520,9 +564,24 @@ class FleetBridge:
                 and local in self.options.receive_services
                 and local not in self.received_services
                 and local not in self.sent_services
+                and self._room_for(item)
             ):
                 self.received_services[local] = ReceivedService(local, item)
                 self._spawn(self._add_received_service(self.received_services[local]))
+
+    def _room_for(self, item: Item) -> bool:
+        """True while fewer than ``max_received`` remote topics and services are published here."""
+        if len(self.received) + len(self.received_services) < self.options.max_received:
+            return True
+        self.counters.refused_items += 1
+        _ratelog.warning(
+            "full",
+            "fleet: %s from %s refused: max_received (%d) reached",
+            item.topic,
+            item.namespace,
+            self.options.max_received,
+        )
+        return False
 
     async def _add_received(self, rt: ReceivedTopic) -> None:
         cls = raw_message_class(rt.item.type, rt.item.md5sum)
@@ -617,17 +676,21 @@ class FleetBridge:
         loop = asyncio.get_running_loop()
 
         def on_query(query: Any) -> None:
-            # Zenoh's thread: refuse at once beyond the cap, else hand the call to the loop.
-            if self.counters.inflight >= MAX_INFLIGHT_CALLS:
-                self.counters.refused_calls += 1
+            # Zenoh's thread: refuse at once beyond the cap (or once closing), else hand the call to the loop.
+            with self._inflight_lock:
+                admitted = not self._closed and self.counters.inflight < MAX_INFLIGHT_CALLS
+                if admitted:
+                    self.counters.inflight += 1
+                else:
+                    self.counters.refused_calls += 1
+            if not admitted:
                 with query:
                     query.reply_err(b"mrosd fleet: too many calls in flight")
                 return
-            self.counters.inflight += 1
             try:
-                loop.call_soon_threadsafe(lambda: asyncio.create_task(self._serve_call(ss, proxy, query)))
-            except RuntimeError:
-                self.counters.inflight -= 1
+                loop.call_soon_threadsafe(self._spawn, self._serve_call(ss, proxy, query))
+            except RuntimeError:  # the loop is gone
+                self._call_done()
                 query.drop()
 
         ss.queryable = self.session.declare_queryable(ss.key, on_query, allowed_origin=zenoh.Locality.REMOTE)
@@ -636,6 +699,9 @@ class FleetBridge:
 
     async def _serve_call(self, ss: SentService, proxy: Any, query: Any) -> None:
         try:
+            if self._closed:
+                query.reply_err(b"mrosd fleet: closing")
+                return
             payload = query.payload
             request = proxy.request_class(payload.to_bytes() if payload is not None else b"")
             ss.calls += 1
@@ -650,9 +716,13 @@ class FleetBridge:
         except Exception as exc:
             _ratelog.warning(f"call {ss.name}", "fleet: answering a call of %s failed: %s", ss.name, exc)
         finally:
-            self.counters.inflight -= 1
+            self._call_done()
             with contextlib.suppress(Exception):
                 query.drop()
+
+    def _call_done(self) -> None:
+        with self._inflight_lock:
+            self.counters.inflight -= 1
 
     async def _add_received_service(self, rs: ReceivedService) -> None:
         cls = raw_service_class(rs.item.type, rs.item.md5sum)
@@ -748,6 +818,7 @@ class FleetBridge:
             "peers": peers,
             "remote_items": len(self.presence.items()),
             "bad_announcements": self.counters.bad_keys,
+            "refused_items": self.counters.refused_items,
             "refused_calls": self.counters.refused_calls,
             "sent": {
                 t: {

@@ -25,10 +25,18 @@ log = logging.getLogger(__name__)
 class Inbox:
     """Any thread -> the loop: ``put(name, item)``; ``deliver(name, items)`` runs on the loop in batches."""
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, deliver: Callable[[str, list[Any]], None], maxlen: int) -> None:
+    def __init__(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        deliver: Callable[[str, list[Any]], None],
+        maxlen: int,
+        maxlen_of: dict[str, int] | None = None,
+    ) -> None:
         self._loop = loop
         self._deliver = deliver
         self._maxlen = maxlen
+        #: names with a bound of their own (the discovery stream: one entry per announced item, not per topic)
+        self._maxlen_of = dict(maxlen_of or {})
         self._lock = threading.Lock()
         self._queues: dict[str, DropOldestQueue[Any]] = {}
         self._scheduled = False
@@ -41,7 +49,7 @@ class Inbox:
         with self._lock:
             q = self._queues.get(name)
             if q is None:
-                q = self._queues[name] = DropOldestQueue(self._maxlen)
+                q = self._queues[name] = DropOldestQueue(self._maxlen_of.get(name, self._maxlen))
             q.put(item)
             if self._scheduled:
                 return

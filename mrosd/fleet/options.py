@@ -16,6 +16,9 @@ _ROBOT = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 _ENDPOINT = re.compile(r"^(tcp|tls|udp|quic)/.+:\d+$")
 #: Messages queued per topic between the event loop and Zenoh, in either direction, before the oldest goes.
 DEFAULT_QUEUE = 16
+#: Remote topics plus services published here at most: each one is a registration at the master and a
+#: listening socket, and anything that reaches the Zenoh port can announce names without end.
+DEFAULT_MAX_RECEIVED = 256
 #: Seconds without a word from a peer before its link counts as lost (Zenoh's lease): a cut is seen this fast.
 DEFAULT_LEASE = 3.0
 #: Upper bound of the pause between two attempts to reach a configured endpoint again after a loss.
@@ -55,6 +58,7 @@ class FleetOptions:
     rename: RenameRule = field(default_factory=RenameRule)
     limits: tuple[TopicLimit, ...] = ()
     queue_size: int = DEFAULT_QUEUE
+    max_received: int = DEFAULT_MAX_RECEIVED
     lease: float = DEFAULT_LEASE
     retry_max: float = DEFAULT_RETRY_MAX
     tls_root_ca: str = ""
@@ -74,6 +78,8 @@ class FleetOptions:
                     raise ConfigError(f"fleet.{key}: {ep!r} is not a Zenoh endpoint like tcp/192.168.1.10:7447")
         if self.queue_size < 1:
             raise ConfigError("fleet.queue_size must be at least 1")
+        if self.max_received < 1:
+            raise ConfigError("fleet.max_received must be at least 1")
         if not 0.5 <= self.lease <= 60:
             raise ConfigError("fleet.lease must be between 0.5 and 60 seconds")
         uses_tls = any(ep.startswith(("tls/", "quic/")) for ep in (*self.listen, *self.connect))
@@ -144,6 +150,7 @@ def fleet_options(section: FleetConfig, source: str = "configuration") -> FleetO
             rename=RenameRule(prefix=section.prefix, wildcard_robot=section.bridge_robot),
             limits=tuple(TopicLimit(lim.topic, lim.max_hz, lim.max_bytes_per_s) for lim in section.limits),
             queue_size=section.queue_size,
+            max_received=section.max_received,
             lease=section.lease,
             tls_root_ca=section.tls_root_ca,
             tls_certificate=section.tls_certificate,
