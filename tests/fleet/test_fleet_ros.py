@@ -9,9 +9,11 @@ from pathlib import Path
 import pytest
 
 from tests.fleet.fleetenv import fleet
+from tests.interop.tcpros.test_tcpros_interop import roscpp_node
 from tests.rosenv import Processes, needs_ros, ros_env
 
 pytestmark = [pytest.mark.interop, needs_ros]
+__all__ = ["roscpp_node"]  # the session fixture that compiles the roscpp node (tests/interop/tcpros)
 
 TALKER = """
 import rospy
@@ -58,3 +60,20 @@ async def test_rospy_to_rostopic_echo_service_and_latched_map(procs: Processes, 
         assert "the map from rospy" in out
         out = await _run(procs, ["rosservice", "call", "/robot1/set", "data: true"], env2, 30)
         assert "success: True" in out and "rospy on robot1" in out
+
+
+async def test_three_robots_rospy_roscpp_and_rostopic(procs: Processes, tmp_path: Path, roscpp_node: str) -> None:
+    """robot1's rospy /chatter -> robot3's roscpp echo node -> robot2's rostopic, over two fleet hops."""
+    async with fleet("robot1", "robot2", "robot3") as (r1, r2, r3):
+        procs.python(TALKER, ros_env(r1.master.uri, tmp_path / "r1"))
+        await r3.bridge.wait_until(lambda: "/robot1/chatter" in r3.bridge.received, 30)
+        procs.start(
+            [roscpp_node, "echo", "string", "/ping:=/robot1/chatter", "/pong:=/echoed"],
+            ros_env(r3.master.uri, tmp_path / "r3"),
+        )
+        await r2.bridge.wait_until(lambda: "/robot3/echoed" in r2.bridge.received, 30)
+        out = await _run(procs, ["rostopic", "echo", "-n", "1", "/robot3/echoed"], ros_env(r2.master.uri, tmp_path), 30)
+        assert "hello from rospy" in out
+        # robot2 also sees robot1 directly, under robot1's name, and nothing of its own comes back renamed
+        assert "/robot1/chatter" in r2.bridge.received
+        assert not [t for t in r1.bridge.received if t.startswith("/robot1/")]
