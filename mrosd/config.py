@@ -128,6 +128,7 @@ class FleetConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     receive_services: list[str] = msgspec.field(default_factory=lambda: ["/**"])
     prefix: str = "/{robot}"
     bridge_robot: str = ""
+    prefix_tf: bool = False
     queue_size: Count = 16
     max_received: Count = 256
     lease: Seconds = 3.0

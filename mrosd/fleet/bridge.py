@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from mrosd.errors import ConfigError, MrosError, ServiceError
+from mrosd.fleet.frames import prefix_tf_frames, wants_tf_prefix
 from mrosd.fleet.handoff import Inbox, Outbox
 from mrosd.fleet.keys import (
     ANNOUNCE_PERIOD,
@@ -207,6 +208,9 @@ class ReceivedTopic:
     received: int = 0
     bytes_received: int = 0
     latched_seen: bool = False
+    #: the robot name put before tf frames ("" = bodies pass unchanged)
+    tf_robot: str = ""
+    refused: int = 0
 
 
 @dataclass
@@ -528,7 +532,15 @@ class FleetBridge:
         rt = self.received.get(name)
         if rt is None or rt.publisher is None or rt.publisher.closed:
             return
-        for body, latched in items:
+        for raw, latched in items:
+            body = raw
+            if rt.tf_robot:
+                try:
+                    body = prefix_tf_frames(raw, rt.tf_robot)
+                except MrosError as exc:
+                    rt.refused += 1
+                    _ratelog.warning(f"tf {name}", "fleet: dropping a malformed TFMessage on %s: %s", name, exc)
+                    continue
             if latched:
                 if rt.received:
                     continue  # live data already came: the cached body is older
@@ -557,7 +569,7 @@ class FleetBridge:
             local = self.options.rename.local_name(item.namespace, item.topic)
             if item.kind is ItemKind.PUBLISHER and local in self.options.receive_topics:
                 if local not in self.received and local not in self.sent and self._room_for(item):
-                    self.received[local] = ReceivedTopic(local, item)
+                    self.received[local] = ReceivedTopic(local, item, tf_robot=self._tf_robot(item))
                     self._spawn(self._add_received(self.received[local]))
             elif (
                 item.kind is ItemKind.SERVICE
@@ -568,6 +580,11 @@ class FleetBridge:
             ):
                 self.received_services[local] = ReceivedService(local, item)
                 self._spawn(self._add_received_service(self.received_services[local]))
+
+    def _tf_robot(self, item: Item) -> str:
+        if not self.options.prefix_tf or not wants_tf_prefix(item.topic, item.type):
+            return ""
+        return self.options.rename.wildcard_robot if item.namespace == "*" else item.namespace
 
     def _room_for(self, item: Item) -> bool:
         """True while fewer than ``max_received`` remote topics and services are published here."""
@@ -842,6 +859,7 @@ class FleetBridge:
                     "bytes": rt.bytes_received,
                     "rate_hz": rt.received / uptime,
                     "dropped": inbox.dropped(t) if inbox is not None else 0,
+                    "refused": rt.refused,
                     "latched": rt.latched_seen,
                 }
                 for t, rt in self.received.items()

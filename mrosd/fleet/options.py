@@ -56,6 +56,8 @@ class FleetOptions:
     send_services: NameFilter = field(default_factory=NameFilter)
     receive_services: NameFilter = field(default_factory=NameFilter)
     rename: RenameRule = field(default_factory=RenameRule)
+    #: prefix the frames of other robots' /tf and /tf_static with their names (mrosd/fleet/frames.py)
+    prefix_tf: bool = False
     limits: tuple[TopicLimit, ...] = ()
     queue_size: int = DEFAULT_QUEUE
     max_received: int = DEFAULT_MAX_RECEIVED
@@ -148,6 +150,7 @@ def fleet_options(section: FleetConfig, source: str = "configuration") -> FleetO
             send_services=NameFilter(tuple(section.send_services)),
             receive_services=NameFilter(tuple(section.receive_services)),
             rename=RenameRule(prefix=section.prefix, wildcard_robot=section.bridge_robot),
+            prefix_tf=section.prefix_tf,
             limits=tuple(TopicLimit(lim.topic, lim.max_hz, lim.max_bytes_per_s) for lim in section.limits),
             queue_size=section.queue_size,
             max_received=section.max_received,

@@ -69,3 +69,29 @@ async def test_latched_topic_reaches_a_late_subscriber() -> None:
         msg = await sub.next(timeout=10)
         assert msg.data == "the map"
         assert r2.bridge.status()["received"]["/robot1/map"]["latched"]
+
+
+async def test_tf_frames_get_the_robot_name() -> None:
+    tf_message = get_message_class("tf2_msgs/TFMessage")
+    stamped = get_message_class("geometry_msgs/TransformStamped")
+    async with fleet("robot1", "robot2", prefix_tf=True) as (r1, r2), r1.node("tf") as a, r2.node("viewer") as b:
+        pub = await a.advertise("/tf", tf_message)
+        t = stamped(child_frame_id="base_link")
+        t.header.frame_id = "odom"
+        await r2.bridge.wait_until(lambda: "/robot1/tf" in r2.bridge.received, 15)
+        sub = await b.subscribe("/robot1/tf", tf_message)
+        sender = asyncio.create_task(_publish_forever(pub, tf_message(transforms=[t])))
+        try:
+            msg = await sub.next(timeout=10)
+        finally:
+            sender.cancel()
+        assert (msg.transforms[0].header.frame_id, msg.transforms[0].child_frame_id) == (
+            "robot1/odom",
+            "robot1/base_link",
+        )
+
+
+async def _publish_forever(pub: object, msg: object) -> None:
+    while True:
+        pub.publish_nowait(msg)  # type: ignore[attr-defined]
+        await asyncio.sleep(0.05)
