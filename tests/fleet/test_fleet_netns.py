@@ -17,11 +17,13 @@ from pathlib import Path
 
 import pytest
 
+from tests.interop.tcpros.test_tcpros_interop import roscpp_node
 from tests.netns.nsutil import NetnsLab
 from tests.rosenv import ROS_PYTHON, Processes, needs_ros, ros_env
 
 pytest.importorskip("zenoh", reason="the fleet tests need eclipse-zenoh (pip install 'mrosd[fleet]')")
 pytestmark = [pytest.mark.root, pytest.mark.interop, needs_ros]
+__all__ = ["roscpp_node"]  # the session fixture that compiles the roscpp node (tests/interop/tcpros)
 
 ZENOH_PORT = 7447
 MASTER_PORT = 11311
@@ -271,3 +273,39 @@ def test_thin_link_30hz_1mb_images_limited_to_5hz(netns_lab: NetnsLab, procs: Pr
     assert 3.0 <= rate <= 5.5, "the 5 Hz limit did not hold (or nothing crossed)"
     assert sent["rate_limited"] > 0
     assert all(end - start < 50_000 for start, end in zip(rss_start, rss_end, strict=True)), "a daemon grew by 50 MB"
+
+
+def test_three_robots_rospy_roscpp_rostopic(
+    netns_lab: NetnsLab, procs: Processes, tmp_path: Path, roscpp_node: str
+) -> None:
+    """robot1 (rospy talker) -> robot3 (roscpp echo of /robot1/chatter) -> robot2 (rostopic), three hosts."""
+    lab = netns_lab
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "MROSD_"))}
+    env["ROS_HOSTNAME"] = "127.0.0.1"
+    env["PYTHONPATH"] = os.pathsep.join([str(Path.cwd()), str(Path.cwd() / "cli")])
+    robots = [
+        ("robot1", "", 'send_topics = ["/chatter"]\n'),
+        ("robot2", lab.addrs[0], 'receive_topics = ["/robot3/**"]\n'),
+        ("robot3", lab.addrs[0], 'send_topics = ["/echoed"]\nreceive_topics = ["/robot1/**"]\n'),
+    ]
+    for i, (robot, connect, extra) in enumerate(robots):
+        cfg = daemon_config(tmp_path, robot, lab.addrs[i], connect, extra)
+        with open(tmp_path / f"{robot}.log", "wb") as log:
+            procs.start(
+                lab.argv(i, [sys.executable, "-m", "mrosd.daemon", "--config", str(cfg)]), env, stderr=log.fileno()
+            )
+    master = f"http://127.0.0.1:{MASTER_PORT}/"
+    for i in range(3):
+        lab.exec_ok(
+            lab.hosts[i],
+            [sys.executable, "-c", f"from tests.rosenv import wait_for_xmlrpc; wait_for_xmlrpc({master!r}, 30)"],
+            timeout=40,
+        )
+    procs.start(lab.argv(0, [ROS_PYTHON, "-c", TALKER]), ros_env(master, tmp_path / "h1"))
+    procs.start(
+        lab.argv(2, [roscpp_node, "echo", "string", "/ping:=/robot1/chatter", "/pong:=/echoed"]),
+        ros_env(master, tmp_path / "h3"),
+    )
+    echo = procs.start(lab.argv(1, ["rostopic", "echo", "-n", "1", "/robot3/echoed"]), ros_env(master, tmp_path / "h2"))
+    out, _ = echo.communicate(timeout=60)
+    assert b"hello" in out
