@@ -319,6 +319,8 @@ class Daemon:
             log.warning("SIGHUP: only [ixm.rules] is reloaded; restart mrosd to apply the other changes")
         if cfg.ixm.rules.get("bridges") != old.ixm.rules.get("bridges"):
             log.warning("SIGHUP: [ixm.rules.bridges] changed; restart mrosd to apply it")
+        if cfg.fleet != old.fleet:
+            log.warning("SIGHUP: [fleet] changed; restart mrosd to apply it")
         if self.ixm is not None:
             self.ixm.reload_rules(rules)
             log.info("SIGHUP: IXM access rules reloaded from %s", cfg.source or "defaults")
