@@ -260,6 +260,8 @@ class FleetBridge:
         self.master_uri = master_uri
         self.node = Node(node_name, master_uri, argv=[], host=host, rosout=False, logger_services=False)
         self.session: Any = None
+        #: the zenoh module (imported at start: mrosd runs without it while the fleet part is off)
+        self._zenoh: Any = None
         self.sent: dict[str, SentTopic] = {}
         self.received: dict[str, ReceivedTopic] = {}
         self.sent_services: dict[str, SentService] = {}
@@ -279,7 +281,7 @@ class FleetBridge:
     # --- lifecycle ---------------------------------------------------------------------------------
 
     async def start(self) -> None:
-        zenoh = require_zenoh()
+        zenoh = self._zenoh = require_zenoh()
         config = zenoh.Config()
         try:
             for path, value in zenoh_settings(self.options):
@@ -289,20 +291,28 @@ class FleetBridge:
         loop = asyncio.get_running_loop()
         await self.node.start()
         try:
-            # zenoh.open waits for the first connection attempts: off the loop.
-            self.session = await asyncio.to_thread(zenoh.open, config)
-        except Exception as exc:
-            await self.node.aclose()
-            raise ConfigError(f"fleet: cannot open the Zenoh session: {exc}") from exc
-        self._inbox = Inbox(loop, self._deliver, self.options.queue_size, {DISCOVERY: DISCOVERY_QUEUE})
-        self._outbox = Outbox(self.session, self.options.queue_size)
-        self._outbox.start()
-        self._discovery_sub = self.session.declare_subscriber(
-            discovery_subscription(),
-            lambda sample: self._inbox_put(DISCOVERY, str(sample.key_expr)),
-            allowed_origin=zenoh.Locality.REMOTE,
-        )
-        await self._advertise_status()
+            try:
+                # zenoh.open waits for the first connection attempts: off the loop.
+                self.session = await asyncio.to_thread(zenoh.open, config)
+            except Exception as exc:
+                raise ConfigError(f"fleet: cannot open the Zenoh session: {exc}") from exc
+            self._inbox = Inbox(loop, self._deliver, self.options.queue_size, {DISCOVERY: DISCOVERY_QUEUE})
+            announce = {
+                "congestion_control": zenoh.CongestionControl.DROP,
+                "priority": zenoh.Priority.BACKGROUND,
+                "allowed_destination": zenoh.Locality.REMOTE,
+            }
+            self._outbox = Outbox(self.session, self.options.queue_size, announce)
+            self._outbox.start()
+            self._discovery_sub = self.session.declare_subscriber(
+                discovery_subscription(),
+                lambda sample: self._inbox_put(DISCOVERY, str(sample.key_expr)),
+                allowed_origin=zenoh.Locality.REMOTE,
+            )
+            await self._advertise_status()
+        except BaseException:
+            await self.aclose()
+            raise
         self._tasks = [
             asyncio.create_task(self._graph_loop(), name="fleet-graph"),
             asyncio.create_task(self._tick_loop(), name="fleet-tick"),
@@ -473,7 +483,7 @@ class FleetBridge:
         self._outbox.put(st.key, st.publisher, body)
 
     def _declare_sent(self, st: SentTopic, msg_type: str, md5sum: str) -> None:
-        zenoh = require_zenoh()
+        zenoh = self._zenoh
         st.msg_type, st.md5sum = msg_type, md5sum
         try:
             st.key = data_key(msg_type, md5sum, self.options.robot, st.topic)
@@ -496,7 +506,7 @@ class FleetBridge:
         self._announce()
 
     def _declare_latch_queryable(self, st: SentTopic) -> None:
-        zenoh = require_zenoh()
+        zenoh = self._zenoh
         key = st.key
 
         def answer(query: Any) -> None:
@@ -619,7 +629,7 @@ class FleetBridge:
                 await rt.publisher.aclose()
 
     def _subscribe_received(self, rt: ReceivedTopic) -> None:
-        zenoh = require_zenoh()
+        zenoh = self._zenoh
         local = rt.local
         key = rt.item.data_key
         rt.subscriber = self.session.declare_subscriber(
@@ -679,7 +689,7 @@ class FleetBridge:
     # --- services --------------------------------------------------------------------------------
 
     async def _add_sent_service(self, name: str) -> None:
-        zenoh = require_zenoh()
+        zenoh = self._zenoh
         ss = SentService(name)
         self.sent_services[name] = ss
         try:
@@ -768,7 +778,7 @@ class FleetBridge:
         Raises:
             ServiceError: an error reply, no reply within QUERY_TIMEOUT, or nobody answering.
         """
-        zenoh = require_zenoh()
+        zenoh = self._zenoh
         loop = asyncio.get_running_loop()
         done: asyncio.Future[bytes] = loop.create_future()
 

@@ -88,8 +88,12 @@ class Outbox:
     thread waits, the queues keep the newest ``maxlen`` bodies of each key, and what falls out is counted.
     """
 
-    def __init__(self, session: Any, maxlen: int, period: float = ANNOUNCE_PERIOD) -> None:
+    def __init__(
+        self, session: Any, maxlen: int, announce_options: dict[str, Any], period: float = ANNOUNCE_PERIOD
+    ) -> None:
         self._session = session
+        #: keyword arguments of each announcement's put (the bridge's: best effort, background, remote only)
+        self._announce_options = announce_options
         self._maxlen = maxlen
         self._period = period
         self._cv = threading.Condition()
@@ -166,17 +170,9 @@ class Outbox:
                 next_announce = time.monotonic() + self._period
 
     def _announce(self) -> None:
-        import zenoh
-
         for key in self.announcements:
             try:
-                self._session.put(
-                    key,
-                    b"",
-                    congestion_control=zenoh.CongestionControl.DROP,
-                    priority=zenoh.Priority.BACKGROUND,
-                    allowed_destination=zenoh.Locality.REMOTE,
-                )
+                self._session.put(key, b"", **self._announce_options)
             except Exception as exc:
                 self.put_errors += 1
                 log.debug("fleet: announcing %s failed: %s", key, exc)
