@@ -31,9 +31,9 @@ class Robot:
         return mrosd.Node(name, master_uri=self.master.uri, argv=[], host="127.0.0.1")
 
 
-def options(robot: str, port: int, connect: tuple[str, ...] = (), **kw: object) -> FleetOptions:
+def options(robot: str, listen: str, connect: tuple[str, ...] = (), **kw: object) -> FleetOptions:
     base: dict[str, object] = {
-        "listen": (f"tcp/127.0.0.1:{port}",),
+        "listen": (listen,),
         "connect": connect,
         "send_topics": EVERYTHING,
         "receive_topics": EVERYTHING,
@@ -45,15 +45,17 @@ def options(robot: str, port: int, connect: tuple[str, ...] = (), **kw: object) 
 
 
 @asynccontextmanager
-async def fleet(*names: str, **kw: object) -> AsyncIterator[list[Robot]]:
-    """Robots in a line: each one connects to the one before it."""
+async def fleet(*names: str, transport: str = "tcp", connect_to: str = "", **kw: object) -> AsyncIterator[list[Robot]]:
+    """Robots in a line: each one connects to the one before it (the first to ``connect_to`` if given);
+    ``transport`` tcp, or tls on localhost."""
+    host = "localhost" if transport == "tls" else "127.0.0.1"
     async with AsyncExitStack() as stack:
         robots: list[Robot] = []
         for name in names:
             master = await stack.enter_async_context(Master(host="127.0.0.1", port=0))
-            port = free_port()
-            connect = (robots[-1].endpoint,) if robots else ()
-            bridge = FleetBridge(options(name, port, connect, **kw), master.uri, host="127.0.0.1")
+            endpoint = f"{transport}/{host}:{free_port()}"
+            connect = (robots[-1].endpoint,) if robots else ((connect_to,) if connect_to else ())
+            bridge = FleetBridge(options(name, endpoint, connect, **kw), master.uri, host="127.0.0.1")
             await stack.enter_async_context(bridge)
-            robots.append(Robot(name, master, bridge, f"tcp/127.0.0.1:{port}"))
+            robots.append(Robot(name, master, bridge, endpoint))
         yield robots
