@@ -87,6 +87,12 @@ class FleetOptions:
         uses_tls = any(ep.startswith(("tls/", "quic/")) for ep in (*self.listen, *self.connect))
         if uses_tls and not self.tls_root_ca:
             raise ConfigError("fleet.tls_root_ca: tls/ and quic/ endpoints need the CA certificate file")
+        if any(ep.startswith(("tls/", "quic/")) for ep in self.listen) and not (
+            self.tls_certificate and self.tls_private_key
+        ):
+            raise ConfigError(
+                "fleet.tls_certificate: a tls/ or quic/ listen endpoint needs tls_certificate and tls_private_key"
+            )
 
     def limit_for(self, topic: str) -> RateLimit | None:
         """A fresh limit for ``topic`` from the first matching pattern, or None."""
@@ -127,6 +133,9 @@ def zenoh_settings(opts: FleetOptions) -> list[tuple[str, str]]:
     if opts.tls_private_key:
         out.append(("transport/link/tls/listen_private_key", json.dumps(opts.tls_private_key)))
         out.append(("transport/link/tls/connect_private_key", json.dumps(opts.tls_private_key)))
+    if opts.tls_certificate and opts.tls_private_key:
+        # Both ends show a certificate of the fleet's CA: knowing the (public) CA is not enough to join.
+        out.append(("transport/link/tls/enable_mtls", json.dumps(True)))
     return out
 
 

@@ -96,3 +96,13 @@ async def test_a_robot_with_another_ca_does_not_link(tmp_path: Path) -> None:
     ):
         await asyncio.sleep(2)  # several connection attempts (retried at most 1 s apart)
         assert r1.bridge.status()["peers"] == [] and r9.bridge.status()["peers"] == []
+
+
+async def test_knowing_the_ca_without_a_certificate_is_not_enough(tmp_path: Path) -> None:
+    ours = make_ca_and_cert(tmp_path / "fleet", "fleet")
+    async with (
+        fleet("robot1", transport="tls", **ours) as (r1,),
+        fleet("robot9", connect_to=r1.endpoint, tls_root_ca=ours["tls_root_ca"]) as (r9,),
+    ):
+        await asyncio.sleep(2)  # several connection attempts (retried at most 1 s apart)
+        assert r1.bridge.status()["peers"] == [] and r9.bridge.status()["peers"] == []

@@ -49,6 +49,7 @@ def test_fleet_is_off_by_default() -> None:
         ('[fleet]\nrobot = "r1"\nlisten = ["7447"]\n', "fleet.listen"),
         ('[fleet]\nrobot = "r1"\nmode = "client"\n', "fleet.connect"),
         ('[fleet]\nrobot = "r1"\nconnect = ["tls/h:7447"]\n', "fleet.tls_root_ca"),
+        ('[fleet]\nrobot = "r1"\nlisten = ["tls/h:7447"]\ntls_root_ca = "ca.pem"\n', "fleet.tls_certificate"),
     ],
 )
 def test_bad_settings_name_their_key(text: str, key: str) -> None:
