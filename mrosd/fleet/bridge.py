@@ -41,7 +41,7 @@ from mrosd.fleet.keys import (
     discovery_subscription,
     parse_discovery_key,
 )
-from mrosd.fleet.limits import RateLimit
+from mrosd.fleet.limits import RateLimit, RateMeter
 from mrosd.fleet.options import FleetOptions, zenoh_settings
 from mrosd.fleet.presence import Presence
 from mrosd.lograte import RateLimitedLog
@@ -194,6 +194,7 @@ class SentTopic:
     latch_queryable: Any = None
     sent: int = 0
     bytes_sent: int = 0
+    meter: RateMeter = field(default_factory=RateMeter)
     announced: str = ""
 
 
@@ -207,6 +208,7 @@ class ReceivedTopic:
     subscriber: Any = None
     received: int = 0
     bytes_received: int = 0
+    meter: RateMeter = field(default_factory=RateMeter)
     latched_seen: bool = False
     #: the robot name put before tf frames ("" = bodies pass unchanged)
     tf_robot: str = ""
@@ -476,8 +478,10 @@ class FleetBridge:
                 self._declare_latch_queryable(st)
         if not st.matched or self._outbox is None:
             return
-        if st.limit is not None and not st.limit.admit(time.monotonic(), len(body)):
+        now = time.monotonic()
+        if st.limit is not None and not st.limit.admit(now, len(body)):
             return
+        st.meter.tick(now)
         st.sent += 1
         st.bytes_sent += len(body)
         self._outbox.put(st.key, st.publisher, body)
@@ -558,6 +562,7 @@ class FleetBridge:
                 rt.latched_seen = True
             rt.received += 1
             rt.bytes_received += len(body)
+            rt.meter.tick(time.monotonic())
             rt.publisher.publish_serialized(body)
         self._touch()
 
@@ -831,7 +836,7 @@ class FleetBridge:
 
     def status(self) -> dict[str, Any]:
         """Peers, links and per-topic counts, as ``mros fleet status`` prints them (plain data)."""
-        uptime = max(1e-9, time.monotonic() - self.counters.started)
+        now = time.monotonic()
         peers: list[str] = []
         if self.session is not None:
             with contextlib.suppress(Exception):
@@ -853,7 +858,7 @@ class FleetBridge:
                     "matched": st.matched,
                     "messages": st.sent,
                     "bytes": st.bytes_sent,
-                    "rate_hz": st.sent / uptime,
+                    "rate_hz": st.meter.rate(now),
                     "dropped": outbox.dropped(st.key) if outbox is not None and st.key else 0,
                     "rate_limited": st.limit.limited if st.limit is not None else 0,
                     "latched": st.latched is not None,
@@ -867,7 +872,7 @@ class FleetBridge:
                     "subscribed": rt.subscriber is not None,
                     "messages": rt.received,
                     "bytes": rt.bytes_received,
-                    "rate_hz": rt.received / uptime,
+                    "rate_hz": rt.meter.rate(now),
                     "dropped": inbox.dropped(t) if inbox is not None else 0,
                     "refused": rt.refused,
                     "latched": rt.latched_seen,

@@ -6,6 +6,7 @@ never make the master or a local node wait: what cannot be sent is dropped, olde
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Generic, TypeVar
@@ -73,3 +74,26 @@ class DropOldestQueue(Generic[T]):
 
     def __len__(self) -> int:
         return len(self.items)
+
+
+@dataclass
+class RateMeter:
+    """Messages per second lately: an exponentially decaying count (``tau`` seconds), O(1) per message.
+
+    ``mros fleet status`` shows what a topic does now, not its average since the daemon started.
+    """
+
+    tau: float = 2.0
+    _rate: float = 0.0
+    _last: float | None = None
+
+    def tick(self, now: float) -> None:
+        if self._last is not None:
+            self._rate *= math.exp(-max(0.0, now - self._last) / self.tau)
+        self._rate += 1.0 / self.tau
+        self._last = now
+
+    def rate(self, now: float) -> float:
+        if self._last is None:
+            return 0.0
+        return self._rate * math.exp(-max(0.0, now - self._last) / self.tau)

@@ -58,3 +58,14 @@ def test_presence_is_bounded() -> None:
     items = [Item(ItemKind.PUBLISHER, "a/B", "0" * 32, "r1", f"/t{i}") for i in range(3)]
     assert [p.heard(i, 0.0) for i in items] == [True, True, False]
     assert p.refused == 1
+
+
+def test_rate_meter_follows_the_recent_rate() -> None:
+    from mrosd.fleet.limits import RateMeter
+
+    meter = RateMeter()
+    for i in range(200):  # 10 Hz for 20 s
+        meter.tick(i / 10)
+    assert 9.0 <= meter.rate(19.9) <= 11.0
+    assert meter.rate(19.9 + 20) < 0.1  # then silence
+    assert RateMeter().rate(5.0) == 0.0
