@@ -57,7 +57,7 @@ def format_status(st: dict[str, Any]) -> str:
     for topic, t in sorted(st["sent"].items()):
         wanted = "asked for" if t["matched"] else "nobody asked"
         lines.append(
-            f"  {topic}  {wanted}  {t['messages']} msgs {t['bytes']} B  {t['rate_hz']:.1f} Hz avg  "
+            f"  {topic}  {wanted}  {t['messages']} msgs {t['bytes']} B  {t['rate_hz']:.1f} Hz  "
             f"dropped {t['dropped']}  rate-limited {t['rate_limited']}{'  latched' if t['latched'] else ''}"
         )
     lines.append("received topics:")
@@ -65,7 +65,7 @@ def format_status(st: dict[str, Any]) -> str:
         state = "subscribed" if t["subscribed"] else "idle (no local subscriber)"
         lines.append(
             f"  {topic}  from {t['robot']}  {state}  {t['messages']} msgs {t['bytes']} B  "
-            f"{t['rate_hz']:.1f} Hz avg  dropped {t['dropped']}{'  latched' if t['latched'] else ''}"
+            f"{t['rate_hz']:.1f} Hz  dropped {t['dropped']}{'  latched' if t['latched'] else ''}"
         )
     lines.append("services sent:")
     lines += [f"  {n}  {s['calls']} calls  {s['errors']} errors" for n, s in sorted(st["services_sent"].items())]
