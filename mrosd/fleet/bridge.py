@@ -33,6 +33,7 @@ from mrosd.fleet.frames import prefix_tf_frames, wants_tf_prefix
 from mrosd.fleet.handoff import Inbox, Outbox
 from mrosd.fleet.keys import (
     ANNOUNCE_PERIOD,
+    LATCHED_ATTACHMENT,
     FleetKeyError,
     Item,
     ItemKind,
@@ -113,6 +114,18 @@ def _definition(msg_type: str) -> str:
         return str(get_message_class(msg_type)._full_text)
     except MrosError:
         return ""
+
+
+#: How a received body came: a plain sample, a sample of a latched topic, or the answer to the latched query.
+_LIVE, _LIVE_LATCHED, _CACHED = 0, 1, 2
+
+
+def _how(sample: Any) -> int:
+    """``_LIVE_LATCHED`` when the sender marked the sample as a latched topic's (runs on Zenoh's thread)."""
+    attachment = sample.attachment
+    if attachment is not None and attachment.to_bytes() == LATCHED_ATTACHMENT:
+        return _LIVE_LATCHED
+    return _LIVE
 
 
 def _known_md5(msg_type: str) -> str:
@@ -210,6 +223,9 @@ class ReceivedTopic:
     bytes_received: int = 0
     meter: RateMeter = field(default_factory=RateMeter)
     latched_seen: bool = False
+    #: while the local publisher is made again as a latched one, the newest body waits here
+    relatching: bool = False
+    pending: bytes | None = None
     #: the robot name put before tf frames ("" = bodies pass unchanged)
     tf_robot: str = ""
     refused: int = 0
@@ -484,7 +500,7 @@ class FleetBridge:
         st.meter.tick(now)
         st.sent += 1
         st.bytes_sent += len(body)
-        self._outbox.put(st.key, st.publisher, body)
+        self._outbox.put(st.key, st.publisher, body, LATCHED_ATTACHMENT if st.latched is not None else None)
 
     def _declare_sent(self, st: SentTopic, msg_type: str, md5sum: str) -> None:
         zenoh = self._zenoh
@@ -544,9 +560,9 @@ class FleetBridge:
             self._heard(items)
             return
         rt = self.received.get(name)
-        if rt is None or rt.publisher is None or rt.publisher.closed:
+        if rt is None or rt.publisher is None or (rt.publisher.closed and not rt.relatching):
             return
-        for raw, latched in items:
+        for raw, how in items:
             body = raw
             if rt.tf_robot:
                 try:
@@ -555,11 +571,17 @@ class FleetBridge:
                     rt.refused += 1
                     _ratelog.warning(f"tf {name}", "fleet: dropping a malformed TFMessage on %s: %s", name, exc)
                     continue
-            if latched:
-                if rt.received:
-                    continue  # live data already came: the cached body is older
-                rt.publisher.latch = True
-                rt.latched_seen = True
+            if how == _CACHED and rt.received:
+                continue  # live data already came: the cached body is older
+            rt.latched_seen = rt.latched_seen or how != _LIVE
+            if rt.relatching or (rt.latched_seen and not rt.publisher.latch):
+                # Latched at the sender: latched here too, so later local subscribers get the last body. A
+                # publisher's latch is fixed when made (its shared-memory side takes it then): advertise again.
+                rt.pending = body
+                if not rt.relatching:
+                    rt.relatching = True
+                    self._spawn(self._relatch(rt))
+                continue
             rt.received += 1
             rt.bytes_received += len(body)
             rt.meter.tick(time.monotonic())
@@ -624,6 +646,36 @@ class FleetBridge:
             _ratelog.warning(f"adv {rt.local}", "fleet: cannot publish %s here: %s", rt.local, exc)
             self.received.pop(rt.local, None)
 
+    async def _relatch(self, rt: ReceivedTopic) -> None:
+        """Replace the local publisher of ``rt`` by a latched one and publish the last body on it.
+
+        Its subscribers see the publisher leave and come back (publisherUpdate) and get the body on
+        reconnecting, once; bodies that arrive meanwhile replace the pending one.
+        """
+        old = rt.publisher
+        try:
+            if old is not None:
+                with contextlib.suppress(MrosError, OSError):
+                    await old.aclose()
+            cls = raw_message_class(rt.item.type, rt.item.md5sum)
+            pub = await self.node.advertise(rt.local, cls, latch=True, queue_size=self.options.queue_size)
+        except MrosError as exc:
+            _ratelog.warning(f"adv {rt.local}", "fleet: cannot publish %s latched here: %s", rt.local, exc)
+            return
+        finally:
+            rt.relatching = False
+        if self.received.get(rt.local) is not rt:  # forgotten meanwhile
+            await pub.aclose()
+            return
+        rt.publisher = pub
+        if rt.pending is not None:
+            body, rt.pending = rt.pending, None
+            rt.received += 1
+            rt.bytes_received += len(body)
+            rt.meter.tick(time.monotonic())
+            pub.publish_serialized(body)
+        self._touch()
+
     async def _drop_received(self, rt: ReceivedTopic) -> None:
         self._undeclare(rt.subscriber)
         rt.subscriber = None
@@ -639,13 +691,13 @@ class FleetBridge:
         key = rt.item.data_key
         rt.subscriber = self.session.declare_subscriber(
             key,
-            lambda sample: self._inbox_put(local, (sample.payload.to_bytes(), False)),
+            lambda sample: self._inbox_put(local, (sample.payload.to_bytes(), _how(sample))),
             allowed_origin=zenoh.Locality.REMOTE,
         )
 
         def reply(r: Any) -> None:
             if r.ok is not None:
-                self._inbox_put(local, (r.ok.payload.to_bytes(), True))
+                self._inbox_put(local, (r.ok.payload.to_bytes(), _CACHED))
 
         # The latched body, if the sender holds one (a late joiner's first message).
         self.session.get(key, reply, timeout=QUERY_TIMEOUT, allowed_destination=zenoh.Locality.REMOTE)

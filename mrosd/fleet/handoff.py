@@ -99,6 +99,8 @@ class Outbox:
         self._cv = threading.Condition()
         self._queues: dict[str, DropOldestQueue[bytes]] = {}
         self._publishers: dict[str, Any] = {}
+        #: keys whose puts carry an attachment (the latched marker of mrosd/fleet/keys.py)
+        self._attachments: dict[str, bytes] = {}
         self._ready: deque[str] = deque()
         self._closed = False
         #: Discovery keys repeated every period (replaced whole from the loop; read by the sender thread).
@@ -109,9 +111,11 @@ class Outbox:
     def start(self) -> None:
         self._thread.start()
 
-    def put(self, key: str, publisher: Any, body: bytes) -> None:
-        """Queue ``body`` for ``publisher`` (on ``key``); never blocks."""
+    def put(self, key: str, publisher: Any, body: bytes, attachment: bytes | None = None) -> None:
+        """Queue ``body`` for ``publisher`` (on ``key``), with ``attachment`` if given; never blocks."""
         with self._cv:
+            if attachment is not None:
+                self._attachments[key] = attachment
             q = self._queues.get(key)
             if q is None:
                 q = self._queues[key] = DropOldestQueue(self._maxlen)
@@ -130,6 +134,7 @@ class Outbox:
         with self._cv:
             self._queues.pop(key, None)
             self._publishers.pop(key, None)
+            self._attachments.pop(key, None)
 
     def close(self, timeout: float = 2.0) -> None:
         with self._cv:
@@ -143,6 +148,7 @@ class Outbox:
         while True:
             body: bytes | None = None
             publisher: Any = None
+            attachment: bytes | None = None
             with self._cv:
                 while not self._closed and not self._ready:
                     wait = next_announce - time.monotonic()
@@ -157,11 +163,15 @@ class Outbox:
                     if q is not None:
                         body = q.pop()
                         publisher = self._publishers.get(key)
+                        attachment = self._attachments.get(key)
                         if len(q):
                             self._ready.append(key)  # round-robin: one body per key in turn
             if body is not None and publisher is not None:
                 try:
-                    publisher.put(body)
+                    if attachment is None:
+                        publisher.put(body)
+                    else:
+                        publisher.put(body, attachment=attachment)
                 except Exception as exc:  # undeclared meanwhile, or the session closed
                     self.put_errors += 1
                     log.debug("fleet: put failed: %s", exc)

@@ -30,6 +30,9 @@ from mrosd.names import canonicalize, is_valid_name
 DISCOVERY_PREFIX = "ros1_discovery_info"
 #: The bridge's default namespaces (``BRIDGE_NAMESPACE`` unset; the discovery namespace is never configurable).
 WILDCARD_NS = "*"
+#: The attachment mrosd puts on the samples of a latched topic (a zenoh-bridge-ros1 ignores attachments): the
+#: receiving robot then latches them too, so later local subscribers get the last one.
+LATCHED_ATTACHMENT = b"mrosd:latched"
 #: Seconds between two announcements of one item, and of silence after which a listener forgets it.
 ANNOUNCE_PERIOD = 1.0
 FORGET_AFTER = 3.0 * ANNOUNCE_PERIOD

@@ -95,3 +95,20 @@ async def _publish_forever(pub: object, msg: object) -> None:
     while True:
         pub.publish_nowait(msg)  # type: ignore[attr-defined]
         await asyncio.sleep(0.05)
+
+
+async def test_a_latched_message_that_crossed_live_is_latched_for_later_subscribers() -> None:
+    async with (
+        fleet("robot1", "robot2") as (r1, r2),
+        r1.node("mapper") as a,
+        r2.node("early") as b,
+        r2.node("late") as c,
+    ):
+        pub = await a.advertise("/map", String, latch=True)
+        await r2.bridge.wait_until(lambda: "/robot1/map" in r2.bridge.received, 15)
+        early = await b.subscribe("/robot1/map", String)
+        await r1.bridge.wait_until(lambda: r1.bridge.sent["/map"].matched, 15)
+        await pub.publish(String(data="the map"))  # crosses live: someone on robot2 already listens
+        assert (await early.next(timeout=10)).data == "the map"
+        late = await c.subscribe("/robot1/map", String)
+        assert (await late.next(timeout=10)).data == "the map"
