@@ -26,15 +26,13 @@ import struct
 import subprocess
 import sys
 import tempfile
-import textwrap
 import time
 from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
 SIZES = [1024, 1_000_000, 8_000_000]
-ZENOH_PORT = 7447
-MASTER_PORT = 11311
+MASTER_PORT = 11311  # tests.fleet.fleetenv's, where the daemons' configuration is written
 
 
 # --- the per-host processes -----------------------------------------------------------------------
@@ -100,32 +98,6 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def _fleet_config(tmp: Path, robot: str, listen: str, connect: str, extra: str) -> Path:
-    path = tmp / f"{robot}.toml"
-    connect_list = f'"tcp/{connect}:{ZENOH_PORT}"' if connect else ""
-    path.write_text(
-        textwrap.dedent(
-            f"""
-            [master]
-            host = "127.0.0.1"
-            port = {MASTER_PORT}
-            [ixm]
-            enabled = false
-            [rosout]
-            enabled = false
-            [fleet]
-            enabled = true
-            robot = "{robot}"
-            listen = ["tcp/{listen}:{ZENOH_PORT}"]
-            connect = [{connect_list}]
-            queue_size = 4
-            """
-        )
-        + extra
-    )
-    return path
-
-
 class _Lab:
     def __init__(self) -> None:
         sys.path.insert(0, str(ROOT))
@@ -188,6 +160,8 @@ class _Lab:
 
 
 def _netns_run(seconds: float) -> dict[str, dict[int, Any]]:
+    from tests.fleet.fleetenv import daemon_config
+
     lab = _Lab()
     results: dict[str, dict[int, Any]] = {"tcpros": {}, "zenoh": {}}
     try:
@@ -204,7 +178,7 @@ def _netns_run(seconds: float) -> dict[str, dict[int, Any]]:
         for i, (robot, connect, extra) in enumerate(
             [("robot1", "", 'send_topics = ["/bench"]\n'), ("robot2", addr1, 'receive_topics = ["/robot1/**"]\n')]
         ):
-            cfg = _fleet_config(tmp, robot, lab.lab.addrs[i], connect, extra)
+            cfg = daemon_config(tmp, robot, lab.lab.addrs[i], connect, extra + "queue_size = 4\n")
             daemons.append(lab.start(i, ["-m", "mrosd.daemon", "--config", str(cfg)], ROS_HOSTNAME="127.0.0.1"))
         for i in range(2):
             lab.wait_master(i, local)
@@ -314,6 +288,9 @@ def main(argv: list[str] | None = None) -> int:
         master, topic, _size, seconds = opts.args
         run(_sub(master, topic, float(seconds)))
         return 0
+    from mrosd.fleet.bridge import require_zenoh
+
+    require_zenoh()  # says what to install when eclipse-zenoh is missing
     if os.geteuid() == 0:
         _report(_netns_run(opts.seconds), "two network namespaces over a veth bridge")
     else:

@@ -574,9 +574,12 @@ class FleetBridge:
             if how == _CACHED and rt.received:
                 continue  # live data already came: the cached body is older
             rt.latched_seen = rt.latched_seen or how != _LIVE
+            if rt.latched_seen and not rt.publisher.latch and rt.publisher.shm is None:
+                # Latched at the sender: latched here too, so later local subscribers get the last body. TCPROS
+                # reads the flag at each new connection (a shared-memory side, made later, takes it then too).
+                rt.publisher.latch = True
             if rt.relatching or (rt.latched_seen and not rt.publisher.latch):
-                # Latched at the sender: latched here too, so later local subscribers get the last body. A
-                # publisher's latch is fixed when made (its shared-memory side takes it then): advertise again.
+                # The publisher's shared-memory side took its latch when made: advertise it again, latched.
                 rt.pending = body
                 if not rt.relatching:
                     rt.relatching = True

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import json
+import textwrap
 from collections.abc import AsyncIterator
 from contextlib import AsyncExitStack, asynccontextmanager
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -59,3 +63,44 @@ async def fleet(*names: str, transport: str = "tcp", connect_to: str = "", **kw:
             await stack.enter_async_context(bridge)
             robots.append(Robot(name, master, bridge, endpoint))
         yield robots
+
+
+def bare_peer(endpoint: str) -> Any:
+    """A bare Zenoh session linked to ``endpoint``: it can put and ask anything (a bridge, or a hostile peer)."""
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"peer"')
+    cfg.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{free_port()}"]))
+    cfg.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(cfg)
+
+
+#: The master port of every daemon of the netns lab and the benchmark (each robot in its own namespace).
+MASTER_PORT = 11311
+ZENOH_PORT = 7447
+
+
+def daemon_config(tmp: Path, robot: str, listen: str, connect: str, extra: str) -> Path:
+    """An mrosd.toml for one robot of the lab: master on loopback, no IXM or rosout, [fleet] plus ``extra``."""
+    path = tmp / f"{robot}.toml"
+    connect_list = f'"tcp/{connect}:{ZENOH_PORT}"' if connect else ""
+    path.write_text(
+        textwrap.dedent(
+            f"""
+            [master]
+            host = "127.0.0.1"
+            port = {MASTER_PORT}
+            [ixm]
+            enabled = false
+            [rosout]
+            enabled = false
+            [fleet]
+            enabled = true
+            robot = "{robot}"
+            listen = ["tcp/{listen}:{ZENOH_PORT}"]
+            connect = [{connect_list}]
+            """
+        )
+        + extra
+    )
+    return path

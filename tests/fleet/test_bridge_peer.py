@@ -9,15 +9,13 @@ as queryables answered with the response body.
 from __future__ import annotations
 
 import asyncio
-import json
 import threading
 
 import pytest
 
 from mrosd.fleet.keys import RenameRule
 from mrosd.msg import get_message_class, get_service_class
-from tests.fleet.fleetenv import fleet
-from tests.rosenv import free_port
+from tests.fleet.fleetenv import bare_peer, fleet
 
 zenoh = pytest.importorskip("zenoh", reason="the fleet tests need eclipse-zenoh (pip install 'mrosd[fleet]')")
 
@@ -26,15 +24,6 @@ SetBool = get_service_class("std_srvs/SetBool")
 STRING_KEY = "7374645f6d7367732f537472696e67/992ce8a1687cec8c8bd883ec73ca41d1"
 SETBOOL_KEY = f"{b'std_srvs/SetBool'.hex()}/{SetBool._md5sum}"
 HELLO = b"\x05\x00\x00\x00hello"
-
-
-def bridge_like_peer(endpoint: str) -> object:
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"peer"')
-    cfg.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{free_port()}"]))
-    cfg.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(cfg)
 
 
 class Beacons:
@@ -57,7 +46,7 @@ class Beacons:
 
 async def test_a_bridge_robots_topic_and_service_reach_mrosd() -> None:
     async with fleet("robot2", rename=RenameRule(wildcard_robot="legacy")) as (r2,), r2.node("listener") as b:
-        peer = await asyncio.to_thread(bridge_like_peer, r2.endpoint)
+        peer = await asyncio.to_thread(bare_peer, r2.endpoint)
         loop = asyncio.get_running_loop()
         asked = asyncio.Event()
         wanted = f"ros1_discovery_info/*/sub/{STRING_KEY}/*/chatter"
@@ -114,7 +103,7 @@ async def test_mrosd_topic_and_service_reach_a_bridge_robot() -> None:
 
         await a.advertise_service("/set", SetBool, handle)
         pub = await a.advertise("/chatter", String)
-        peer = await asyncio.to_thread(bridge_like_peer, r1.endpoint)
+        peer = await asyncio.to_thread(bare_peer, r1.endpoint)
         heard: list[str] = []
         bodies: list[bytes] = []
         listener = peer.declare_subscriber(  # type: ignore[attr-defined]

@@ -14,34 +14,21 @@ import textwrap
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
+from tests.fleet.fleetenv import MASTER_PORT, daemon_config
 from tests.interop.tcpros.test_tcpros_interop import roscpp_node
 from tests.netns.nsutil import NetnsLab
+from tests.netns.test_netns_ros import TALKER
 from tests.rosenv import ROS_PYTHON, Processes, needs_ros, ros_env
 
 pytest.importorskip("zenoh", reason="the fleet tests need eclipse-zenoh (pip install 'mrosd[fleet]')")
+MASTER = f"http://127.0.0.1:{MASTER_PORT}/"
 pytestmark = [pytest.mark.root, pytest.mark.interop, needs_ros]
 __all__ = ["roscpp_node"]  # the session fixture that compiles the roscpp node (tests/interop/tcpros)
 
-ZENOH_PORT = 7447
-MASTER_PORT = 11311
-
-TALKER = textwrap.dedent(
-    """
-    import rospy
-    from std_msgs.msg import String
-    rospy.init_node("talker", disable_signals=True)
-    pub = rospy.Publisher("/chatter", String, queue_size=10)
-    rate = rospy.Rate(20)
-    i = 0
-    while not rospy.is_shutdown():
-        pub.publish(String(data="hello %d" % i))
-        i += 1
-        rate.sleep()
-    """
-)
 LISTENER = textwrap.dedent(
     """
     import sys, rospy
@@ -69,28 +56,25 @@ MASTER_PROBE = textwrap.dedent(
 )
 
 
-def daemon_config(tmp: Path, robot: str, listen: str, connect: str, extra: str) -> Path:
-    path = tmp / f"{robot}.toml"
-    path.write_text(
-        textwrap.dedent(
-            f"""
-            [master]
-            host = "127.0.0.1"
-            port = {MASTER_PORT}
-            [ixm]
-            enabled = false
-            [rosout]
-            enabled = false
-            [fleet]
-            enabled = true
-            robot = "{robot}"
-            listen = ["tcp/{listen}:{ZENOH_PORT}"]
-            connect = [{f'"tcp/{connect}:{ZENOH_PORT}"' if connect else ""}]
-            """
+def start_robots(lab: NetnsLab, procs: Processes, tmp: Path, robots: list[tuple[str, str, str]]) -> list[Any]:
+    """One mrosd daemon with [fleet] per ``(robot, connect address, extra toml)`` on hosts 0, 1, ...; returns
+    the daemons once every master answers in its namespace (their logs: ``tmp/<robot>.log``)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "MROSD_"))}
+    env["ROS_HOSTNAME"] = "127.0.0.1"  # each robot's nodes talk to their own master only
+    env["PYTHONPATH"] = os.pathsep.join([str(Path.cwd()), str(Path.cwd() / "cli")])
+    daemons = []
+    for i, (robot, connect, extra) in enumerate(robots):
+        cfg = daemon_config(tmp, robot, lab.addrs[i], connect, extra)
+        with open(tmp / f"{robot}.log", "wb") as log:  # the daemon keeps its own copy of the descriptor
+            argv = lab.argv(i, [sys.executable, "-m", "mrosd.daemon", "--config", str(cfg)])
+            daemons.append(procs.start(argv, env, stderr=log.fileno()))
+    for i in range(len(robots)):
+        lab.exec_ok(
+            lab.hosts[i],
+            [sys.executable, "-c", f"from tests.rosenv import wait_for_xmlrpc; wait_for_xmlrpc({MASTER!r}, 30)"],
+            timeout=40,
         )
-        + extra
-    )
-    return path
+    return daemons
 
 
 class Arrivals:
@@ -118,27 +102,14 @@ class Arrivals:
 
 def test_link_cut_for_10s_then_data_resumes_within_5s(netns_lab: NetnsLab, procs: Processes, tmp_path: Path) -> None:
     lab = netns_lab
+    start_robots(
+        lab,
+        procs,
+        tmp_path,
+        [("robot1", "", 'send_topics = ["/chatter"]\n'), ("robot2", lab.addrs[0], 'receive_topics = ["/robot1/**"]\n')],
+    )
+    master = MASTER
     env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "MROSD_"))}
-    env["ROS_HOSTNAME"] = "127.0.0.1"  # each robot's nodes talk to their own master only
-    env["PYTHONPATH"] = os.pathsep.join([str(Path.cwd()), str(Path.cwd() / "cli")])
-    for i, (robot, connect, extra) in enumerate(
-        [
-            ("robot1", "", 'send_topics = ["/chatter"]\n'),
-            ("robot2", lab.addrs[0], 'receive_topics = ["/robot1/**"]\n'),
-        ]
-    ):
-        cfg = daemon_config(tmp_path, robot, lab.addrs[i], connect, extra)
-        with open(tmp_path / f"{robot}.log", "wb") as log:  # the daemon keeps its own copy of the descriptor
-            procs.start(
-                lab.argv(i, [sys.executable, "-m", "mrosd.daemon", "--config", str(cfg)]), env, stderr=log.fileno()
-            )
-    master = f"http://127.0.0.1:{MASTER_PORT}/"
-    for i in range(2):
-        lab.exec_ok(
-            lab.hosts[i],
-            [sys.executable, "-c", f"from tests.rosenv import wait_for_xmlrpc; wait_for_xmlrpc({master!r}, 30)"],
-            timeout=40,
-        )
     procs.start(lab.argv(0, [ROS_PYTHON, "-c", TALKER]), ros_env(master, tmp_path / "h1"))
     listener = procs.start(lab.argv(1, [ROS_PYTHON, "-c", LISTENER]), ros_env(master, tmp_path / "h2"))
     arrivals = Arrivals(listener)
@@ -197,31 +168,20 @@ def _rss_kb(pid: int) -> int:
 
 def test_thin_link_30hz_1mb_images_limited_to_5hz(netns_lab: NetnsLab, procs: Processes, tmp_path: Path) -> None:
     lab = netns_lab
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "MROSD_"))}
-    env["ROS_HOSTNAME"] = "127.0.0.1"
-    env["PYTHONPATH"] = os.pathsep.join([str(Path.cwd()), str(Path.cwd() / "cli")])
     limits = '[[fleet.limits]]\ntopic = "/camera/**"\nmax_hz = 5.0\n'
-    daemons = []
-    for i, (robot, connect, extra) in enumerate(
+    daemons = start_robots(
+        lab,
+        procs,
+        tmp_path,
         [
             ("robot1", "", 'send_topics = ["/camera/**"]\nqueue_size = 2\n' + limits),
             ("robot2", lab.addrs[0], 'receive_topics = ["/robot1/**"]\nqueue_size = 2\n'),
-        ]
-    ):
-        cfg = daemon_config(tmp_path, robot, lab.addrs[i], connect, extra)
-        with open(tmp_path / f"{robot}.log", "wb") as log:
-            daemons.append(
-                procs.start(
-                    lab.argv(i, [sys.executable, "-m", "mrosd.daemon", "--config", str(cfg)]), env, stderr=log.fileno()
-                )
-            )
-    master = f"http://127.0.0.1:{MASTER_PORT}/"
-    for i in range(2):
-        lab.exec_ok(
-            lab.hosts[i],
-            [sys.executable, "-c", f"from tests.rosenv import wait_for_xmlrpc; wait_for_xmlrpc({master!r}, 30)"],
-            timeout=40,
-        )
+        ],
+    )
+    master = MASTER
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "MROSD_"))}
+    env["PYTHONPATH"] = os.pathsep.join([str(Path.cwd()), str(Path.cwd() / "cli")])
+    env["ROS_HOSTNAME"] = "127.0.0.1"
     link = f"{lab.tag}i1"[-15:]
     try:
         lab.exec_ok(
@@ -280,27 +240,17 @@ def test_three_robots_rospy_roscpp_rostopic(
 ) -> None:
     """robot1 (rospy talker) -> robot3 (roscpp echo of /robot1/chatter) -> robot2 (rostopic), three hosts."""
     lab = netns_lab
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "MROSD_"))}
-    env["ROS_HOSTNAME"] = "127.0.0.1"
-    env["PYTHONPATH"] = os.pathsep.join([str(Path.cwd()), str(Path.cwd() / "cli")])
-    robots = [
-        ("robot1", "", 'send_topics = ["/chatter"]\n'),
-        ("robot2", lab.addrs[0], 'receive_topics = ["/robot3/**"]\n'),
-        ("robot3", lab.addrs[0], 'send_topics = ["/echoed"]\nreceive_topics = ["/robot1/**"]\n'),
-    ]
-    for i, (robot, connect, extra) in enumerate(robots):
-        cfg = daemon_config(tmp_path, robot, lab.addrs[i], connect, extra)
-        with open(tmp_path / f"{robot}.log", "wb") as log:
-            procs.start(
-                lab.argv(i, [sys.executable, "-m", "mrosd.daemon", "--config", str(cfg)]), env, stderr=log.fileno()
-            )
-    master = f"http://127.0.0.1:{MASTER_PORT}/"
-    for i in range(3):
-        lab.exec_ok(
-            lab.hosts[i],
-            [sys.executable, "-c", f"from tests.rosenv import wait_for_xmlrpc; wait_for_xmlrpc({master!r}, 30)"],
-            timeout=40,
-        )
+    start_robots(
+        lab,
+        procs,
+        tmp_path,
+        [
+            ("robot1", "", 'send_topics = ["/chatter"]\n'),
+            ("robot2", lab.addrs[0], 'receive_topics = ["/robot3/**"]\n'),
+            ("robot3", lab.addrs[0], 'send_topics = ["/echoed"]\nreceive_topics = ["/robot1/**"]\n'),
+        ],
+    )
+    master = MASTER
     procs.start(lab.argv(0, [ROS_PYTHON, "-c", TALKER]), ros_env(master, tmp_path / "h1"))
     procs.start(
         lab.argv(2, [roscpp_node, "echo", "string", "/ping:=/robot1/chatter", "/pong:=/echoed"]),

@@ -7,30 +7,19 @@ that reaches the robot's Zenoh port can.
 from __future__ import annotations
 
 import asyncio
-import json
 import time
 
 import pytest
 
 from mrosd.fleet.keys import ItemKind, discovery_key
 from mrosd.msg import get_message_class, get_service_class
-from tests.fleet.fleetenv import fleet
-from tests.rosenv import free_port
+from tests.fleet.fleetenv import bare_peer, fleet
 
 zenoh = pytest.importorskip("zenoh", reason="the fleet tests need eclipse-zenoh (pip install 'mrosd[fleet]')")
 
 String = get_message_class("std_msgs/String")
 SetBool = get_service_class("std_srvs/SetBool")
 MD5 = String._md5sum
-
-
-def hostile_peer(endpoint: str) -> object:
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"peer"')
-    cfg.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{free_port()}"]))
-    cfg.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(cfg)
 
 
 async def _master_answers_fast(robot: object) -> float:
@@ -43,7 +32,7 @@ async def _master_answers_fast(robot: object) -> float:
 
 async def test_announcement_flood_does_not_make_the_master_hold_a_publisher_per_name() -> None:
     async with fleet("robot1") as (r1,):
-        peer = await asyncio.to_thread(hostile_peer, r1.endpoint)
+        peer = await asyncio.to_thread(bare_peer, r1.endpoint)
         try:
             for i in range(1000):
                 key = discovery_key(ItemKind.PUBLISHER, "std_msgs/String", MD5, "evil", f"/t{i}")
@@ -61,7 +50,7 @@ async def test_announcement_flood_does_not_make_the_master_hold_a_publisher_per_
 
 async def test_garbage_announcements_are_counted_and_ignored() -> None:
     async with fleet("robot1", "robot2") as (r1, r2), r1.node("talker") as a, r2.node("listener") as b:
-        peer = await asyncio.to_thread(hostile_peer, r2.endpoint)
+        peer = await asyncio.to_thread(bare_peer, r2.endpoint)
         try:
             for key in [
                 "ros1_discovery_info/*/pub/zz/abc/evil/t",
@@ -95,7 +84,7 @@ async def _publish_forever(pub: object) -> None:
 
 async def test_sample_flood_to_a_subscriber_that_does_not_read_is_bounded() -> None:
     async with fleet("robot2") as (r2,), r2.node("stalled") as b:
-        peer = await asyncio.to_thread(hostile_peer, r2.endpoint)
+        peer = await asyncio.to_thread(bare_peer, r2.endpoint)
         try:
             peer.put(discovery_key(ItemKind.PUBLISHER, "std_msgs/String", MD5, "evil", "/flood"), b"")  # type: ignore[attr-defined]
             await r2.bridge.wait_until(lambda: "/evil/flood" in r2.bridge.received, 15)
@@ -140,7 +129,7 @@ async def test_query_flood_on_a_slow_service_is_capped() -> None:
             lambda: r1.bridge.sent_services.get("/set") is not None and r1.bridge.sent_services["/set"].key != "", 15
         )
         key = r1.bridge.sent_services["/set"].key
-        peer = await asyncio.to_thread(hostile_peer, r1.endpoint)
+        peer = await asyncio.to_thread(bare_peer, r1.endpoint)
         try:
             replies: list[object] = []
             for _ in range(300):
