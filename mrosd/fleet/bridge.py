@@ -20,10 +20,8 @@ import contextlib
 import importlib
 import json
 import logging
-import struct
 import threading
 import time
-import urllib.parse
 from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -47,8 +45,8 @@ from mrosd.fleet.options import FleetOptions, zenoh_settings
 from mrosd.fleet.presence import Presence
 from mrosd.lograte import RateLimitedLog
 from mrosd.tcpros.node import Node
+from mrosd.tcpros.service import probe_service
 from mrosd.tcpros.subscriber import AnyMsg, RawMessage
-from mrosd.wire.header import MAX_HEADER_SIZE, decode_header, encode_header
 
 log = logging.getLogger(__name__)
 _ratelog = RateLimitedLog(log, period=60.0, burst=3)
@@ -155,36 +153,6 @@ def raw_service_class(srv_type: str, md5sum: str) -> type[Any]:
         (),
         {"_type": srv_type, "_md5sum": md5sum, "_request_class": req, "_response_class": resp},
     )
-
-
-async def probe_service(master: Any, service: str) -> tuple[str, str]:
-    """``(type, md5)`` of a local service, from its server's answer to a ``probe=1`` header (as rosservice).
-
-    Raises:
-        ServiceError: unreachable, refused, or no type in the answer.
-        MasterError: the service is not registered.
-    """
-    uri = str(await master.lookup_service(service))
-    parsed = urllib.parse.urlsplit(uri)
-    if parsed.scheme != "rosrpc" or not parsed.hostname or parsed.port is None:
-        raise ServiceError(f"service {service}: the master gave an unusable URI {uri!r}")
-    header = encode_header({"callerid": "/mrosd_fleet", "service": service, "md5sum": "*", "probe": "1"})
-    try:
-        async with asyncio.timeout(PROBE_TIMEOUT):
-            reader, writer = await asyncio.open_connection(parsed.hostname, parsed.port)
-            try:
-                writer.write(header)
-                (size,) = struct.unpack("<I", await reader.readexactly(4))
-                if size > MAX_HEADER_SIZE:
-                    raise ServiceError(f"service {service}: a header of {size} bytes")
-                fields = decode_header(await reader.readexactly(size))
-            finally:
-                writer.close()
-    except (OSError, TimeoutError, asyncio.IncompleteReadError) as exc:
-        raise ServiceError(f"service {service}: cannot probe {uri}: {exc or type(exc).__name__}") from exc
-    if "error" in fields or not fields.get("type") or not fields.get("md5sum"):
-        raise ServiceError(f"service {service}: probe answered {fields.get('error') or 'without type or md5'}")
-    return fields["type"], fields["md5sum"]
 
 
 # --- what crosses ---------------------------------------------------------------------------------
@@ -753,7 +721,10 @@ class FleetBridge:
         ss = SentService(name)
         self.sent_services[name] = ss
         try:
-            srv_type, md5sum = await probe_service(self.node.master, name)
+            fields = await probe_service(self.node.master, name, self.node.name, PROBE_TIMEOUT)
+            srv_type, md5sum = fields["type"], fields.get("md5sum", "")
+            if not md5sum or md5sum == "*":
+                raise ServiceError(f"service {name}: the server did not say its md5sum")
             ss.key = data_key(srv_type, md5sum, self.options.robot, name)
         except (MrosError, ValueError) as exc:
             _ratelog.warning(f"probe {name}", "fleet: cannot offer %s: %s", name, exc)
