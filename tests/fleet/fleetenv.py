@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import textwrap
 from collections.abc import AsyncIterator
@@ -63,6 +64,13 @@ async def fleet(*names: str, transport: str = "tcp", connect_to: str = "", **kw:
             await stack.enter_async_context(bridge)
             robots.append(Robot(name, master, bridge, endpoint))
         yield robots
+
+
+async def publish_forever(pub: Any, msg: Any, period: float = 0.05) -> None:
+    """Publish ``msg`` every ``period`` seconds until cancelled (a link's first samples may come before it is up)."""
+    while True:
+        pub.publish_nowait(msg)
+        await asyncio.sleep(period)
 
 
 def bare_peer(endpoint: str) -> Any:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 
 from mrosd.msg import get_message_class, get_service_class
-from tests.fleet.fleetenv import fleet
+from tests.fleet.fleetenv import fleet, publish_forever
 
 String = get_message_class("std_msgs/String")
 SetBool = get_service_class("std_srvs/SetBool")
@@ -15,12 +15,7 @@ async def test_topic_crosses_under_the_robots_name() -> None:
     async with fleet("robot1", "robot2") as (r1, r2), r1.node("talker") as a, r2.node("listener") as b:
         pub = await a.advertise("/chatter", String)
 
-        async def publish() -> None:
-            while True:
-                await pub.publish(String(data="hello"))
-                await asyncio.sleep(0.05)
-
-        task = asyncio.create_task(publish())
+        task = asyncio.create_task(publish_forever(pub, String(data="hello")))
         try:
             await r2.bridge.wait_until(lambda: "/robot1/chatter" in r2.bridge.received, 15)
             await asyncio.sleep(0.5)
@@ -80,7 +75,7 @@ async def test_tf_frames_get_the_robot_name() -> None:
         t.header.frame_id = "odom"
         await r2.bridge.wait_until(lambda: "/robot1/tf" in r2.bridge.received, 15)
         sub = await b.subscribe("/robot1/tf", tf_message)
-        sender = asyncio.create_task(_publish_forever(pub, tf_message(transforms=[t])))
+        sender = asyncio.create_task(publish_forever(pub, tf_message(transforms=[t])))
         try:
             msg = await sub.next(timeout=10)
         finally:
@@ -89,12 +84,6 @@ async def test_tf_frames_get_the_robot_name() -> None:
             "robot1/odom",
             "robot1/base_link",
         )
-
-
-async def _publish_forever(pub: object, msg: object) -> None:
-    while True:
-        pub.publish_nowait(msg)  # type: ignore[attr-defined]
-        await asyncio.sleep(0.05)
 
 
 async def test_a_latched_message_that_crossed_live_is_latched_for_later_subscribers() -> None:

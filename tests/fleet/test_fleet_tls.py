@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from mrosd.msg import get_message_class
-from tests.fleet.fleetenv import fleet
+from tests.fleet.fleetenv import fleet, publish_forever
 
 pytest.importorskip("zenoh", reason="the fleet tests need eclipse-zenoh (pip install 'mrosd[fleet]')")
 String = get_message_class("std_msgs/String")
@@ -73,18 +73,12 @@ async def test_topic_crosses_a_tls_link(tmp_path: Path) -> None:
         pub.publish_nowait(String(data="over tls"))
         await r2.bridge.wait_until(lambda: "/robot1/chatter" in r2.bridge.received, 15)
         sub = await b.subscribe("/robot1/chatter", String)
-        sender = asyncio.create_task(_publish_forever(pub))
+        sender = asyncio.create_task(publish_forever(pub, String(data="over tls")))
         try:
             assert (await sub.next(timeout=10)).data == "over tls"
         finally:
             sender.cancel()
         assert r2.bridge.status()["peers"]
-
-
-async def _publish_forever(pub: object) -> None:
-    while True:
-        pub.publish_nowait(String(data="over tls"))  # type: ignore[attr-defined]
-        await asyncio.sleep(0.05)
 
 
 async def test_a_robot_with_another_ca_does_not_link(tmp_path: Path) -> None:

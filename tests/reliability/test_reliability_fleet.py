@@ -13,7 +13,7 @@ import pytest
 
 from mrosd.fleet.keys import ItemKind, discovery_key
 from mrosd.msg import get_message_class, get_service_class
-from tests.fleet.fleetenv import bare_peer, fleet
+from tests.fleet.fleetenv import bare_peer, fleet, publish_forever
 
 zenoh = pytest.importorskip("zenoh", reason="the fleet tests need eclipse-zenoh (pip install 'mrosd[fleet]')")
 
@@ -65,7 +65,7 @@ async def test_garbage_announcements_are_counted_and_ignored() -> None:
             pub.publish_nowait(String(data="x"))
             await r2.bridge.wait_until(lambda: "/robot1/chatter" in r2.bridge.received, 15)
             sub = await b.subscribe("/robot1/chatter", String)
-            pub2 = asyncio.create_task(_publish_forever(pub))
+            pub2 = asyncio.create_task(publish_forever(pub, String(data="x")))
             try:
                 assert (await sub.next(timeout=10)).data == "x"
             finally:
@@ -74,12 +74,6 @@ async def test_garbage_announcements_are_counted_and_ignored() -> None:
             assert not [t for t in r2.bridge.received if "evil" in t]
         finally:
             peer.close()  # type: ignore[attr-defined]
-
-
-async def _publish_forever(pub: object) -> None:
-    while True:
-        pub.publish_nowait(String(data="x"))  # type: ignore[attr-defined]
-        await asyncio.sleep(0.05)
 
 
 async def test_sample_flood_to_a_subscriber_that_does_not_read_is_bounded() -> None:
