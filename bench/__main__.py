@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 import sys
 
-PARTS = ["msg", "master", "tcpros", "ixm", "cli", "bag", "web"]
+PARTS = ["msg", "master", "tcpros", "ixm", "cli", "bag", "web", "fleet"]
 
 
 def main(argv: list[str]) -> int:

@@ -28,6 +28,8 @@ __all__ = [
     "DEFAULT_CONFIG_PATH",
     "MAX_DEPTH",
     "Config",
+    "FleetConfig",
+    "FleetLimitConfig",
     "IxmConfig",
     "LogConfig",
     "MasterConfig",
@@ -127,6 +129,44 @@ class WebConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     max_clients: Count | None = None
 
 
+class FleetLimitConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """``[[fleet.limits]]``: a rate and bandwidth cap for the sent topics matching ``topic`` (0 = none)."""
+
+    topic: str
+    max_hz: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    max_bytes_per_s: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+
+
+class FleetConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """``[fleet]``: this master shares chosen topics and services with other robots over Zenoh (docs/fleet.md).
+
+    Off by default; checked in full by ``mrosd.fleet.options.fleet_options`` when enabled.
+    """
+
+    enabled: bool = False
+    robot: str = ""
+    mode: Literal["peer", "client"] = "peer"
+    listen: list[str] = msgspec.field(default_factory=list)
+    connect: list[str] = msgspec.field(default_factory=list)
+    multicast_scouting: bool = False
+    send_topics: list[str] = msgspec.field(default_factory=list)
+    send_topics_exclude: list[str] = msgspec.field(default_factory=list)
+    receive_topics: list[str] = msgspec.field(default_factory=lambda: ["/**"])
+    receive_topics_exclude: list[str] = msgspec.field(default_factory=list)
+    send_services: list[str] = msgspec.field(default_factory=list)
+    receive_services: list[str] = msgspec.field(default_factory=lambda: ["/**"])
+    prefix: str = "/{robot}"
+    bridge_robot: str = ""
+    prefix_tf: bool = False
+    queue_size: Count = 16
+    max_received: Count = 256
+    lease: Seconds = 3.0
+    tls_root_ca: str = ""
+    tls_certificate: str = ""
+    tls_private_key: str = ""
+    limits: list[FleetLimitConfig] = msgspec.field(default_factory=list)
+
+
 class LogConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """``[log]``: the daemon's own log verbosity, and the log files roscore users look for.
 
@@ -151,6 +191,7 @@ class Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     rosout: RosoutConfig = msgspec.field(default_factory=RosoutConfig)
     web: WebConfig = msgspec.field(default_factory=WebConfig)
     log: LogConfig = msgspec.field(default_factory=LogConfig)
+    fleet: FleetConfig = msgspec.field(default_factory=FleetConfig)
     #: the file this came from, or "" for defaults only (not a TOML key).
     source: str = ""
 

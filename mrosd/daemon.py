@@ -44,6 +44,7 @@ from mrosd.loop import event_loop_factory
 from mrosd.sdnotify import Notifier, watchdog_interval
 
 if TYPE_CHECKING:
+    from mrosd.fleet.bridge import FleetBridge
     from mrosd.ixm.bridge import Bridge, IxmBridge
     from mrosd.ixm.rules import AccessRules
     from mrosd.ixm.server import IxmServer
@@ -197,6 +198,7 @@ class Daemon:
         self.logs: RunLogs | None = None
         self.run_id = ""
         self.web: WebServer | None = None
+        self.fleet: FleetBridge | None = None
         self.master_uri = ""
         #: each part's share of RLIMIT_NOFILE, given to it as its cap (``mrosd.fdbudget``); set by ``start()``
         self.budgets: FdBudgets | None = None
@@ -228,6 +230,8 @@ class Daemon:
                 await self._optional("rosout", self._start_rosout)
             if not self.master_only and self.cfg.web.enabled:
                 await self._optional("web", self._start_web)
+            if not self.master_only and self.cfg.fleet.enabled:
+                await self._optional("fleet", self._start_fleet)
         except BaseException:
             await self.aclose()
             raise
@@ -381,6 +385,16 @@ class Daemon:
         self.web = server
         self._parts.append(("web", server))
 
+    async def _start_fleet(self) -> None:
+        from mrosd.fleet.bridge import FleetBridge
+        from mrosd.fleet.options import fleet_options
+
+        fleet = FleetBridge(fleet_options(self.cfg.fleet, self.cfg.source or "configuration"), self.master_uri)
+        await fleet.start()
+        self.fleet = fleet
+        self._parts.append(("fleet", fleet))
+        log.info("fleet: robot %s linked over Zenoh", self.cfg.fleet.robot)
+
     def status_line(self) -> str:
         """The one-line status for ``systemctl status``: ``running: ...`` or ``degraded: ...; ixm failed: why``."""
         parts = [f"master {self.master_uri}"]
@@ -394,6 +408,8 @@ class Daemon:
             parts.append(f"foxglove {self.web.url}")
             if self.web.rosbridge_port is not None:
                 parts.append(f"rosbridge {self.web.rosbridge_url}")
+        if self.fleet is not None:
+            parts.append(f"fleet {self.cfg.fleet.robot}")
         line = ", ".join(parts)
         if not self.failed:
             return "running: " + line
@@ -422,6 +438,8 @@ class Daemon:
             log.warning("SIGHUP: only [ixm.rules] is reloaded; restart mrosd to apply the other changes")
         if cfg.ixm.rules.get("bridges") != old.ixm.rules.get("bridges"):
             log.warning("SIGHUP: [ixm.rules.bridges] changed; restart mrosd to apply it")
+        if cfg.fleet != old.fleet:
+            log.warning("SIGHUP: [fleet] changed; restart mrosd to apply it")
         if self.ixm is not None:
             self.ixm.reload_rules(rules)
             log.info("SIGHUP: IXM access rules reloaded from %s", cfg.source or "defaults")
@@ -444,6 +462,8 @@ class Daemon:
             await self._optional("rosout", self._start_rosout)
         if "web" in retry:
             await self._optional("web", self._start_web)
+        if "fleet" in retry:
+            await self._optional("fleet", self._start_fleet)
 
     async def aclose(self, timeout: float = SHUTDOWN_TIMEOUT) -> bool:
         """Close the parts in reverse start order within ``timeout`` seconds in all; True when all closed.

@@ -39,6 +39,7 @@ SUBCOMMANDS = {
     "bag": "mros_cli.bag",
     "graph": "mros_cli.graph",
     "bridge": "mros_cli.bridge",
+    "fleet": "mros_cli.fleet",
 }
 
 EXIT_OK = 0

@@ -101,36 +101,10 @@ async def probe_type(master: MasterClient, service: str) -> str:
         MasterError: the service is not registered.
         ServiceError: the server cannot be reached or does not answer with a type.
     """
-    import asyncio
-    import struct
-    import urllib.parse
-
     from mros_cli.main import CALLER_ID
-    from mrosd.errors import ServiceError
-    from mrosd.wire.header import MAX_HEADER_SIZE, decode_header, encode_header
+    from mrosd.tcpros.service import probe_service
 
-    uri: str = await master.lookup_service(service)
-    parsed = urllib.parse.urlsplit(uri)
-    if parsed.scheme != "rosrpc" or not parsed.hostname or parsed.port is None:
-        raise ServiceError(f"service {service}: the master gave an unusable URI {uri!r}")
-    header = encode_header({"callerid": CALLER_ID, "service": service, "md5sum": "*", "probe": "1"})
-    try:
-        async with asyncio.timeout(PROBE_TIMEOUT):
-            reader, writer = await asyncio.open_connection(parsed.hostname, parsed.port)
-            try:
-                writer.write(header)
-                (size,) = struct.unpack("<I", await reader.readexactly(4))
-                if size > MAX_HEADER_SIZE:
-                    raise ServiceError(f"service {service}: header of {size} bytes is too big")
-                fields = decode_header(await reader.readexactly(size))
-            finally:
-                writer.close()
-    except (OSError, TimeoutError, asyncio.IncompleteReadError) as exc:
-        raise ServiceError(f"service {service}: cannot probe {uri}: {exc or type(exc).__name__}") from exc
-    if "error" in fields:
-        raise ServiceError(f"service {service}: {fields['error']}")
-    if not fields.get("type"):
-        raise ServiceError(f"service {service}: the server did not say its type")
+    fields = await probe_service(master, service, CALLER_ID, PROBE_TIMEOUT)
     return fields["type"]
 
 

@@ -32,6 +32,7 @@ from mrosd.wire.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connecti
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    from mrosd.master.client import MasterClient
     from mrosd.tcpros.owner import EndpointOwner
 
 log = logging.getLogger(__name__)
@@ -323,3 +324,47 @@ class _Connection(NamedTuple):
                 if len(got) > 1 or self.decoder.buffered:
                     raise RemoteProtocolError("the server sent more than one answer to one request")
                 return got[0]
+
+
+#: Seconds a probe of a service's server may take (connect, send the header, read the answer).
+PROBE_TIMEOUT = 5.0
+
+
+async def probe_service(
+    master: MasterClient, service: str, callerid: str, timeout: float = PROBE_TIMEOUT
+) -> dict[str, str]:
+    """The header a service's server answers to a ``probe=1`` connection, as rosservice asks for a type:
+    ``type``, ``md5sum``, ``request_type``, ``response_type``. Shared by ``mros service`` and the fleet part.
+
+    Raises:
+        MasterError: the service is not registered.
+        ServiceError: the master's URI is unusable, the server cannot be reached, answers an error or no type.
+    """
+    import struct
+    import urllib.parse
+
+    from mrosd.wire.header import decode_header
+
+    uri: str = await master.lookup_service(service)
+    parsed = urllib.parse.urlsplit(uri)
+    if parsed.scheme != "rosrpc" or not parsed.hostname or parsed.port is None:
+        raise ServiceError(f"service {service}: the master gave an unusable URI {uri!r}")
+    header = encode_header({"callerid": callerid, "service": service, "md5sum": "*", "probe": "1"})
+    try:
+        async with asyncio.timeout(timeout):
+            reader, writer = await asyncio.open_connection(parsed.hostname, parsed.port)
+            try:
+                writer.write(header)
+                (size,) = struct.unpack("<I", await reader.readexactly(4))
+                if size > MAX_HEADER_SIZE:
+                    raise ServiceError(f"service {service}: header of {size} bytes is too big")
+                fields = decode_header(await reader.readexactly(size))
+            finally:
+                writer.close()
+    except (OSError, TimeoutError, asyncio.IncompleteReadError) as exc:
+        raise ServiceError(f"service {service}: cannot probe {uri}: {exc or type(exc).__name__}") from exc
+    if "error" in fields:
+        raise ServiceError(f"service {service}: {fields['error']}")
+    if not fields.get("type"):
+        raise ServiceError(f"service {service}: the server did not say its type")
+    return fields

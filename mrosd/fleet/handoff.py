@@ -1,0 +1,188 @@
+"""The two crossings between Zenoh's threads and the event loop, each bounded and never blocking the loop.
+
+Zenoh runs its callbacks on its own threads; the loop must not wait for Zenoh either (a put on a congested
+link blocks). ``Inbox`` takes samples from any thread into per-topic drop-oldest queues and wakes the loop at
+most once per batch; ``Outbox`` takes bodies from the loop into per-key drop-oldest queues that one sender
+thread writes to Zenoh, and repeats the discovery announcements each period from that same thread.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+from mrosd.fleet.keys import ANNOUNCE_PERIOD
+from mrosd.fleet.limits import DropOldestQueue
+
+log = logging.getLogger(__name__)
+
+
+class Inbox:
+    """Any thread -> the loop: ``put(name, item)``; ``deliver(name, items)`` runs on the loop in batches."""
+
+    def __init__(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        deliver: Callable[[str, list[Any]], None],
+        maxlen: int,
+        maxlen_of: dict[str, int] | None = None,
+    ) -> None:
+        self._loop = loop
+        self._deliver = deliver
+        self._maxlen = maxlen
+        #: names with a bound of their own (the discovery stream: one entry per announced item, not per topic)
+        self._maxlen_of = dict(maxlen_of or {})
+        self._lock = threading.Lock()
+        self._queues: dict[str, DropOldestQueue[Any]] = {}
+        self._scheduled = False
+        self.closed = False
+
+    def put(self, name: str, item: Any) -> None:
+        """Queue ``item`` (from any thread); the oldest of ``name`` is dropped and counted when full."""
+        if self.closed:
+            return
+        with self._lock:
+            q = self._queues.get(name)
+            if q is None:
+                q = self._queues[name] = DropOldestQueue(self._maxlen_of.get(name, self._maxlen))
+            q.put(item)
+            if self._scheduled:
+                return
+            self._scheduled = True
+        try:
+            self._loop.call_soon_threadsafe(self._drain)
+        except RuntimeError:  # the loop is closed: nothing will read this any more
+            self.closed = True
+
+    def _drain(self) -> None:
+        with self._lock:
+            batches = [(name, list(q.items)) for name, q in self._queues.items() if q.items]
+            for q in self._queues.values():
+                q.items.clear()
+            self._scheduled = False
+        for name, items in batches:
+            try:
+                self._deliver(name, items)
+            except Exception:
+                log.exception("fleet: delivering %d item(s) of %s failed", len(items), name)
+
+    def dropped(self, name: str) -> int:
+        with self._lock:
+            q = self._queues.get(name)
+            return q.dropped if q is not None else 0
+
+    def forget(self, name: str) -> None:
+        with self._lock:
+            self._queues.pop(name, None)
+
+
+class Outbox:
+    """The loop -> Zenoh: one sender thread, per-key drop-oldest queues, announcements every period.
+
+    ``publisher.put`` may block while a link is congested (reliable data, as the bridge sends it): only this
+    thread waits, the queues keep the newest ``maxlen`` bodies of each key, and what falls out is counted.
+    """
+
+    def __init__(
+        self, session: Any, maxlen: int, announce_options: dict[str, Any], period: float = ANNOUNCE_PERIOD
+    ) -> None:
+        self._session = session
+        #: keyword arguments of each announcement's put (the bridge's: best effort, background, remote only)
+        self._announce_options = announce_options
+        self._maxlen = maxlen
+        self._period = period
+        self._cv = threading.Condition()
+        self._queues: dict[str, DropOldestQueue[bytes]] = {}
+        self._publishers: dict[str, Any] = {}
+        #: keys whose puts carry an attachment (the latched marker of mrosd/fleet/keys.py)
+        self._attachments: dict[str, bytes] = {}
+        self._ready: deque[str] = deque()
+        self._closed = False
+        #: Discovery keys repeated every period (replaced whole from the loop; read by the sender thread).
+        self.announcements: frozenset[str] = frozenset()
+        self.put_errors = 0
+        self._thread = threading.Thread(target=self._run, name="mrosd-fleet-send", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def put(self, key: str, publisher: Any, body: bytes, attachment: bytes | None = None) -> None:
+        """Queue ``body`` for ``publisher`` (on ``key``), with ``attachment`` if given; never blocks."""
+        with self._cv:
+            if attachment is not None:
+                self._attachments[key] = attachment
+            q = self._queues.get(key)
+            if q is None:
+                q = self._queues[key] = DropOldestQueue(self._maxlen)
+            self._publishers[key] = publisher
+            q.put(body)
+            if len(q) == 1:
+                self._ready.append(key)
+            self._cv.notify()
+
+    def dropped(self, key: str) -> int:
+        with self._cv:
+            q = self._queues.get(key)
+            return q.dropped if q is not None else 0
+
+    def forget(self, key: str) -> None:
+        with self._cv:
+            self._queues.pop(key, None)
+            self._publishers.pop(key, None)
+            self._attachments.pop(key, None)
+
+    def close(self, timeout: float = 2.0) -> None:
+        with self._cv:
+            self._closed = True
+            self._cv.notify()
+        if self._thread.is_alive():
+            self._thread.join(timeout)
+
+    def _run(self) -> None:
+        next_announce = time.monotonic()
+        while True:
+            body: bytes | None = None
+            publisher: Any = None
+            attachment: bytes | None = None
+            with self._cv:
+                while not self._closed and not self._ready:
+                    wait = next_announce - time.monotonic()
+                    if wait <= 0:
+                        break
+                    self._cv.wait(wait)
+                if self._closed:
+                    return
+                if self._ready:
+                    key = self._ready.popleft()
+                    q = self._queues.get(key)
+                    if q is not None:
+                        body = q.pop()
+                        publisher = self._publishers.get(key)
+                        attachment = self._attachments.get(key)
+                        if len(q):
+                            self._ready.append(key)  # round-robin: one body per key in turn
+            if body is not None and publisher is not None:
+                try:
+                    if attachment is None:
+                        publisher.put(body)
+                    else:
+                        publisher.put(body, attachment=attachment)
+                except Exception as exc:  # undeclared meanwhile, or the session closed
+                    self.put_errors += 1
+                    log.debug("fleet: put failed: %s", exc)
+            if time.monotonic() >= next_announce:
+                self._announce()
+                next_announce = time.monotonic() + self._period
+
+    def _announce(self) -> None:
+        for key in self.announcements:
+            try:
+                self._session.put(key, b"", **self._announce_options)
+            except Exception as exc:
+                self.put_errors += 1
+                log.debug("fleet: announcing %s failed: %s", key, exc)

@@ -1,0 +1,114 @@
+"""Two (or more) masters in one process, each with its FleetBridge, linked over Zenoh on loopback."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import textwrap
+from collections.abc import AsyncIterator
+from contextlib import AsyncExitStack, asynccontextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+import mrosd
+from mrosd.fleet.bridge import FleetBridge
+from mrosd.fleet.keys import NameFilter
+from mrosd.fleet.options import FleetOptions
+from mrosd.master import Master
+from tests.rosenv import free_port
+
+zenoh = pytest.importorskip("zenoh", reason="the fleet tests need eclipse-zenoh (pip install 'mrosd[fleet]')")
+
+EVERYTHING = NameFilter(include=("/**",))
+
+
+@dataclass
+class Robot:
+    name: str
+    master: Master
+    bridge: FleetBridge
+    endpoint: str
+
+    def node(self, name: str) -> mrosd.Node:
+        return mrosd.Node(name, master_uri=self.master.uri, argv=[], host="127.0.0.1")
+
+
+def options(robot: str, listen: str, connect: tuple[str, ...] = (), **kw: object) -> FleetOptions:
+    base: dict[str, object] = {
+        "listen": (listen,),
+        "connect": connect,
+        "send_topics": EVERYTHING,
+        "receive_topics": EVERYTHING,
+        "send_services": NameFilter(include=("/set", "/fail", "/add_two_ints")),
+        "receive_services": EVERYTHING,
+    }
+    base.update(kw)
+    return FleetOptions(robot, **base)  # type: ignore[arg-type]
+
+
+@asynccontextmanager
+async def fleet(*names: str, transport: str = "tcp", connect_to: str = "", **kw: object) -> AsyncIterator[list[Robot]]:
+    """Robots in a line: each one connects to the one before it (the first to ``connect_to`` if given);
+    ``transport`` tcp, or tls on localhost."""
+    host = "localhost" if transport == "tls" else "127.0.0.1"
+    async with AsyncExitStack() as stack:
+        robots: list[Robot] = []
+        for name in names:
+            master = await stack.enter_async_context(Master(host="127.0.0.1", port=0))
+            endpoint = f"{transport}/{host}:{free_port()}"
+            connect = (robots[-1].endpoint,) if robots else ((connect_to,) if connect_to else ())
+            bridge = FleetBridge(options(name, endpoint, connect, **kw), master.uri, host="127.0.0.1")
+            await stack.enter_async_context(bridge)
+            robots.append(Robot(name, master, bridge, endpoint))
+        yield robots
+
+
+async def publish_forever(pub: Any, msg: Any, period: float = 0.05) -> None:
+    """Publish ``msg`` every ``period`` seconds until cancelled (a link's first samples may come before it is up)."""
+    while True:
+        pub.publish_nowait(msg)
+        await asyncio.sleep(period)
+
+
+def bare_peer(endpoint: str) -> Any:
+    """A bare Zenoh session linked to ``endpoint``: it can put and ask anything (a bridge, or a hostile peer)."""
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"peer"')
+    cfg.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{free_port()}"]))
+    cfg.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(cfg)
+
+
+#: The master port of every daemon of the netns lab and the benchmark (each robot in its own namespace).
+MASTER_PORT = 11311
+ZENOH_PORT = 7447
+
+
+def daemon_config(tmp: Path, robot: str, listen: str, connect: str, extra: str) -> Path:
+    """An mrosd.toml for one robot of the lab: master on loopback, no IXM or rosout, [fleet] plus ``extra``."""
+    path = tmp / f"{robot}.toml"
+    connect_list = f'"tcp/{connect}:{ZENOH_PORT}"' if connect else ""
+    path.write_text(
+        textwrap.dedent(
+            f"""
+            [master]
+            host = "127.0.0.1"
+            port = {MASTER_PORT}
+            [ixm]
+            enabled = false
+            [rosout]
+            enabled = false
+            [fleet]
+            enabled = true
+            robot = "{robot}"
+            listen = ["tcp/{listen}:{ZENOH_PORT}"]
+            connect = [{connect_list}]
+            """
+        )
+        + extra
+    )
+    return path
