@@ -110,6 +110,8 @@ class ShmSubscriberConnection:
         #: done when the connection ends; await ``wait_closed()`` rather than this future itself
         self.closed: asyncio.Future[None] = self._loop.create_future()
         self._ended = False
+        #: the publisher closed its sockets: the ring is read to its end, then the connection ends
+        self._leaving = False
         #: why the connection ended ("" when we closed it or the publisher went away cleanly)
         self.error = ""
         self.publisher_pid = 0
@@ -237,7 +239,7 @@ class ShmSubscriberConnection:
 
     def _on_wake(self) -> None:
         if self._wake is not None and not drain_socket(self._wake):
-            self._end("")  # the publisher went away (its control socket says so too, maybe later)
+            self._publisher_left()  # its control socket says so too, maybe later
             return
         self._poke()
         if self._on_frame is not None:
@@ -255,6 +257,34 @@ class ShmSubscriberConnection:
         if not self._ended:
             self._drain()
 
+    def _publisher_left(self) -> None:
+        """The publisher closed its sockets (exit, crash, unadvertise). What it published before is in the ring
+        and is still delivered, as TCPROS delivers the bytes already in a closed socket; then the connection
+        ends. The sockets are no longer watched (their end-of-file would wake us on every loop turn)."""
+        if self._ended or self._leaving:
+            return
+        self._leaving = True
+        # Rings announced just before the publisher left are read first (its wake-up socket's end may be seen
+        # before its control socket's): each read takes one recv, and the stream ends within MAX_NEXT_RINGS.
+        for _ in range(MAX_NEXT_RINGS + 2):
+            if not self._read_control() or self._ended:
+                break
+        if self._ended:
+            return
+        cursor = self._cursor
+        if cursor is None or (not cursor.available() and not self._next_rings):
+            self._end("")  # nothing left to read: the connection ends now, as before
+            return
+        loop = self._loop
+        for sock in (self._wake, self._channel.sock if self._channel is not None else None):
+            if sock is not None:
+                with contextlib.suppress(Exception):
+                    loop.remove_reader(sock.fileno())
+        if self._on_frame is not None:
+            self._schedule()  # ``_drain`` ends the connection once the ring is read
+        else:
+            self._event.set()  # ``__anext__`` ends it once the ring is read
+
     def _drain(self) -> None:
         cursor = self._cursor
         callback = self._on_frame
@@ -264,6 +294,9 @@ class ShmSubscriberConnection:
             for _ in range(DRAIN_BATCH):
                 frame = self._read_one()
                 if frame is None:
+                    if self._leaving:
+                        self._end("")
+                        return
                     break
                 try:
                     callback(frame)
@@ -325,14 +358,23 @@ class ShmSubscriberConnection:
                 self._channel.send(control.Progress(dropped=dropped, received=self.messages_received))
 
     def _on_control(self) -> None:
+        if self._read_control() and not self._ended:
+            if self._on_frame is not None:
+                self._schedule()
+            else:
+                self._event.set()
+
+    def _read_control(self) -> bool:
+        """Apply what waits on the control socket (announced rings); False at its end or on a protocol error
+        (which ends the connection)."""
         channel = self._channel
         if channel is None:
-            return
+            return False
         try:
             got = channel.receive()
             if got is None:
-                self._end("")
-                return
+                self._publisher_left()
+                return False
             for msg, fds in got:
                 if isinstance(msg, control.Ring):
                     self._next_rings.append(MappedRing(fds[0], self._max_map))
@@ -343,11 +385,8 @@ class ShmSubscriberConnection:
                     raise RemoteProtocolError(f"unexpected {type(msg).__name__} from the shared-memory publisher")
         except RemoteProtocolError as exc:
             self._end(str(exc))
-            return
-        if self._on_frame is not None:
-            self._schedule()
-        else:
-            self._event.set()
+            return False
+        return True
 
     def _switch(self) -> RingCursor:
         """Our ring is exhausted and retired (the publisher retires a ring before announcing the next one):
@@ -386,6 +425,9 @@ class ShmSubscriberConnection:
                 if isinstance(frame, ShmView):
                     self._last_view = frame
                 return frame
+            if self._leaving:
+                self._end("")
+                raise StopAsyncIteration
             await self._event.wait()  # set by a wake-up, a new ring, or the end of the connection
 
     def _release_view(self) -> None:
