@@ -39,6 +39,7 @@ SUBCOMMANDS = {
     "bag": "mros_cli.bag",
     "graph": "mros_cli.graph",
     "bridge": "mros_cli.bridge",
+    "web": "mros_cli.web",
 }
 
 EXIT_OK = 0

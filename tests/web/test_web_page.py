@@ -1,0 +1,314 @@
+"""mrosd's own page (``GET /`` on the Foxglove port) in headless Chromium against a running daemon.
+
+Real publishers: rospy from Debian (under /usr/bin/python3) and an mrosd node, each in its own process. The
+test reads back what the page drew (graph nodes, the table's Hz, a plotted value, canvas pixels) and saves a
+screenshot of each view under ``$MROSD_SCREENSHOTS`` (default ``bench/out/screenshots/``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import re
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.integration.daemon.daemonproc import DaemonRun
+from tests.rosenv import ROS_PYTHON, Processes, ros_available, ros_env
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent.parent
+NODE = shutil.which("node")
+CHROMIUM = Path(os.environ.get("CHROMIUM", "/usr/bin/chromium"))
+SHOTS = Path(os.environ.get("MROSD_SCREENSHOTS", ROOT / "bench" / "out" / "screenshots"))
+
+pytestmark = pytest.mark.skipif(
+    NODE is None or not (HERE / "node_modules" / "playwright-core").is_dir() or not CHROMIUM.exists(),
+    reason="node, chromium or playwright-core missing: scripts/install-system-deps.sh, "
+    "then `npm ci --prefix tests/web`",
+)
+
+SINE_HZ = 20.0
+ROSPY_SINE = f"""
+import math, rospy
+from std_msgs.msg import Float64
+rospy.init_node("rospy_sine")
+pub = rospy.Publisher("/sine", Float64, queue_size=10)
+rate = rospy.Rate({SINE_HZ})
+t0 = rospy.get_time()
+while not rospy.is_shutdown():
+    pub.publish(Float64(math.sin(rospy.get_time() - t0)))
+    rate.sleep()
+"""
+
+#: An mrosd node publishing an rgb8 image (pixel (x, y) = (4x, 4y, 128) mod 256, then shifted by the frame
+#: number in blue) at IMAGE_HZ and, when FAST_HZ > 0, a Float64 at FAST_HZ.
+MROSD_CAMERA = """
+import asyncio, os, sys, time
+import mrosd
+from mrosd.msg import get_message_class
+Image = get_message_class("sensor_msgs/Image")
+Float64 = get_message_class("std_msgs/Float64")
+W, H, HZ, FAST = (float(a) for a in sys.argv[1:5])
+W, H = int(W), int(H)
+row = bytearray()
+for x in range(W):
+    row += bytes((4 * x % 256, 0, 128))
+frames = []
+for k in range(4):
+    buf = bytearray()
+    for y in range(H):
+        r = bytearray(row)
+        r[1::3] = bytes([4 * y % 256]) * W
+        r[2::3] = bytes([(128 + 40 * k) % 256]) * W
+        buf += r
+    frames.append(bytes(buf))
+async def main():
+    async with mrosd.Node("mrosd_camera", argv=[]) as node:
+        cam = await node.advertise("/camera/image", Image)
+        fast = await node.advertise("/fast", Float64) if FAST > 0 else None
+        async def images():
+            n = 0
+            start = time.monotonic()
+            while True:
+                img = Image(height=H, width=W, encoding="rgb8", step=3 * W, data=frames[n % 4])
+                await cam.publish(img)
+                n += 1
+                await asyncio.sleep(max(0.0, start + n / HZ - time.monotonic()))
+        async def numbers():
+            n = 0
+            start = time.monotonic()
+            while True:
+                for _ in range(10):
+                    await fast.publish(Float64(data=float(n % 1000)))
+                    n += 1
+                await asyncio.sleep(max(0.0, start + n / FAST - time.monotonic()))
+        await asyncio.gather(images(), *([numbers()] if fast else []))
+asyncio.run(main())
+"""
+
+
+def expected_pixel(x: int, y: int, frame: int) -> tuple[int, int, int]:
+    return 4 * x % 256, 4 * y % 256, (128 + 40 * frame) % 256
+
+
+class Browser:
+    """tests/web/page_browser.mjs: one command at a time, its reply awaited (bounded)."""
+
+    def __init__(self, procs: Processes) -> None:
+        assert NODE is not None
+        self.proc = procs.start([NODE, str(HERE / "page_browser.mjs")], cwd_env(), stdin=subprocess.PIPE)
+        self.lines: queue.Queue[dict[str, Any]] = queue.Queue()
+        self.log: list[dict[str, Any]] = []
+        threading.Thread(target=self._read, daemon=True).start()
+        self._ids = 0
+        self._wait(lambda m: m.get("event") == "ready", 30)
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.put(json.loads(line))
+
+    def _wait(self, pred: Any, timeout: float) -> dict[str, Any]:
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                msg = self.lines.get(timeout=max(0.01, deadline - time.monotonic()))
+            except queue.Empty:
+                raise TimeoutError(f"no reply from the browser; its log: {self.log[-10:]}") from None
+            if pred(msg):
+                return msg
+            self.log.append(msg)
+
+    def do(self, cmd: str, timeout: float = 30.0, **kw: Any) -> Any:
+        self._ids += 1
+        ident = self._ids
+        assert self.proc.stdin is not None
+        self.proc.stdin.write((json.dumps({"id": ident, "cmd": cmd, **kw}) + "\n").encode())
+        self.proc.stdin.flush()
+        msg = self._wait(lambda m: m.get("reply") == ident, timeout)
+        if "error" in msg:
+            raise AssertionError(f"{cmd}: {msg['error']}")
+        return msg.get("result")
+
+    def eval(self, expr: str) -> Any:
+        return self.do("eval", expr=expr)
+
+    def until(self, expr: str, timeout: float = 20.0) -> Any:
+        """Poll ``expr`` in the page until it is truthy."""
+        deadline = time.monotonic() + timeout
+        while True:
+            value = self.eval(expr)
+            if value:
+                return value
+            if time.monotonic() > deadline:
+                raise AssertionError(f"page never had {expr!r} (last {value!r}); log: {self.log[-10:]}")
+            time.sleep(0.2)
+
+    def shot(self, name: str) -> Path:
+        SHOTS.mkdir(parents=True, exist_ok=True)
+        path = SHOTS / name
+        self.do("shot", path=str(path))
+        return path
+
+
+def cwd_env() -> dict[str, str]:
+    return {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "MROSD_"))}
+
+
+def page_url(status: str) -> str:
+    match = re.search(r"foxglove ws://(\S+)/", status)
+    assert match, status
+    return f"http://{match.group(1)}/"
+
+
+def rss_kib(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    raise AssertionError("no VmRSS")
+
+
+@pytest.fixture
+def running(procs: Processes, tmp_path: Path) -> Iterator[tuple[DaemonRun, str]]:
+    run = DaemonRun(procs, tmp_path)
+    try:
+        status = run.ready()
+        assert status.startswith("running:"), status
+        yield run, page_url(status)
+    finally:
+        run.close()
+
+
+def camera(procs: Processes, run: DaemonRun, w: int, h: int, hz: float, fast_hz: float = 0) -> None:
+    env = {**cwd_env(), "ROS_MASTER_URI": run.uri, "ROS_HOSTNAME": "127.0.0.1", "PYTHONPATH": os.pathsep.join(sys.path)}
+    procs.start(
+        [sys.executable, "-c", MROSD_CAMERA, str(w), str(h), str(hz), str(fast_hz)], env, stdout=None, stderr=None
+    )
+
+
+def read_pixels(browser: Browser, points: list[tuple[int, int]]) -> list[list[int]]:
+    pts = json.dumps(points)
+    return list(
+        browser.eval(
+            f"(() => {{ const c = document.querySelector('#image'); const ctx = c.getContext('2d');"
+            f" return {pts}.map(([x, y]) => Array.from(ctx.getImageData(x, y, 1, 1).data)); }})()"
+        )
+    )
+
+
+@pytest.mark.interop
+@pytest.mark.skipif(not ros_available(), reason="real ROS 1 (Debian ros_comm) is not installed")
+def test_the_page_shows_graph_rates_plot_and_image(
+    procs: Processes, tmp_path: Path, running: tuple[DaemonRun, str]
+) -> None:
+    run, url = running
+    import urllib.request
+
+    with urllib.request.urlopen(url, timeout=10) as resp:  # the page itself, as a browser gets it
+        assert resp.headers["Content-Type"].startswith("text/html")
+    procs.start([ROS_PYTHON, "-c", ROSPY_SINE], ros_env(run.uri, tmp_path), stdout=None, stderr=None)
+    camera(procs, run, 64, 48, 10.0)
+    browser = Browser(procs)
+
+    # Graph: both publishers' nodes drawn, the camera's node answers with a pid and host.
+    browser.do("goto", url=url + "#graph")
+    browser.until(
+        "['/rospy_sine', '/mrosd_camera'].every(n => document.querySelector(`#graph g.node[data-name='${n}']`))"
+    )
+    browser.eval(
+        "document.querySelector(\"#graph g.node[data-name='/mrosd_camera']\").dispatchEvent(new Event('click'))"
+    )
+    info = browser.until("(t => /pid: \\d+/.test(t) && t)(document.querySelector('#node-info').textContent)")
+    assert "/camera/image" in info and "host: 127.0.0.1" in info, info
+    browser.shot("graph.png")
+
+    # Topics: the rospy topic's Hz (measured by the daemon from bytes seen) within 10 % of the published rate.
+    browser.eval("document.querySelector(\"nav button[data-view='topics']\").click()")
+    rate_expr = "(r => r && r.dataset.hz)(document.querySelector(\"#topics tr[data-topic='/sine'] td:nth-child(5)\"))"
+    browser.until(rate_expr)
+    time.sleep(5.5)  # a full 5 s window
+    hz = float(browser.eval(rate_expr))
+    assert abs(hz - SINE_HZ) <= 0.1 * SINE_HZ, hz
+    image_hz = float(
+        browser.until("document.querySelector(\"#topics tr[data-topic='/camera/image'] td:nth-child(5)\").dataset.hz")
+    )
+    assert abs(image_hz - 10.0) <= 1.0, image_hz
+    browser.shot("topics.png")
+
+    # Topic view and plot: click the sine's value in the tree; the plotted value changes.
+    browser.do("goto", url=url + "#topic=/sine")
+    browser.until("document.querySelector(\"#tree .num[data-path='data']\")")
+    browser.eval("document.querySelector(\"#tree .num[data-path='data']\").click()")
+    first = browser.until("mrosdPage.plot.points.length > 5 && mrosdPage.plot.points.map(p => p[1])")
+    time.sleep(1.0)
+    later = browser.eval("mrosdPage.plot.points.map(p => p[1])")
+    assert len(later) > len(first) and len(set(later)) > 5, later
+    assert all(-1.0 <= v <= 1.0 for v in later)
+    browser.shot("plot.png")
+
+    # Image: sample pixels of the canvas equal the published ones (any of the 4 frames: blue says which).
+    browser.do("goto", url=url + "#topic=/camera/image")
+    browser.until("mrosdPage.images.frames > 2")
+    points = [(0, 0), (10, 5), (63, 47), (31, 20)]
+    got = read_pixels(browser, points)
+    frame = [(128 + 40 * k) % 256 for k in range(4)].index(got[0][2])
+    assert got == [[*expected_pixel(x, y, frame), 255] for x, y in points]
+    browser.shot("image.png")
+
+    browser.do("goto", url=url + "#log")
+    browser.shot("log.png")
+    assert not [e for e in browser.log if e.get("event") == "pageerror"], browser.log
+
+
+def keep_up(procs: Processes, run: DaemonRun, url: str, seconds: float) -> dict[str, float]:
+    """The image view on a 30 Hz ~1 MB rgb8 topic (640x546) with a 1 kHz Float64 beside it, for ``seconds``."""
+    camera(procs, run, 640, 546, 30.0, 1000.0)
+    browser = Browser(procs)
+    browser.do("goto", url=url + "#topic=/camera/image")
+    browser.until("mrosdPage.images.frames > 5", timeout=30)
+    heap0 = browser.do("heap")["JSHeapUsedSize"]
+    rss0 = rss_kib(run.proc.pid)
+    frames0, t0 = browser.eval("mrosdPage.images.frames"), time.monotonic()
+    time.sleep(seconds)
+    frames1, t1 = browser.eval("mrosdPage.images.frames"), time.monotonic()
+    heap1 = browser.do("heap")["JSHeapUsedSize"]
+    rss1 = rss_kib(run.proc.pid)
+    result = {
+        "fps": (frames1 - frames0) / (t1 - t0),
+        "heap_growth_mib": (heap1 - heap0) / 2**20,
+        "rss_growth_mib": (rss1 - rss0) / 1024,
+        "heap_mib": heap1 / 2**20,
+        "rss_mib": rss1 / 1024,
+    }
+    print("keep-up", seconds, "s:", json.dumps({k: round(v, 2) for k, v in result.items()}))
+    browser.shot("keepup.png")
+    return result
+
+
+def test_the_image_view_keeps_up_with_a_30hz_1mb_image_for_10s(
+    procs: Processes, running: tuple[DaemonRun, str]
+) -> None:
+    run, url = running
+    result = keep_up(procs, run, url, 10.0)
+    assert result["fps"] >= 15, result
+    assert result["heap_growth_mib"] < 32 and result["rss_growth_mib"] < 32, result
+
+
+@pytest.mark.slow
+def test_the_image_view_keeps_up_with_a_30hz_1mb_image_for_60s(
+    procs: Processes, running: tuple[DaemonRun, str]
+) -> None:
+    run, url = running
+    result = keep_up(procs, run, url, 60.0)
+    assert result["fps"] >= 15, result
+    assert result["heap_growth_mib"] < 32 and result["rss_growth_mib"] < 32, result
