@@ -412,14 +412,12 @@ class FoxgloveSession:
                 del stats[topic]
                 await hub.remove_sink(topic, self._stats_sink)
             for topic in wanted - stats.keys():
+                # listed before subscribing: whoever stops the stats (even mid-subscribe) releases it
+                stats[topic] = RateWindow(STATS_WINDOW)
                 try:
                     await hub.add_sink(topic, self._stats_sink)
                 except MrosError:
-                    continue
-                if self._stats is not stats:  # stopped while subscribing
-                    await hub.remove_sink(topic, self._stats_sink)
-                    return
-                stats[topic] = RateWindow(STATS_WINDOW)
+                    del stats[topic]
             now = time.monotonic()
             report = []
             for topic, window in stats.items():

@@ -21,7 +21,9 @@ const TYPED = { int8: Int8Array, int16: Int16Array, uint16: Uint16Array, int32: 
   uint32: Uint32Array, float32: Float32Array, float64: Float64Array };
 const decoder = new TextDecoder();
 
-export class DecodeError extends Error {}
+export class DecodeError extends Error {
+  constructor(message) { super(message); this.name = "DecodeError"; }
+}
 
 // Parse a definition into {root, types: Map(fullName -> [{name, type, array: null|-1|N}])}.
 export function parseDefinition(rootType, text) {
