@@ -396,7 +396,14 @@ class FoxgloveSession:
         elif isinstance(op, fg.UnsubscribeStats):
             await self._stop_stats()
         elif isinstance(op, fg.NodeDetails):
-            self._send_json(await self._node_details(op))
+            # in a task of its own, counted with the service calls: a node that does not answer getPid
+            # must not hold up this client's other requests
+            if len(self._calls) >= self.limits.max_calls:
+                self.status(fg.STATUS_ERROR, f"x-mrosd.nodeDetails: at most {self.limits.max_calls} requests in flight")
+                return
+            task = asyncio.get_running_loop().create_task(self._reply_node_details(op))
+            self._calls.add(task)
+            task.add_done_callback(self._calls.discard)
         elif isinstance(op, fg.FetchAsset):
             self.status(fg.STATUS_ERROR, "fetchAsset is not supported (no assets capability)")
 
@@ -446,6 +453,9 @@ class FoxgloveSession:
             await asyncio.gather(task, return_exceptions=True)
         for topic in stats or ():
             await self.hub.remove_sink(topic, self._stats_sink)
+
+    async def _reply_node_details(self, op: fg.NodeDetails) -> None:
+        self._send_json(await self._node_details(op))
 
     async def _node_details(self, op: fg.NodeDetails) -> bytes:
         """What the master knows of a node, its pid from ``getPid``, and ``alive`` (False: refused)."""

@@ -312,3 +312,84 @@ def test_the_image_view_keeps_up_with_a_30hz_1mb_image_for_60s(
     result = keep_up(procs, run, url, 60.0)
     assert result["fps"] >= 15, result
     assert result["heap_growth_mib"] < 32 and result["rss_growth_mib"] < 32, result
+
+
+#: An mrosd node publishing a PNG CompressedImage, a 16UC1 depth image and a LaserScan, each at 5 Hz.
+MROSD_SHAPES = """
+import asyncio, math, struct, zlib
+import mrosd
+from mrosd.msg import get_message_class
+m = get_message_class
+def png(w, h, rgb):
+    raw = b"".join(b"\\0" + rgb[y * 3 * w:(y + 1) * 3 * w] for y in range(h))
+    chunk = lambda t, d: struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d))
+    return (b"\\x89PNG\\r\\n\\x1a\\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+PNG_RGB = b"".join(bytes((17 * x % 256, 60 * y % 256, 200)) for y in range(4) for x in range(8))
+depth = b"".join(struct.pack("<H", v) for v in (0, 1000, 2000, 3000, 4000, 5000, 6000, 7000))
+async def main():
+    async with mrosd.Node("mrosd_shapes", argv=[]) as node:
+        p = await node.advertise("/camera/png", m("sensor_msgs/CompressedImage"))
+        d = await node.advertise("/camera/depth", m("sensor_msgs/Image"))
+        s = await node.advertise("/scan", m("sensor_msgs/LaserScan"))
+        c = await node.advertise("/cloud", m("sensor_msgs/PointCloud2"))
+        fields = [m("sensor_msgs/PointField")(name=k, offset=4 * i, datatype=7, count=1) for i, k in enumerate("xyz")]
+        pts = b"".join(struct.pack("<fff", math.cos(a / 50) * (1 + a / 400), math.sin(a / 50) * (1 + a / 400), a / 400)
+                       for a in range(800))
+        cloud = m("sensor_msgs/PointCloud2")(height=1, width=800, fields=fields, point_step=12, row_step=9600,
+                                             data=pts, is_dense=True)
+        n = 0
+        while True:
+            await p.publish(m("sensor_msgs/CompressedImage")(format="png", data=png(8, 4, PNG_RGB)))
+            await d.publish(m("sensor_msgs/Image")(height=2, width=4, encoding="16UC1", step=8, data=depth))
+            ranges = [2.0 + math.sin(i / 10 + n / 5) for i in range(360)]
+            await s.publish(m("sensor_msgs/LaserScan")(angle_min=-math.pi, angle_max=math.pi,
+                angle_increment=2 * math.pi / 360, range_min=0.1, range_max=10.0, ranges=ranges))
+            await c.publish(cloud)
+            n += 1
+            await asyncio.sleep(0.2)
+asyncio.run(main())
+"""
+
+
+def test_the_page_draws_compressed_images_depth_and_scans(procs: Processes, running: tuple[DaemonRun, str]) -> None:
+    run, url = running
+    env = {**cwd_env(), "ROS_MASTER_URI": run.uri, "ROS_HOSTNAME": "127.0.0.1", "PYTHONPATH": os.pathsep.join(sys.path)}
+    procs.start([sys.executable, "-c", MROSD_SHAPES], env, stdout=None, stderr=None)
+    browser = Browser(procs)
+
+    # PNG as sent, decoded by the browser: every pixel as published.
+    browser.do("goto", url=url + "#topic=/camera/png")
+    browser.until("mrosdPage.images.frames > 1")
+    points = [(x, y) for y in range(4) for x in range(8)]
+    assert read_pixels(browser, points) == [[17 * x % 256, 60 * y % 256, 200, 255] for x, y in points]
+
+    # 16-bit depth as false colour: no reading (0) black, nearest blue-most, farthest red-most.
+    browser.do("goto", url=url + "#topic=/camera/depth")
+    browser.until("document.querySelector('#image').width === 4 && mrosdPage.images.frames > 1")
+    zero, near, far = read_pixels(browser, [(0, 0), (1, 0), (3, 1)])
+    assert zero == [0, 0, 0, 255]
+    assert near[2] > near[0] and far[0] > far[2], (near, far)
+
+    # A LaserScan from above: drawn, and the canvas is not blank.
+    browser.do("goto", url=url + "#topic=/scan")
+    browser.until("mrosdPage.images.frames > 1 && document.querySelector('#image').width === 480")
+    lit = browser.eval(
+        "(() => { const c = document.querySelector('#image'); const d = c.getContext('2d')"
+        ".getImageData(0, 0, c.width, c.height).data; let n = 0;"
+        " for (let i = 0; i < d.length; i += 4) if (d[i + 2] > 200 && d[i] < 120) n++; return n; })()"
+    )
+    assert lit > 100, lit
+    browser.shot("scan.png")
+
+    # A PointCloud2 from above, coloured by z: every point drawn (800 published).
+    browser.do("goto", url=url + "#topic=/cloud")
+    browser.until("mrosdPage.images.frames > 1 && document.querySelector('#image').width === 480")
+    coloured = browser.eval(
+        "(() => { const c = document.querySelector('#image'); const d = c.getContext('2d')"
+        ".getImageData(0, 0, c.width, c.height).data; let n = 0;"
+        " for (let i = 0; i < d.length; i += 4) if (Math.max(d[i], d[i + 1], d[i + 2]) > 120) n++; return n; })()"
+    )
+    assert coloured > 800, coloured
+    browser.shot("cloud.png")
+    assert not [e for e in browser.log if e.get("event") == "pageerror"], browser.log

@@ -4,6 +4,7 @@ import { parseDefinition, deserialize } from "./ros1.js";
 import { ImageView } from "./image.js";
 import { Plot } from "./plot.js";
 import { drawGraph } from "./graph.js";
+import { drawScan, drawCloud } from "./scan.js";
 
 const $ = (s) => document.querySelector(s);
 const TREE_HZ = 20, IMAGE_HZ = 30, MAX_ARRAY = 32, MAX_LOG = 1000;
@@ -54,7 +55,10 @@ function onJson(m) {
       for (const s of m.topics) state.stats.set(s.topic, s);
       renderTopics();
       break;
-    case "x-mrosd.nodeDetails": showNode(m); break;
+    case "x-mrosd.nodeDetails":
+      if (m.alive === false) state.dead.add(m.node); else if (m.alive) state.dead.delete(m.node);
+      if (m.id === "probe") renderGraphSoon(); else showNode(m);
+      break;
     case "parameterValues": if (m.id === "page") renderParams(m.parameters); break;
     case "status": if (m.level >= 2) console.warn("mrosd:", m.message); break;
   }
@@ -107,9 +111,18 @@ function renderGraph() {
   drawGraph($("#graph"), state.pubs, state.subs, state.dead, (n) => send({ op: "x-mrosd.nodeDetails", node: n, id: n }), hide);
 }
 $("#hide-rosout").addEventListener("change", renderGraph);
+let graphPending = false;
+function renderGraphSoon() { if (!graphPending) { graphPending = true; setTimeout(() => { graphPending = false; renderGraph(); }, 300); } }
+// While the graph shows, ask every node for its pid every 5 s: one that refuses is drawn dead (it died
+// without unregistering; the master still lists it).
+setInterval(() => {
+  if (state.view !== "graph") return;
+  const nodes = new Set();
+  for (const m of [state.pubs, state.subs]) for (const ns of m.values()) for (const n of ns) nodes.add(n);
+  for (const n of nodes) send({ op: "x-mrosd.nodeDetails", node: n, id: "probe" });
+}, 5000);
 
 function showNode(m) {
-  if (m.alive === false) state.dead.add(m.node); else state.dead.delete(m.node);
   const list = (xs) => (xs && xs.length ? xs.map((x) => "  " + x).join("\n") : "  (none)");
   $("#node-info").textContent = `${m.node}\n${m.error ? "error: " + m.error + "\n" : ""}host: ${m.host ?? "?"}\npid: ${m.pid ?? "?"}`
     + `\nuri: ${m.uri ?? "?"}\n${m.alive === false ? "NOT ANSWERING\n" : ""}\nPublications:\n${list(m.publishing)}`
@@ -157,7 +170,8 @@ function openTopic(topic) {
   if (!topic || !state.byTopic.has(topic)) return;
   const type = state.byTopic.get(topic).schemaName;
   const isImage = type === "sensor_msgs/Image" || type === "sensor_msgs/CompressedImage";
-  $("#image").hidden = !isImage;
+  const isScan = type === "sensor_msgs/LaserScan" || type === "sensor_msgs/PointCloud2";
+  $("#image").hidden = !isImage && !isScan;
   state.plotPath = null; plot.reset("");
   let latest = null, count = 0, t0 = performance.now();
   state.current = subscribe(topic, (msg, t) => {
@@ -165,7 +179,11 @@ function openTopic(topic) {
     if (state.plotPath) plot.add(t, getPath(msg, state.plotPath));
     if (type === "sensor_msgs/Image") { try { images.drawRaw(msg); } catch (e) { $("#topic-meta").textContent = e.message; } }
     else if (type === "sensor_msgs/CompressedImage") images.drawCompressed(msg).catch((e) => ($("#topic-meta").textContent = e.message));
-  }, isImage ? IMAGE_HZ : TREE_HZ);
+    else if (isScan) {
+      try { (type === "sensor_msgs/LaserScan" ? drawScan : drawCloud)($("#image"), msg); images.frames++; }
+      catch (e) { $("#topic-meta").textContent = e.message; }
+    }
+  }, isImage || isScan ? IMAGE_HZ : TREE_HZ);
   const sub = state.current;
   const tick = () => {
     if (state.current !== sub) return;
