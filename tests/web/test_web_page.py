@@ -385,11 +385,12 @@ def test_the_page_draws_compressed_images_depth_and_scans(procs: Processes, runn
     # A PointCloud2 from above, coloured by z: every point drawn (800 published).
     browser.do("goto", url=url + "#topic=/cloud")
     browser.until("mrosdPage.images.frames > 1 && document.querySelector('#image').width === 480")
-    coloured = browser.eval(
+    low, high = browser.eval(  # z from 0 to 2 m: the low end blue, the high end red
         "(() => { const c = document.querySelector('#image'); const d = c.getContext('2d')"
-        ".getImageData(0, 0, c.width, c.height).data; let n = 0;"
-        " for (let i = 0; i < d.length; i += 4) if (Math.max(d[i], d[i + 1], d[i + 2]) > 120) n++; return n; })()"
+        ".getImageData(0, 0, c.width, c.height).data; let lo = 0, hi = 0;"
+        " for (let i = 0; i < d.length; i += 4) { if (d[i + 2] > 150 && d[i] < 100) lo++;"
+        " if (d[i] > 150 && d[i + 2] < 100 && d[i + 1] < 120) hi++; } return [lo, hi]; })()"
     )
-    assert coloured > 800, coloured
+    assert low > 50 and high > 50, (low, high)
     browser.shot("cloud.png")
     assert not [e for e in browser.log if e.get("event") == "pageerror"], browser.log

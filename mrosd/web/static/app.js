@@ -173,6 +173,8 @@ function openTopic(topic) {
   const isScan = type === "sensor_msgs/LaserScan" || type === "sensor_msgs/PointCloud2";
   $("#image").hidden = !isImage && !isScan;
   state.plotPath = null; plot.reset("");
+  images.frames = 0;
+  const cv = $("#image"); cv.getContext("2d").clearRect(0, 0, cv.width, cv.height);
   let latest = null, count = 0, t0 = performance.now();
   state.current = subscribe(topic, (msg, t) => {
     latest = msg; count++;
