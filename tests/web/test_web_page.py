@@ -318,7 +318,7 @@ def test_the_image_view_keeps_up_with_a_30hz_1mb_image_for_60s(
 MROSD_SHAPES = """
 import asyncio, math, struct, zlib
 import mrosd
-from mrosd.msg import get_message_class
+from mrosd.msg import get_message_class, get_service_class
 m = get_message_class
 def png(w, h, rgb):
     raw = b"".join(b"\\0" + rgb[y * 3 * w:(y + 1) * 3 * w] for y in range(h))
@@ -332,6 +332,10 @@ async def main():
         p = await node.advertise("/camera/png", m("sensor_msgs/CompressedImage"))
         d = await node.advertise("/camera/depth", m("sensor_msgs/Image"))
         s = await node.advertise("/scan", m("sensor_msgs/LaserScan"))
+        SetBool = get_service_class("std_srvs/SetBool")
+        await node.advertise_service(
+            "/shapes/enable", SetBool, lambda r: SetBool._response_class(success=r.data, message=f"got {r.data}")
+        )
         c = await node.advertise("/cloud", m("sensor_msgs/PointCloud2"))
         fields = [m("sensor_msgs/PointField")(name=k, offset=4 * i, datatype=7, count=1) for i, k in enumerate("xyz")]
         pts = b"".join(struct.pack("<fff", math.cos(a / 50) * (1 + a / 400), math.sin(a / 50) * (1 + a / 400), a / 400)
@@ -393,4 +397,16 @@ def test_the_page_draws_compressed_images_depth_and_scans(procs: Processes, runn
     )
     assert low > 50 and high > 50, (low, high)
     browser.shot("cloud.png")
+
+    # A service called from the form built from its request type (std_srvs/SetBool: one checkbox).
+    browser.do("goto", url=url + "#services")
+    browser.until("[...document.querySelectorAll('#service-pick option')].some(o => o.value === '/shapes/enable')")
+    browser.eval(
+        "(() => { const p = document.querySelector('#service-pick'); p.value = '/shapes/enable';"
+        " p.dispatchEvent(new Event('change')); document.querySelector('#req-data').checked = true;"
+        " document.querySelector('#service-call').click(); })()"
+    )
+    result = json.loads(browser.until("document.querySelector('#service-result')?.textContent"))
+    assert result == {"success": True, "message": "got True"}, result
+    browser.shot("service.png")
     assert not [e for e in browser.log if e.get("event") == "pageerror"], browser.log

@@ -1,6 +1,7 @@
 """The page decodes ROS 1 bodies in the browser from the advertised definition: its decoder (static/ros1.js,
 run under node) against mrosd's own serializer, over types with nesting, constants, fixed and variable
-arrays, strings, time and duration, and truncated bodies (a typed error, never a hang or garbage)."""
+arrays, strings, time and duration, and truncated bodies (a typed error, never a hang or garbage). Its
+serializer (what the service form sends) must give back the very bytes."""
 
 from __future__ import annotations
 
@@ -99,6 +100,7 @@ def test_the_page_decodes_what_mrosd_serializes() -> None:
         want = plain(cls.deserialize(body))
         assert "error" not in got, (cls._type, got)
         assert close(got["value"], want), (cls._type, got["value"], want)
+        assert base64.b64decode(got["again"]) == body, cls._type  # the service form's serializer: the inverse
 
 
 def test_a_truncated_or_lying_body_is_a_decode_error() -> None:

@@ -1,6 +1,6 @@
 // mrosd's page: one Foxglove WebSocket client (plus mrosd's x-mrosd.* ops) showing the graph, topics,
 // a topic's live message, a plot, images and /rosout. Everything is decoded here from the raw ROS 1 bodies.
-import { parseDefinition, deserialize } from "./ros1.js";
+import { parseDefinition, deserialize, serialize, defaultValue } from "./ros1.js";
 import { ImageView } from "./image.js";
 import { Plot } from "./plot.js";
 import { drawGraph } from "./graph.js";
@@ -11,7 +11,7 @@ const TREE_HZ = 20, IMAGE_HZ = 30, MAX_ARRAY = 32, MAX_LOG = 1000;
 const state = {
   channels: new Map(), byTopic: new Map(), pubs: new Map(), subs: new Map(), dead: new Set(),
   stats: new Map(), nextSub: 1, subs_: new Map(), view: "graph", current: null, plotPath: null, open: new Set(),
-  log: [], rosoutSub: null, requests: new Map(), nextReq: 1,
+  log: [], rosoutSub: null, services: new Map(), calls: new Map(), nextCall: 1,
 };
 const plot = new Plot($("#plot"));
 const images = new ImageView($("#image"));
@@ -29,7 +29,7 @@ function connect() {
   ws.onopen = () => { $("#conn").textContent = "connected"; $("#conn").className = "ok"; send({ op: "subscribeConnectionGraph" }); show(state.view); };
   ws.onclose = () => {
     $("#conn").textContent = "disconnected: retrying"; $("#conn").className = "bad";
-    state.channels.clear(); state.byTopic.clear(); state.subs_.clear(); state.current = null; state.rosoutSub = null;
+    state.channels.clear(); state.byTopic.clear(); state.services.clear(); state.calls.clear(); state.subs_.clear(); state.current = null; state.rosoutSub = null;
     setTimeout(connect, 2000);
   };
   ws.onmessage = (ev) => (typeof ev.data === "string" ? onJson(JSON.parse(ev.data)) : onBinary(ev.data));
@@ -59,6 +59,19 @@ function onJson(m) {
       if (m.alive === false) state.dead.add(m.node); else if (m.alive) state.dead.delete(m.node);
       if (m.id === "probe") renderGraphSoon(); else showNode(m);
       break;
+    case "advertiseServices":
+      for (const sv of m.services) state.services.set(sv.id, sv);
+      refreshServices();
+      break;
+    case "unadvertiseServices":
+      for (const id of m.serviceIds) state.services.delete(id);
+      refreshServices();
+      break;
+    case "serviceCallFailure": {
+      const call = state.calls.get(m.callId);
+      if (call) { state.calls.delete(m.callId); $("#service-status").textContent = "failed: " + m.message; }
+      break;
+    }
     case "parameterValues": if (m.id === "page") renderParams(m.parameters); break;
     case "status": if (m.level >= 2) console.warn("mrosd:", m.message); break;
   }
@@ -66,6 +79,7 @@ function onJson(m) {
 
 function onBinary(buf) {
   const v = new DataView(buf);
+  if (v.getUint8(0) === 3) return onServiceResponse(v, buf);
   if (v.getUint8(0) !== 1) return;
   const sub = state.subs_.get(v.getUint32(1, true));
   if (!sub) return;
@@ -99,6 +113,7 @@ function show(view) {
   if (view === "topic") openTopic($("#topic-pick").value);
   if (view === "log") ensureRosout();
   if (view === "params") send({ op: "getParameters", parameterNames: [], id: "page" });
+  if (view === "services" && $("#service-pick").value !== state.formFor) buildForm();
   if (view === "graph") renderGraph();
   const hash = view === "topic" && $("#topic-pick").value ? `#topic=${$("#topic-pick").value}` : `#${view}`;
   if (location.hash !== hash) history.replaceState(null, "", hash);
@@ -286,8 +301,93 @@ function renderParams(list) {
 }
 $("#params-refresh").addEventListener("click", () => send({ op: "getParameters", parameterNames: [], id: "page" }));
 
+// --- services: a form of the request's fields, the call as a Foxglove serviceCallRequest ---------------
+const ENC = new TextEncoder().encode("ros1");
+function refreshServices() {
+  const pick = $("#service-pick"), keep = pick.value;
+  const names = [...state.services.values()].map((sv) => sv.name).sort();
+  pick.replaceChildren(...names.map((n) => new Option(n, n)));
+  if (keep && names.includes(keep)) pick.value = keep;
+  if (state.view === "services" && pick.value !== state.formFor) buildForm();
+}
+const serviceByName = (name) => [...state.services.values()].find((sv) => sv.name === name);
+function buildForm() {
+  const sv = serviceByName($("#service-pick").value);
+  state.formFor = sv?.name;
+  const form = $("#service-form");
+  form.replaceChildren(); $("#service-response").replaceChildren(); $("#service-status").textContent = "";
+  if (!sv) return;
+  $("#service-type").textContent = sv.type;
+  const def = parseDefinition(sv.type + "Request", sv.request?.schema ?? sv.requestSchema ?? "");
+  const add = (type, path) => {
+    const fields = def.types.get(type) || [];
+    for (const f of fields) {
+      const p = [...path, f.name];
+      if (f.array === null && def.types.has(f.type)) { add(f.type, p); continue; }
+      const label = document.createElement("label"); label.textContent = `${p.join(".")} (${f.type}${f.array === null ? "" : "[]"})`;
+      const input = document.createElement("input");
+      input.dataset.path = p.join("."); input.dataset.type = f.type; input.dataset.array = f.array === null ? "" : "1";
+      const init = f.array === null ? defaultValue(def, f.type) : defaultValue(def, type)[f.name];
+      if (f.type === "bool" && f.array === null) { input.type = "checkbox"; }
+      else input.value = typeof init === "string" ? init : JSON.stringify(init);
+      input.placeholder = f.array === null ? "" : "JSON array";
+      label.htmlFor = input.id = "req-" + p.join("-");
+      form.append(label, input);
+    }
+  };
+  add(def.root, []);
+  state.form = { sv, def };
+}
+$("#service-pick").addEventListener("change", buildForm);
+$("#service-form").addEventListener("submit", (e) => { e.preventDefault(); callService(); });
+$("#service-call").addEventListener("click", () => callService());
+
+function callService() {
+  if (!state.form) return;
+  const { sv, def } = state.form;
+  const request = defaultValue(def, def.root);
+  try {
+    for (const input of $("#service-form").querySelectorAll("input")) {
+      const path = input.dataset.path.split("."), type = input.dataset.type;
+      let value;
+      if (input.dataset.array) value = JSON.parse(input.value || "[]");
+      else if (type === "bool") value = input.checked;
+      else if (type === "string") value = input.value;
+      else if (type === "time" || type === "duration") value = JSON.parse(input.value);
+      else { value = Number(input.value); if (!Number.isFinite(value)) throw new Error(`${input.dataset.path}: not a number`); }
+      let obj = request;
+      for (const k of path.slice(0, -1)) obj = obj[k];
+      obj[path[path.length - 1]] = value;
+    }
+    const payload = serialize(def, request);
+    const id = state.nextCall++;
+    const frame = new Uint8Array(13 + ENC.length + payload.length), v = new DataView(frame.buffer);
+    v.setUint8(0, 2); v.setUint32(1, sv.id, true); v.setUint32(5, id, true); v.setUint32(9, ENC.length, true);
+    frame.set(ENC, 13); frame.set(payload, 13 + ENC.length);
+    state.calls.set(id, { sv, t0: performance.now() });
+    ws.send(frame);
+    $("#service-status").textContent = "calling…";
+  } catch (e) { $("#service-status").textContent = e.message; }
+}
+
+function onServiceResponse(v, buf) {
+  const callId = v.getUint32(5, true), encLen = v.getUint32(9, true);
+  const call = state.calls.get(callId);
+  if (!call) return;
+  state.calls.delete(callId);
+  const sv = call.sv;
+  try {
+    const def = parseDefinition(sv.type + "Response", sv.response?.schema ?? sv.responseSchema ?? "");
+    const resp = deserialize(def, new Uint8Array(buf, 13 + encLen));
+    $("#service-status").textContent = `answered in ${(performance.now() - call.t0).toFixed(0)} ms`;
+    const pre = document.createElement("pre"); pre.id = "service-result";
+    pre.textContent = JSON.stringify(resp, (k, x) => (ArrayBuffer.isView(x) ? Array.from(x) : x), 2);
+    $("#service-response").replaceChildren(pre);
+  } catch (e) { $("#service-status").textContent = "response: " + e.message; }
+}
+
 // #topic=/name opens a topic, #topics the table, ... (bookmarkable, and how the tests open a view)
-const VIEWS = ["graph", "topics", "topic", "log", "params"];
+const VIEWS = ["graph", "topics", "topic", "log", "params", "services"];
 const viewOfHash = () => {
   const topic = decodeURIComponent(location.hash.startsWith("#topic=") ? location.hash.slice(7) : "");
   const view = topic ? "topic" : location.hash.slice(1) || "graph";

@@ -108,3 +108,62 @@ export function deserialize(def, bytes) {
   };
   return readOne(def.root);
 }
+
+const WRITE = {
+  bool: [1, (v, o, x) => v.setUint8(o, x ? 1 : 0)], int8: [1, (v, o, x) => v.setInt8(o, x)],
+  uint8: [1, (v, o, x) => v.setUint8(o, x)], byte: [1, (v, o, x) => v.setUint8(o, x)], char: [1, (v, o, x) => v.setUint8(o, x)],
+  int16: [2, (v, o, x) => v.setInt16(o, x, true)], uint16: [2, (v, o, x) => v.setUint16(o, x, true)],
+  int32: [4, (v, o, x) => v.setInt32(o, x, true)], uint32: [4, (v, o, x) => v.setUint32(o, x, true)],
+  int64: [8, (v, o, x) => v.setBigInt64(o, BigInt(Math.trunc(x)), true)],
+  uint64: [8, (v, o, x) => v.setBigUint64(o, BigInt(Math.trunc(x)), true)],
+  float32: [4, (v, o, x) => v.setFloat32(o, x, true)], float64: [8, (v, o, x) => v.setFloat64(o, x, true)],
+};
+
+// The default value of a type (what a form starts from): zeros, empty strings and arrays.
+export function defaultValue(def, type) {
+  if (type in WRITE) return type === "bool" ? false : 0;
+  if (type === "string") return "";
+  if (type === "time" || type === "duration") return { secs: 0, nsecs: 0 };
+  const out = {};
+  for (const f of def.types.get(type) || []) {
+    out[f.name] = f.array === null ? defaultValue(def, f.type) : Array.from({ length: Math.max(f.array, 0) }, () => defaultValue(def, f.type));
+  }
+  return out;
+}
+
+// Serialize `value` as the root type of `def` (the inverse of deserialize; missing fields are defaults).
+export function serialize(def, value) {
+  let buf = new Uint8Array(256), view = new DataView(buf.buffer), o = 0;
+  const room = (n) => {
+    if (o + n <= buf.length) return;
+    const bigger = new Uint8Array(Math.max(buf.length * 2, o + n));
+    bigger.set(buf); buf = bigger; view = new DataView(buf.buffer);
+  };
+  const encoder = new TextEncoder();
+  const writeOne = (type, x) => {
+    const w = WRITE[type];
+    if (w) { room(w[0]); w[1](view, o, x ?? 0); o += w[0]; return; }
+    if (type === "string") {
+      const b = encoder.encode(String(x ?? "")); room(4 + b.length);
+      view.setUint32(o, b.length, true); buf.set(b, o + 4); o += 4 + b.length; return;
+    }
+    if (type === "time" || type === "duration") {
+      room(8); const t = x || {};
+      if (type === "time") view.setUint32(o, t.secs || 0, true); else view.setInt32(o, t.secs || 0, true);
+      view.setUint32(o + 4, t.nsecs || 0, true); o += 8; return;
+    }
+    const fields = def.types.get(type);
+    if (!fields) throw new DecodeError(`no definition of ${type}`);
+    const obj = x || {};
+    for (const f of fields) {
+      const v = obj[f.name];
+      if (f.array === null) { writeOne(f.type, v ?? defaultValue(def, f.type)); continue; }
+      const items = Array.from(v ?? []);
+      if (f.array >= 0 && items.length !== f.array) throw new DecodeError(`${f.name}: ${f.array} items expected, got ${items.length}`);
+      if (f.array < 0) { room(4); view.setUint32(o, items.length, true); o += 4; }
+      for (const item of items) writeOne(f.type, item);
+    }
+  };
+  writeOne(def.root, value);
+  return buf.slice(0, o);
+}
