@@ -1,6 +1,6 @@
 // Headless Chromium (Debian's /usr/bin/chromium, driven by playwright-core) on mrosd's own page.
 // Usage: node page_browser.mjs; one JSON command per stdin line, one JSON reply per stdout line:
-//   {"cmd":"goto","url":...}  {"cmd":"eval","expr":...}  {"cmd":"shot","path":...}  {"cmd":"heap"}  {"cmd":"close"}
+//   {"cmd":"goto","url":...}  {"cmd":"eval","expr":...}  {"cmd":"viewport","width":...,"height":...}  {"cmd":"shot","path":...}  {"cmd":"heap"}  {"cmd":"close"}
 import { createInterface } from "node:readline";
 import { chromium } from "playwright-core";
 
@@ -23,6 +23,7 @@ out({ event: "ready" });
 const run = async (c) => {
   if (c.cmd === "goto") { await page.goto(c.url); return null; }
   if (c.cmd === "eval") return await page.evaluate(c.expr);
+  if (c.cmd === "viewport") { await page.setViewportSize({ width: c.width, height: c.height }); return null; }
   if (c.cmd === "shot") { await page.screenshot({ path: c.path, fullPage: false }); return c.path; }
   if (c.cmd === "heap") {
     await cdp.send("HeapProfiler.collectGarbage");

@@ -42,12 +42,31 @@ ROSPY_SINE = f"""
 import math, rospy
 from std_msgs.msg import Float64
 rospy.init_node("rospy_sine")
+rospy.set_param("/robot/name", "sine-bot")
+rospy.set_param("/robot/arm/joints", 6)
 pub = rospy.Publisher("/sine", Float64, queue_size=10)
 rate = rospy.Rate({SINE_HZ})
 t0 = rospy.get_time()
+n = 0
 while not rospy.is_shutdown():
-    pub.publish(Float64(math.sin(rospy.get_time() - t0)))
+    value = math.sin(rospy.get_time() - t0)
+    pub.publish(Float64(value))
+    n += 1
+    if n % 10 == 0:
+        rospy.loginfo("sine at %.3f", value)
+    if n % 30 == 0:
+        rospy.logwarn("sine sample %d", n)
     rate.sleep()
+"""
+
+ROSPY_LISTENER = """
+import rospy
+from std_msgs.msg import Float64
+from sensor_msgs.msg import Image
+rospy.init_node("rospy_listener")
+rospy.Subscriber("/sine", Float64, lambda m: None)
+rospy.Subscriber("/camera/image", Image, lambda m: None)
+rospy.spin()
 """
 
 #: An mrosd node publishing an rgb8 image (pixel (x, y) = (4x, 4y, 128) mod 256, then shifted by the frame
@@ -217,13 +236,15 @@ def test_the_page_shows_graph_rates_plot_and_image(
     with urllib.request.urlopen(url, timeout=10) as resp:  # the page itself, as a browser gets it
         assert resp.headers["Content-Type"].startswith("text/html")
     procs.start([ROS_PYTHON, "-c", ROSPY_SINE], ros_env(run.uri, tmp_path), stdout=None, stderr=None)
+    procs.start([ROS_PYTHON, "-c", ROSPY_LISTENER], ros_env(run.uri, tmp_path), stdout=None, stderr=None)
     camera(procs, run, 64, 48, 10.0)
     browser = Browser(procs)
 
     # Graph: both publishers' nodes drawn, the camera's node answers with a pid and host.
     browser.do("goto", url=url + "#graph")
     browser.until(
-        "['/rospy_sine', '/mrosd_camera'].every(n => document.querySelector(`#graph g.node[data-name='${n}']`))"
+        "['/rospy_sine', '/mrosd_camera', '/rospy_listener']"
+        ".every(n => document.querySelector(`#graph g.node[data-name='${n}']`))"
     )
     browser.eval(
         "document.querySelector(\"#graph g.node[data-name='/mrosd_camera']\").dispatchEvent(new Event('click'))"
@@ -265,8 +286,29 @@ def test_the_page_shows_graph_rates_plot_and_image(
     assert got == [[*expected_pixel(x, y, frame), 255] for x, y in points]
     browser.shot("image.png")
 
+    # /rosout as a list: rospy's info and warnings; the level filter leaves the warnings.
     browser.do("goto", url=url + "#log")
+    browser.until("[...document.querySelectorAll('#log tr')].some(r => r.textContent.includes('sine sample'))")
+    browser.until("[...document.querySelectorAll('#log tr')].some(r => r.textContent.includes('sine at'))")
     browser.shot("log.png")
+    warn_rows = browser.eval(
+        "(() => { const s = document.querySelector('#log-level'); s.value = '4'; s.dispatchEvent(new Event('change'));"
+        " return [...document.querySelectorAll('#log tr')].map(r => r.textContent); })()"
+    )
+    assert warn_rows and all("WARN" in r and "sine sample" in r for r in warn_rows), warn_rows
+
+    browser.do("goto", url=url + "#params")
+    params = browser.until("document.querySelector('#params').textContent.includes('sine-bot')")
+    assert params
+    browser.shot("params.png")
+
+    # A phone-sized screen: the table still fits its width.
+    browser.do("viewport", width=390, height=760)
+    browser.do("goto", url=url + "#topics")
+    time.sleep(2.5)  # the stats restart with the table (their subscriptions were released when it closed)
+    browser.until(rate_expr)
+    assert browser.eval("document.documentElement.scrollWidth <= 390 + 1")
+    browser.shot("phone-topics.png")
     assert not [e for e in browser.log if e.get("event") == "pageerror"], browser.log
 
 
