@@ -1,10 +1,17 @@
-"""The page's pure cores: which asset names are served (``mrosd.web.page.asset``) and ``RateWindow``."""
+"""The page's pure cores: which asset names are served (``mrosd.web.page.asset``), ``RateWindow``, ``mros web``."""
 
 from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from mros_cli.web import page_url
 
 from mrosd.web.page import ASSET_NAME, CONTENT_TYPES, asset
 from mrosd.web.rates import RateWindow
@@ -58,3 +65,48 @@ def test_the_window_stays_bounded_and_rates_are_never_negative(steps: list[tuple
         assert len(w._samples) <= 5 / 0.01 + 2
         rate = w.rate()
         assert rate is None or (rate[0] >= 0 and rate[1] >= 0)
+
+
+def mros_web(tmp_path: Path, *args: str, **env: str) -> subprocess.CompletedProcess[str]:
+    clean = {k: v for k, v in os.environ.items() if not k.startswith(("MROSD_", "ROS_"))}
+    if "MROSD_CONFIG" not in env:  # not /etc/mrosd/mrosd.toml of this machine: an empty configuration
+        (tmp_path / "empty.toml").write_text("")
+        clean["MROSD_CONFIG"] = str(tmp_path / "empty.toml")
+    return subprocess.run(
+        [sys.executable, "-m", "mros_cli.main", "web", *args],
+        env={**clean, **env},
+        capture_output=True,
+        text=True,
+        timeout=30,
+        check=False,
+    )
+
+
+def test_mros_web_prints_the_pages_url_with_the_token_and_warns_when_nothing_listens(tmp_path: Path) -> None:
+    config = tmp_path / "mrosd.toml"
+    with socket.socket() as free:
+        free.bind(("127.0.0.1", 0))
+        port = free.getsockname()[1]
+    config.write_text(f'[web]\nfoxglove_port = {port}\ntoken = "s3cret"\nhost = "127.0.0.1"\n')
+    out = mros_web(tmp_path, MROSD_CONFIG=str(config))
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == f"http://127.0.0.1:{port}/?token=s3cret"
+    assert "nothing answers" in out.stderr
+    off = mros_web(tmp_path, MROSD_WEB="0")
+    assert off.returncode == 1 and "off" in off.stderr
+
+
+def test_page_url_of_wildcard_and_ipv6_hosts() -> None:
+    assert page_url("::1", 8765, "") == "http://[::1]:8765/"
+    assert page_url("0.0.0.0", 1, "t") == f"http://{socket.gethostname()}:1/?token=t"
+
+
+async def test_the_start_log_line_names_the_page(caplog: pytest.LogCaptureFixture) -> None:
+    import logging
+
+    from mrosd.master import Master
+    from mrosd.web.server import WebServer
+
+    caplog.set_level(logging.INFO, logger="mrosd.web.server")
+    async with Master(host="127.0.0.1", port=0) as master, WebServer(master.uri, port=0, node_host="127.0.0.1") as s:
+        assert f"page http://127.0.0.1:{s.port}/" in caplog.text
