@@ -110,3 +110,22 @@ async def test_the_start_log_line_names_the_page(caplog: pytest.LogCaptureFixtur
     caplog.set_level(logging.INFO, logger="mrosd.web.server")
     async with Master(host="127.0.0.1", port=0) as master, WebServer(master.uri, port=0, node_host="127.0.0.1") as s:
         assert f"page http://127.0.0.1:{s.port}/" in caplog.text
+
+
+def test_the_x_mrosd_ops_decode_and_bad_shapes_are_refused() -> None:
+    from mrosd.web import foxglove as fg
+
+    op = fg.decode_client_text('{"op": "x-mrosd.throttle", "subscriptionId": 3, "maxRate": 20}')
+    assert isinstance(op, fg.Throttle) and op.maxRate == 20
+    assert isinstance(fg.decode_client_text('{"op": "x-mrosd.subscribeStats"}'), fg.SubscribeStats)
+    assert isinstance(fg.decode_client_text('{"op": "x-mrosd.unsubscribeStats"}'), fg.UnsubscribeStats)
+    details = fg.decode_client_text('{"op": "x-mrosd.nodeDetails", "node": "/n", "id": "x"}')
+    assert isinstance(details, fg.NodeDetails) and details.node == "/n"
+    for bad in (
+        '{"op": "x-mrosd.throttle", "subscriptionId": 3, "maxRate": -1}',
+        '{"op": "x-mrosd.throttle", "subscriptionId": -3, "maxRate": 1}',
+        '{"op": "x-mrosd.throttle", "subscriptionId": 3, "maxRate": 1e300}',
+        '{"op": "x-mrosd.nodeDetails"}',
+    ):
+        with pytest.raises(fg.ProtocolRefusal, match="malformed"):
+            fg.decode_client_text(bad)

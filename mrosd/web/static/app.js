@@ -10,7 +10,7 @@ const $ = (s) => document.querySelector(s);
 const TREE_HZ = 20, IMAGE_HZ = 30, MAX_ARRAY = 32, MAX_LOG = 1000;
 const state = {
   channels: new Map(), byTopic: new Map(), pubs: new Map(), subs: new Map(), dead: new Set(),
-  stats: new Map(), nextSub: 1, subs_: new Map(), view: "graph", current: null, plotPath: null, open: new Set(),
+  stats: new Map(), nextSub: 1, mine: new Map(), view: "graph", current: null, plotPath: null, open: new Set(),
   log: [], rosoutSub: null, services: new Map(), calls: new Map(), nextCall: 1,
 };
 const plot = new Plot($("#plot"));
@@ -29,7 +29,7 @@ function connect() {
   ws.onopen = () => { $("#conn").textContent = "connected"; $("#conn").className = "ok"; send({ op: "subscribeConnectionGraph" }); show(state.view); };
   ws.onclose = () => {
     $("#conn").textContent = "disconnected: retrying"; $("#conn").className = "bad";
-    state.channels.clear(); state.byTopic.clear(); state.services.clear(); state.calls.clear(); state.subs_.clear(); state.current = null; state.rosoutSub = null;
+    state.channels.clear(); state.byTopic.clear(); state.services.clear(); state.calls.clear(); state.mine.clear(); state.current = null; state.rosoutSub = null;
     setTimeout(connect, 2000);
   };
   ws.onmessage = (ev) => (typeof ev.data === "string" ? onJson(JSON.parse(ev.data)) : onBinary(ev.data));
@@ -81,7 +81,7 @@ function onBinary(buf) {
   const v = new DataView(buf);
   if (v.getUint8(0) === 3) return onServiceResponse(v, buf);
   if (v.getUint8(0) !== 1) return;
-  const sub = state.subs_.get(v.getUint32(1, true));
+  const sub = state.mine.get(v.getUint32(1, true));
   if (!sub) return;
   const stampNs = Number(v.getBigUint64(5, true));
   let msg;
@@ -94,12 +94,12 @@ function subscribe(topic, handler, maxRate) {
   if (!c) return null;
   const id = state.nextSub++;
   const sub = { id, topic, def: parseDefinition(c.schemaName, c.schema), handler, type: c.schemaName };
-  state.subs_.set(id, sub);
+  state.mine.set(id, sub);
   send({ op: "subscribe", subscriptions: [{ id, channelId: c.id }] });
   if (maxRate) send({ op: "x-mrosd.throttle", subscriptionId: id, maxRate });
   return sub;
 }
-function unsubscribe(sub) { if (sub && state.subs_.delete(sub.id)) send({ op: "unsubscribe", subscriptionIds: [sub.id] }); }
+function unsubscribe(sub) { if (sub && state.mine.delete(sub.id)) send({ op: "unsubscribe", subscriptionIds: [sub.id] }); }
 
 // --- views -----------------------------------------------------------------------------------------
 function show(view) {
