@@ -12,6 +12,7 @@ import os
 import queue
 import re
 import shutil
+import socket
 import subprocess
 import sys
 import threading
@@ -449,6 +450,19 @@ def test_the_page_draws_compressed_images_depth_and_scans(procs: Processes, runn
     )
     assert low > 50 and high > 50, (low, high)
     browser.shot("cloud.png")
+
+    # A node that died without unregistering (its port refuses) is drawn dead in the graph.
+    with socket.socket() as gone:
+        gone.bind(("127.0.0.1", 0))
+        dead_uri = f"http://127.0.0.1:{gone.getsockname()[1]}/"
+    import xmlrpc.client
+
+    with xmlrpc.client.ServerProxy(run.uri) as master:
+        master.registerPublisher("/ghost", "/ghost_topic", "std_msgs/String", dead_uri)
+    browser.do("goto", url=url + "#graph")
+    browser.until("document.querySelector(\"#graph g.node.dead[data-name='/ghost']\")")
+    assert not browser.eval("document.querySelector(\"#graph g.node.dead[data-name='/mrosd_shapes']\")")
+    browser.shot("graph-dead.png")
 
     # A service called from the form built from its request type (std_srvs/SetBool: one checkbox).
     browser.do("goto", url=url + "#services")

@@ -114,7 +114,7 @@ function show(view) {
   if (view === "log") ensureRosout();
   if (view === "params") send({ op: "getParameters", parameterNames: [], id: "page" });
   if (view === "services" && $("#service-pick").value !== state.formFor) buildForm();
-  if (view === "graph") renderGraph();
+  if (view === "graph") { renderGraph(); setTimeout(probeNodes, 500); }
   const hash = view === "topic" && $("#topic-pick").value ? `#topic=${$("#topic-pick").value}` : `#${view}`;
   if (location.hash !== hash) history.replaceState(null, "", hash);
 }
@@ -130,12 +130,13 @@ let graphPending = false;
 function renderGraphSoon() { if (!graphPending) { graphPending = true; setTimeout(() => { graphPending = false; renderGraph(); }, 300); } }
 // While the graph shows, ask every node for its pid every 5 s: one that refuses is drawn dead (it died
 // without unregistering; the master still lists it).
-setInterval(() => {
+function probeNodes() {
   if (state.view !== "graph") return;
   const nodes = new Set();
   for (const m of [state.pubs, state.subs]) for (const ns of m.values()) for (const n of ns) nodes.add(n);
   for (const n of nodes) send({ op: "x-mrosd.nodeDetails", node: n, id: "probe" });
-}, 5000);
+}
+setInterval(probeNodes, 5000);
 
 function showNode(m) {
   const list = (xs) => (xs && xs.length ? xs.map((x) => "  " + x).join("\n") : "  (none)");
