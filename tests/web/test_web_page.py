@@ -476,3 +476,21 @@ def test_the_page_draws_compressed_images_depth_and_scans(procs: Processes, runn
     assert result == {"success": True, "message": "got True"}, result
     browser.shot("service.png")
     assert not [e for e in browser.log if e.get("event") == "pageerror"], browser.log
+
+
+def test_with_a_token_the_page_connects_only_when_its_url_carries_it(procs: Processes, tmp_path: Path) -> None:
+    from tests.integration.daemon.daemonproc import daemon_env
+
+    run = DaemonRun(procs, tmp_path, env=daemon_env(tmp_path, MROSD_WEB_TOKEN="s3cret"))
+    try:
+        status = run.ready()
+        url = page_url(status)
+        browser = Browser(procs)
+        browser.do("goto", url=url + "#topics")  # the page itself holds no data: served without the token
+        time.sleep(1.0)
+        assert browser.eval("document.querySelector('#conn').className") == "bad"
+        assert browser.eval("mrosdPage.state.byTopic.size") == 0
+        browser.do("goto", url=url + "?token=s3cret#topics")
+        browser.until("document.querySelector('#conn').className === 'ok' && mrosdPage.state.byTopic.has('/rosout')")
+    finally:
+        run.close()
