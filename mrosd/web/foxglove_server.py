@@ -31,7 +31,7 @@ from mrosd.errors import MrosError
 from mrosd.master.cleanup import Probe, probe_get_pid
 from mrosd.master.client import GraphSnapshot
 from mrosd.web import foxglove as fg
-from mrosd.web.hub import PAUSE_BYTES, ServiceInfo, TopicInfo, WebHub
+from mrosd.web.hub import PAUSE_BYTES, HoldingSink, ServiceInfo, TopicInfo, WebHub
 from mrosd.web.queue import ByteQueue, trim_to_budget
 from mrosd.web.rates import RateWindow
 
@@ -77,22 +77,6 @@ class _Subscription:
     next_ns: int = 0
 
 
-class _CountSink:
-    """Holds a topic's shared subscription open for ``x-mrosd.subscribeStats``: the hub counts, it keeps nothing."""
-
-    def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
-        pass
-
-    def backlog(self, topic: str) -> int:
-        return 0
-
-    def queued(self) -> int:
-        return 0
-
-    def shed_oldest(self) -> None:
-        pass
-
-
 @dataclass(slots=True)
 class _ClientChannel:
     topic: str
@@ -127,7 +111,7 @@ class FoxgloveSession:
         self._time_ns: int | None = None
         self._close_task: asyncio.Task[bool] | None = None
         #: x-mrosd.subscribeStats: the sink holding each measured topic open, and each topic's window
-        self._stats_sink = _CountSink()
+        self._stats_sink = HoldingSink()
         self._stats: dict[str, RateWindow] | None = None
         self._stats_task: asyncio.Task[None] | None = None
         self._throttle_timer: asyncio.TimerHandle | None = None

@@ -348,13 +348,17 @@ def keep_up(procs: Processes, run: DaemonRun, url: str, seconds: float) -> dict[
     return result
 
 
+def kept_up(result: dict[str, float]) -> None:
+    """The Bar: >= 15 frames/s drawn, JS heap and daemon RSS each within 32 MiB of their start."""
+    assert result["fps"] >= 15 and result["plot_points_per_s"] >= 10, result
+    assert result["heap_growth_mib"] < 32 and result["rss_growth_mib"] < 32, result
+
+
 def test_the_image_view_keeps_up_with_a_30hz_1mb_image_for_10s(
     procs: Processes, running: tuple[DaemonRun, str]
 ) -> None:
     run, url = running
-    result = keep_up(procs, run, url, 10.0)
-    assert result["fps"] >= 15 and result["plot_points_per_s"] >= 10, result
-    assert result["heap_growth_mib"] < 32 and result["rss_growth_mib"] < 32, result
+    kept_up(keep_up(procs, run, url, 10.0))
 
 
 @pytest.mark.slow
@@ -362,9 +366,7 @@ def test_the_image_view_keeps_up_with_a_30hz_1mb_image_for_60s(
     procs: Processes, running: tuple[DaemonRun, str]
 ) -> None:
     run, url = running
-    result = keep_up(procs, run, url, 60.0)
-    assert result["fps"] >= 15 and result["plot_points_per_s"] >= 10, result
-    assert result["heap_growth_mib"] < 32 and result["rss_growth_mib"] < 32, result
+    kept_up(keep_up(procs, run, url, 60.0))
 
 
 #: An mrosd node publishing a PNG CompressedImage, a 16UC1 depth image and a LaserScan, each at 5 Hz.
