@@ -40,6 +40,7 @@ SUBCOMMANDS = {
     "graph": "mros_cli.graph",
     "bridge": "mros_cli.bridge",
     "fleet": "mros_cli.fleet",
+    "web": "mros_cli.web",
 }
 
 EXIT_OK = 0

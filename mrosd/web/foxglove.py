@@ -168,8 +168,38 @@ class FetchAsset(_Op, tag="fetchAsset", frozen=True):
     requestId: U32
 
 
+class Throttle(_Op, tag="x-mrosd.throttle", frozen=True):
+    """mrosd's extension: send at most ``maxRate`` messages/s of a subscription, the latest only (0: all).
+
+    The page's live views ask for it: a 1 kHz topic shown as a tree costs the browser 20 messages a second,
+    and what a slow tab skips is replaced, never queued.
+    """
+
+    subscriptionId: U32
+    maxRate: Annotated[float, msgspec.Meta(ge=0, le=1e6)]
+
+
+class SubscribeStats(_Op, tag="x-mrosd.subscribeStats", frozen=True):
+    """mrosd's extension: report every advertised topic's Hz and bytes/s once a second (``x-mrosd.topicStats``)."""
+
+
+class UnsubscribeStats(_Op, tag="x-mrosd.unsubscribeStats", frozen=True):
+    pass
+
+
+class NodeDetails(_Op, tag="x-mrosd.nodeDetails", frozen=True):
+    """mrosd's extension: a node's URI, host, pid and whether it answers (``x-mrosd.nodeDetails`` reply)."""
+
+    node: Name
+    id: str | None = None
+
+
 ClientOp = (
-    Subscribe
+    Throttle
+    | SubscribeStats
+    | UnsubscribeStats
+    | NodeDetails
+    | Subscribe
     | Unsubscribe
     | ClientAdvertise
     | ClientUnadvertise
@@ -195,6 +225,10 @@ _OP_NAMES = frozenset(
         "subscribeConnectionGraph",
         "unsubscribeConnectionGraph",
         "fetchAsset",
+        "x-mrosd.throttle",
+        "x-mrosd.subscribeStats",
+        "x-mrosd.unsubscribeStats",
+        "x-mrosd.nodeDetails",
     }
 )
 _op_decoder: msgspec.json.Decoder[ClientOp] = msgspec.json.Decoder(ClientOp)  # type: ignore[arg-type]

@@ -19,6 +19,8 @@ import base64
 import collections
 import contextlib
 import logging
+import time
+import urllib.parse
 import uuid
 from dataclasses import dataclass
 from typing import Any
@@ -26,10 +28,12 @@ from typing import Any
 from aiohttp import WSMsgType, web
 
 from mrosd.errors import MrosError
+from mrosd.master.cleanup import Probe, probe_get_pid
 from mrosd.master.client import GraphSnapshot
 from mrosd.web import foxglove as fg
-from mrosd.web.hub import PAUSE_BYTES, ServiceInfo, TopicInfo, WebHub
+from mrosd.web.hub import PAUSE_BYTES, HoldingSink, ServiceInfo, TopicInfo, WebHub
 from mrosd.web.queue import ByteQueue, trim_to_budget
+from mrosd.web.rates import RateWindow
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +41,11 @@ __all__ = ["FoxgloveSession", "SessionLimits"]
 
 #: Seconds between two drop reports of one client.
 REPORT_PERIOD = 1.0
+#: Seconds between two ``x-mrosd.topicStats`` reports, and the window their rates are measured over.
+STATS_PERIOD = 1.0
+STATS_WINDOW = 5.0
+#: Seconds a node's ``getPid`` may take for ``x-mrosd.nodeDetails``.
+NODE_TIMEOUT = 2.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -62,6 +71,10 @@ class _Subscription:
     id: int
     topic: TopicInfo
     queue: Any  # ByteQueue[tuple[int, bytes | bytearray]]
+    #: x-mrosd.throttle: at least this long between two messages sent, the latest only (0: every message)
+    period_ns: int = 0
+    #: monotonic ns before which the next message of a throttled subscription is not sent
+    next_ns: int = 0
 
 
 @dataclass(slots=True)
@@ -97,6 +110,11 @@ class FoxgloveSession:
         #: the latest /clock time not yet sent (a 1 kHz clock costs the client the rate it reads at)
         self._time_ns: int | None = None
         self._close_task: asyncio.Task[bool] | None = None
+        #: x-mrosd.subscribeStats: the sink holding each measured topic open, and each topic's window
+        self._stats_sink = HoldingSink()
+        self._stats: dict[str, RateWindow] | None = None
+        self._stats_task: asyncio.Task[None] | None = None
+        self._throttle_timer: asyncio.TimerHandle | None = None
 
     # --- hub callbacks (never block) -------------------------------------------------------------
 
@@ -114,6 +132,8 @@ class FoxgloveSession:
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         subs = self._by_topic.get(topic, ())
         for sub in subs:
+            if sub.period_ns:
+                sub.queue.clear()  # throttled: the latest message replaces the one not yet sent
             sub.queue.put((receipt_ns, body), len(body))
         if subs:
             trim_to_budget([s.queue for s in self.subs.values()], self.limits.client_bytes, subs[-1].queue)
@@ -174,15 +194,29 @@ class FoxgloveSession:
     def _next_message(self) -> bytes | None:
         subs = list(self.subs.values())
         n = len(subs)
+        now = 0
+        wait_ns: int | None = None
         for i in range(n):
             sub = subs[(self._rr + i) % n]
             if len(sub.queue):
+                if sub.period_ns:
+                    now = now or time.monotonic_ns()
+                    if now < sub.next_ns:
+                        wait_ns = min(wait_ns or sub.next_ns - now, sub.next_ns - now)
+                        continue
+                    sub.next_ns = now + sub.period_ns
                 self._rr = (self._rr + i + 1) % n
                 receipt_ns, body = sub.queue.get()
                 if self.backlog(sub.topic.name) < PAUSE_BYTES:
                     self.hub.resume(sub.topic.name)
                 return fg.message_data(sub.id, receipt_ns, body)
+        if wait_ns is not None and self._throttle_timer is None:
+            self._throttle_timer = asyncio.get_running_loop().call_later(wait_ns / 1e9, self._throttle_due)
         return None
+
+    def _throttle_due(self) -> None:
+        self._throttle_timer = None
+        self._wake.set()
 
     async def _sender(self) -> None:
         ws = self.ws
@@ -250,6 +284,10 @@ class FoxgloveSession:
                     break
         finally:
             self._closed = True
+            if self._throttle_timer is not None:
+                self._throttle_timer.cancel()
+            if self._stats_task is not None:
+                tasks.append(self._stats_task)
             tasks += self._calls
             for task in tasks:
                 task.cancel()
@@ -263,6 +301,9 @@ class FoxgloveSession:
         hub.time_listeners.discard(self._time)
         for topic in list(self._by_topic):
             await hub.remove_sink(topic, self)
+        for topic in list(self._stats or ()):
+            await hub.remove_sink(topic, self._stats_sink)
+        self._stats = None
         self._by_topic.clear()
         for sub in self.subs.values():
             sub.queue.clear()  # gives its bytes back to the hub's ledger
@@ -324,8 +365,106 @@ class FoxgloveSession:
         elif isinstance(op, fg.UnsubscribeConnectionGraph):
             self._graph_state = None
             self.hub.state_listeners.discard(self._state_changed)
+        elif isinstance(op, fg.Throttle):
+            sub = self.subs.get(op.subscriptionId)
+            if sub is None:
+                self.status(fg.STATUS_WARNING, f"x-mrosd.throttle: no subscription {op.subscriptionId}")
+            else:
+                sub.period_ns = int(1e9 / op.maxRate) if op.maxRate > 0 else 0
+                while sub.period_ns and len(sub.queue) > 1:
+                    sub.queue.get()  # from now on only the latest is kept
+        elif isinstance(op, fg.SubscribeStats):
+            if self._stats is None:
+                self._stats = {}
+                self._stats_task = asyncio.get_running_loop().create_task(self._report_stats())
+        elif isinstance(op, fg.UnsubscribeStats):
+            await self._stop_stats()
+        elif isinstance(op, fg.NodeDetails):
+            # in a task of its own, counted with the service calls: a node that does not answer getPid
+            # must not hold up this client's other requests
+            if len(self._calls) >= self.limits.max_calls:
+                self.status(fg.STATUS_ERROR, f"x-mrosd.nodeDetails: at most {self.limits.max_calls} requests in flight")
+                return
+            task = asyncio.get_running_loop().create_task(self._reply_node_details(op))
+            self._calls.add(task)
+            task.add_done_callback(self._calls.discard)
         elif isinstance(op, fg.FetchAsset):
             self.status(fg.STATUS_ERROR, "fetchAsset is not supported (no assets capability)")
+
+    # --- mrosd's extensions for its page ----------------------------------------------------------
+
+    async def _report_stats(self) -> None:
+        """Hold every advertised topic open with a counting sink; report Hz and bytes/s once a second."""
+        hub = self.hub
+        while self._stats is not None:
+            stats = self._stats
+            wanted = set(hub.topics)
+            for topic in [t for t in stats if t not in wanted]:
+                del stats[topic]
+                await hub.remove_sink(topic, self._stats_sink)
+            for topic in wanted - stats.keys():
+                # listed before subscribing: whoever stops the stats (even mid-subscribe) releases it
+                stats[topic] = RateWindow(STATS_WINDOW)
+                try:
+                    await hub.add_sink(topic, self._stats_sink)
+                except MrosError:
+                    del stats[topic]
+            now = time.monotonic()
+            report = []
+            for topic, window in stats.items():
+                counts = hub.topic_stats(topic)
+                if counts is None:
+                    continue
+                window.add(now, *counts)
+                rate = window.rate()
+                report.append(
+                    {
+                        "topic": topic,
+                        "messages": counts[0],
+                        "bytes": counts[1],
+                        "hz": None if rate is None else round(rate[0], 3),
+                        "bps": None if rate is None else round(rate[1], 1),
+                    }
+                )
+            self._send_json(fg.encode_json("x-mrosd.topicStats", topics=report))
+            await asyncio.sleep(STATS_PERIOD)
+
+    async def _stop_stats(self) -> None:
+        stats, self._stats = self._stats, None
+        task, self._stats_task = self._stats_task, None
+        if task is not None:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+        for topic in stats or ():
+            await self.hub.remove_sink(topic, self._stats_sink)
+
+    async def _reply_node_details(self, op: fg.NodeDetails) -> None:
+        self._send_json(await self._node_details(op))
+
+    async def _node_details(self, op: fg.NodeDetails) -> bytes:
+        """What the master knows of a node, its pid from ``getPid``, and ``alive`` (False: refused)."""
+        reply: dict[str, Any] = {"id": op.id, "node": op.node, "uri": None}
+        try:
+            pubs, subs, srvs = await self.hub.node.master.get_system_state()
+        except MrosError as exc:
+            reply["error"] = str(exc)
+            return fg.encode_json("x-mrosd.nodeDetails", **reply)
+        reply.update(
+            publishing=sorted(t for t, ns in pubs if op.node in ns),
+            subscribing=sorted(t for t, ns in subs if op.node in ns),
+            services=sorted(s for s, ns in srvs if op.node in ns),
+        )
+        try:
+            uri = await self.hub.node.master.lookup_node(op.node)
+        except MrosError as exc:
+            reply["error"] = str(exc)
+            return fg.encode_json("x-mrosd.nodeDetails", **reply)
+        reply["uri"] = uri
+        reply["host"] = urllib.parse.urlsplit(uri).hostname
+        probe, pid = await probe_get_pid(uri, NODE_TIMEOUT)
+        reply["pid"] = pid
+        reply["alive"] = None if probe is Probe.NO_ANSWER else probe is Probe.ANSWERED
+        return fg.encode_json("x-mrosd.nodeDetails", **reply)
 
     async def _subscribe(self, op: fg.Subscribe) -> None:
         by_id = {t.id: t for t in self.hub.topics.values()}

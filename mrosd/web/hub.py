@@ -39,7 +39,7 @@ from mrosd.wire.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connecti
 
 log = logging.getLogger(__name__)
 
-__all__ = ["GraphListener", "ServiceInfo", "TopicInfo", "TopicSink", "WebHub", "split_rosrpc"]
+__all__ = ["GraphListener", "HoldingSink", "ServiceInfo", "TopicInfo", "TopicSink", "WebHub", "split_rosrpc"]
 
 #: How long a probe waits for a publisher's connection header before the topic stays unadvertised.
 PROBE_TIMEOUT = 5.0
@@ -74,11 +74,13 @@ def split_rosrpc(uri: str) -> tuple[str, int]:
 CLOCK_TOPIC = "/clock"
 
 
-class _ClockSink:
-    """The hub's own sink on /clock: rosgraph_msgs/Clock is one time (uint32 secs, uint32 nsecs)."""
+class HoldingSink:
+    """A sink that queues nothing: it holds a topic's shared subscription open (the hub still counts its
+    messages and bytes, ``topic_stats``) and never makes the hub pause the topic. Subclasses act in ``deliver``.
+    """
 
-    def __init__(self, hub: WebHub) -> None:
-        self.hub = hub
+    def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
+        pass
 
     def backlog(self, topic: str) -> int:
         return 0
@@ -88,6 +90,13 @@ class _ClockSink:
 
     def shed_oldest(self) -> None:
         pass
+
+
+class _ClockSink(HoldingSink):
+    """The hub's own sink on /clock: rosgraph_msgs/Clock is one time (uint32 secs, uint32 nsecs)."""
+
+    def __init__(self, hub: WebHub) -> None:
+        self.hub = hub
 
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         if len(body) != 8:

@@ -19,6 +19,7 @@ from mrosd.web import foxglove as fg
 from mrosd.web.access import AccessPolicy
 from mrosd.web.foxglove_server import FoxgloveSession, SessionLimits
 from mrosd.web.hub import WebHub
+from mrosd.web.page import index, page_routes
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +74,13 @@ class WebServer:
         return f"ws://{host}:{self.port}/"
 
     @property
+    def page_url(self) -> str:
+        """The page to open in a browser (served on the Foxglove port; ``?token=`` added when one is set)."""
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        query = "?token=..." if self.policy.token else ""
+        return f"http://{host}:{self.port}/{query}"
+
+    @property
     def rosbridge_url(self) -> str:
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"ws://{host}:{self.rosbridge_port}/"
@@ -86,19 +94,21 @@ class WebServer:
         """
         await self.hub.start()
         try:
-            self._runner, self.port = await self._listen(self._foxglove, self.port)
+            self._runner, self.port = await self._listen(self._foxglove, self.port, page=True)
             if self.rosbridge_port is not None:
                 self._rosbridge_runner, self.rosbridge_port = await self._listen(self._rosbridge, self.rosbridge_port)
         except BaseException:
             await self.aclose()
             raise
-        log.info("web: Foxglove WebSocket on %s (master %s)", self.url, self.hub.master_uri)
+        log.info("web: Foxglove WebSocket on %s, page %s (master %s)", self.url, self.page_url, self.hub.master_uri)
         if self.rosbridge_port is not None:
             log.info("web: rosbridge v2 on %s", self.rosbridge_url)
 
-    async def _listen(self, handler: Any, port: int) -> tuple[web.AppRunner, int]:
+    async def _listen(self, handler: Any, port: int, *, page: bool = False) -> tuple[web.AppRunner, int]:
         app = web.Application()
         app.router.add_get("/", handler)
+        if page:
+            page_routes(app)
         runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=CLOSE_TIMEOUT)
         await runner.setup()
         try:
@@ -139,6 +149,8 @@ class WebServer:
         return auth[7:] if auth.startswith("Bearer ") else None
 
     async def _foxglove(self, request: web.Request) -> web.StreamResponse:
+        if request.headers.get("Upgrade", "").lower() != "websocket":
+            return index()  # a browser opening the port: the page (it then connects back with the token)
         if not self.policy.token_ok(self._token(request)):
             raise web.HTTPUnauthorized(text="token required: add ?token=... to the URL\n")
         if len(self.sessions) + len(self.rosbridge_sessions) >= self.max_clients:

@@ -177,3 +177,139 @@ async def test_stalled_clients_together_cost_at_most_the_global_budget(master: M
             await ws.close()
         await until(lambda: not server.sessions)
         assert server.hub.ledger.size == 0  # every byte counted was given back
+
+
+# --- the page (mrosd/web/page.py, static/) and its x-mrosd ops ---------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        "/static/../server.py",
+        "/static/..%2fserver.py",
+        "/static/%2e%2e/server.py",
+        "/static/..%5cserver.py",
+        "/static//etc/passwd",
+        "/static/%2fetc%2fpasswd",
+        "/static/app.js%00.css",
+        "/static/__init__.py",
+        "/static/.hidden.js",
+        "/static/APP.JS",
+        "/static/" + "a" * 5000 + ".js",
+        "/../../etc/passwd",
+    ],
+)
+async def test_a_hostile_asset_path_is_404_and_serves_nothing_outside_the_folder(master: Master, path: str) -> None:
+    async with WebServer(master.uri, port=0, node_host="127.0.0.1") as server, aiohttp.ClientSession() as http:
+        # raw path: the client must not normalise the dots away before they reach the server
+        url = aiohttp.client.URL(f"http://127.0.0.1:{server.port}{path}", encoded=True)
+        async with http.get(url) as resp:
+            body = await resp.read()
+        assert resp.status in (400, 404, 414, 431), (path, resp.status)
+        assert b"import" not in body and b"root:" not in body
+
+
+async def test_the_page_and_its_assets_are_served_with_their_content_types(master: Master) -> None:
+    async with WebServer(master.uri, port=0, node_host="127.0.0.1") as server, aiohttp.ClientSession() as http:
+        base = f"http://127.0.0.1:{server.port}"
+        for path, ctype in [
+            ("/", "text/html"),
+            ("/static/app.js", "text/javascript"),
+            ("/static/ros1.js", "text/javascript"),
+            ("/static/style.css", "text/css"),
+            ("/static/favicon.svg", "image/svg+xml"),
+        ]:
+            async with http.get(base + path) as resp:
+                assert resp.status == 200, path
+                assert resp.content_type == ctype, (path, resp.content_type)
+                assert resp.headers["X-Content-Type-Options"] == "nosniff"
+        # the same path still upgrades to the Foxglove protocol
+        async with http.ws_connect(base + "/", protocols=["foxglove.websocket.v1"]) as ws:
+            assert json.loads((await ws.receive(timeout=10)).data)["op"] == "serverInfo"
+
+
+async def test_a_throttled_subscription_of_a_client_that_never_reads_holds_one_message(master: Master) -> None:
+    """x-mrosd.throttle keeps the latest message only: a stalled tab on a 1 MB topic costs one message."""
+    async with (
+        WebServer(master.uri, port=0, node_host="127.0.0.1") as server,
+        node("camera", master.uri) as camera,
+        aiohttp.ClientSession() as http,
+    ):
+        pub = await camera.advertise("/image", Image)
+        await until(lambda: "/image" in server.hub.topics)
+        ws = await http.ws_connect(server.url, protocols=["foxglove.websocket.v1"], max_msg_size=0)
+        channel = server.hub.topics["/image"].id
+        await ws.send_str(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": channel}]}))
+        await ws.send_str(json.dumps({"op": "x-mrosd.throttle", "subscriptionId": 7, "maxRate": 0.5}))
+        await until(lambda: bool(server.sessions) and 7 in next(iter(server.sessions)).subs)
+        session = next(iter(server.sessions))
+        await until(lambda: session.subs[7].period_ns > 0)
+        await pub.wait_for_subscribers(1, timeout=10)
+        img = Image(height=512, width=512, encoding="rgba8", step=2048, data=bytes(MiB))
+        for _ in range(40):
+            await pub.publish(img)
+            await asyncio.sleep(0.005)
+            assert len(session.subs[7].queue) <= 1
+            assert server.hub.ledger.size <= MiB + 4096
+        await ws.close()
+
+
+async def test_stats_hold_topics_open_only_while_asked_and_never_pause_them(master: Master) -> None:
+    String = get_message_class("std_msgs/String")
+    async with (
+        WebServer(master.uri, port=0, node_host="127.0.0.1") as server,
+        node("talker", master.uri) as talker,
+        aiohttp.ClientSession() as http,
+    ):
+        pub = await talker.advertise("/chatter", String)
+        await until(lambda: "/chatter" in server.hub.topics)
+        ws = await http.ws_connect(server.url, protocols=["foxglove.websocket.v1"])
+        await ws.send_str(json.dumps({"op": "x-mrosd.subscribeStats"}))
+        await until(lambda: server.hub.sink_count("/chatter") == 1)
+        await pub.wait_for_subscribers(1, timeout=10)
+        for _ in range(20):
+            await pub.publish(String(data="x" * 1000))
+        await until(lambda: (server.hub.topic_stats("/chatter") or (0, 0))[0] == 20)
+        async with asyncio.timeout(10):
+            while True:
+                msg = json.loads((await ws.receive()).data)
+                if msg["op"] == "x-mrosd.topicStats":
+                    row = next((t for t in msg["topics"] if t["topic"] == "/chatter"), None)
+                    if row is not None and row["messages"] == 20:
+                        assert row["bytes"] == 20 * 1004
+                        break
+        await ws.send_str(json.dumps({"op": "x-mrosd.unsubscribeStats"}))
+        await until(lambda: server.hub.sink_count("/chatter") == 0)
+        await ws.send_str(json.dumps({"op": "x-mrosd.subscribeStats"}))
+        await until(lambda: server.hub.sink_count("/chatter") == 1)
+        await ws.close()  # leaving releases them too
+        await until(lambda: server.hub.sink_count("/chatter") == 0 and not server.sessions)
+
+
+async def test_node_details_of_a_dead_node_is_bounded_and_says_so(master: Master) -> None:
+    async with WebServer(master.uri, port=0, node_host="127.0.0.1") as server, aiohttp.ClientSession() as http:
+        import socket
+
+        with socket.socket() as gone:  # a port nobody listens on: the node "died" without unregistering
+            gone.bind(("127.0.0.1", 0))
+            dead_uri = f"http://127.0.0.1:{gone.getsockname()[1]}/"
+        from mrosd.master.client import MasterClient
+
+        async with MasterClient(master.uri, "/ghost") as ghost:  # registers, then "dies" without unregistering
+            await ghost.register_publisher("/ghost_topic", "std_msgs/String", dead_uri)
+        ws = await http.ws_connect(server.url, protocols=["foxglove.websocket.v1"])
+        await ws.send_str(json.dumps({"op": "x-mrosd.nodeDetails", "node": "/ghost", "id": "g"}))
+        async with asyncio.timeout(10):
+            while True:
+                msg = json.loads((await ws.receive()).data)
+                if msg["op"] == "x-mrosd.nodeDetails":
+                    break
+        assert msg["alive"] is False and msg["uri"] == dead_uri and msg["publishing"] == ["/ghost_topic"]
+        await ws.send_str(json.dumps({"op": "x-mrosd.nodeDetails", "node": "/nobody", "id": "n"}))
+        async with asyncio.timeout(10):
+            while True:
+                msg = json.loads((await ws.receive()).data)
+                if msg["op"] == "x-mrosd.nodeDetails":
+                    break
+        assert "error" in msg and msg["node"] == "/nobody"
+        await ws.close()

@@ -1,0 +1,53 @@
+"""``mros web``: the URL of the page mrosd serves (graph, topics, live values, plots, images).
+
+The page is on the daemon's Foxglove port (``[web]`` in mrosd.toml, or ``$MROSD_WEB_*``); the URL printed
+carries the token when one is configured, since the page passes it on to its WebSocket. A loopback-only
+daemon on a robot is reached through an SSH tunnel: ``ssh -L 8765:127.0.0.1:8765 robot``.
+"""
+
+from __future__ import annotations
+
+import socket
+
+import click
+
+from mrosd.errors import ConfigError
+
+#: Seconds to wait for the port to accept a connection (only to warn when nothing listens there).
+PROBE_TIMEOUT = 1.0
+
+
+def page_url(host: str, port: int, token: str) -> str:
+    """The URL to open for a daemon serving its web part on ``host:port`` (0.0.0.0/:: as this host's name)."""
+    if host in ("0.0.0.0", "::", ""):
+        host = socket.gethostname()
+    shown = f"[{host}]" if ":" in host else host
+    query = f"?token={token}" if token else ""
+    return f"http://{shown}:{port}/{query}"
+
+
+@click.command(name="web")
+@click.option("--config", "config_path", default=None, help="mrosd.toml to read (default: as mrosd does)")
+def group(config_path: str | None) -> None:
+    """Print the URL of mrosd's page: the graph, topics with Hz and bandwidth, live values, plots, images.
+
+    \b
+    Example:
+      mros web            # http://127.0.0.1:8765/
+    """
+    from mrosd.config import load_config
+
+    try:
+        cfg = load_config(config_path)
+    except ConfigError as exc:
+        raise click.UsageError(str(exc)) from None
+    web = cfg.web
+    if not web.enabled:
+        raise click.ClickException("the daemon's web part is off ([web] enabled = false): no page is served")
+    click.echo(page_url(web.host, web.foxglove_port, web.token))
+    probe_host = "127.0.0.1" if web.host in ("0.0.0.0", "") else ("::1" if web.host == "::" else web.host)
+    try:
+        with socket.create_connection((probe_host, web.foxglove_port), timeout=PROBE_TIMEOUT):
+            pass
+    except OSError as exc:
+        click.echo(f"warning: nothing answers on {probe_host}:{web.foxglove_port} ({exc}); is mrosd running?", err=True)
