@@ -11,6 +11,14 @@ publisher and ``AnyMsg`` subscribers through an mrosd master started for the run
 transports; the median is printed.
 
 Usage: ``python -m bench.shm [--rounds 3] [--sizes 1,8] [--subs 1,4] [--transports shm,tcpros]``.
+
+``--latency``: one-way latency instead, from the publish call to the subscriber's callback (both processes
+read CLOCK_MONOTONIC; the publisher writes its clock into the message's first 8 bytes), median and p99 over
+``--count`` messages 20 ms apart (no queueing), for 1 KB, 64 KB, 1 MB and 8 MB messages (``--lat-sizes``),
+per mode (``--modes``): ``copy`` (today's shared-memory path: serialized into the ring, copied out),
+``pool`` (the same, with ``max_message_size`` declared: the ring made and faulted in before the subscriber
+attaches), ``tcpros`` (``mrosd.Node`` over TCPROS). The first message on a new connection (published as
+soon as the subscriber is attached) is reported separately.
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ import os
 import select
 import socket
 import statistics
+import struct
 import subprocess
 import sys
 import time
@@ -129,6 +138,118 @@ async def _sub(args: argparse.Namespace) -> None:
     _say("sub", json.dumps({"last": last, "got": got, "dropped": dropped}))
 
 
+# --- latency ---------------------------------------------------------------------------------------------
+
+_STAMP = struct.Struct("=d")
+LAT_GAP = 0.02
+
+
+async def _lat_pub(args: argparse.Namespace) -> None:
+    body = bytearray(args.size)
+    changed = asyncio.Event()
+    if args.mode in ("copy", "pool"):
+        from mrosd.shm import ShmPublisherEndpoint
+
+        declared = args.size if args.mode == "pool" else None
+        ep = ShmPublisherEndpoint(TOPIC, queue_size=4, on_change=changed.set, max_message_size=declared)
+        await ep.start()
+        _say("addr", ep.address, ep.token)
+        while not ep.links:
+            changed.clear()
+            await changed.wait()
+        publish: Any = ep.publish
+        closer: Any = ep.aclose
+    else:
+        from mrosd import Node
+        from mrosd.msg import get_message_class
+
+        node = Node("bench_lat_pub", master_uri=args.master, argv=[], rosout=False, logger_services=False)
+        await node.start()
+        pub = await node.advertise(TOPIC, get_message_class("std_msgs/UInt8MultiArray"), queue_size=4)
+        _say("addr", "-", "-")
+        await pub.wait_for_subscribers(1, timeout=30)
+        publish = pub.publish_serialized
+        closer = node.aclose
+    for i in range(args.count + 1):  # the first one as the subscriber is attached, then one every LAT_GAP
+        _STAMP.pack_into(body, 0, time.monotonic())
+        publish(body)
+        await asyncio.sleep(0.2 if i == 0 else LAT_GAP)
+    await _stdin_line()
+    await closer()
+
+
+async def _lat_sub(args: argparse.Namespace) -> None:
+    lat: list[float] = []
+    done = asyncio.Event()
+
+    def on_body(body: Any) -> None:
+        lat.append(time.monotonic() - _STAMP.unpack_from(body, 0)[0])
+        if len(lat) > args.count:
+            done.set()
+
+    if args.mode in ("copy", "pool"):
+        from mrosd.shm import ShmSubscriberConnection, parse_answer
+        from mrosd.shm.negotiate import PROTOCOL, VERSION
+        from mrosd.wire.header import ConnectionHeader
+
+        answer = parse_answer([PROTOCOL, VERSION, args.address, args.token])
+        assert answer is not None
+        header = ConnectionHeader(callerid=f"/bench_sub{os.getpid()}", topic=TOPIC, md5sum="*", type="*")
+        conn = await ShmSubscriberConnection.attach(answer, header, on_frame=on_body)
+        await asyncio.wait_for(done.wait(), 120)
+        await conn.aclose()
+    else:
+        from mrosd import Node
+        from mrosd.tcpros.subscriber import AnyMsg
+
+        node = Node(f"bench_sub{os.getpid()}", master_uri=args.master, argv=[], rosout=False, logger_services=False)
+        await node.start()
+        await node.subscribe(TOPIC, AnyMsg, lambda raw: on_body(raw.data), queue_size=4)
+        await asyncio.wait_for(done.wait(), 120)
+        await node.aclose()
+    _say("lat", json.dumps(lat))
+
+
+def _lat_one(mode: str, size: int, count: int, master: str) -> list[float]:
+    common = ["--mode", mode, "--size", str(size), "--count", str(count), "--master", master]
+    procs: list[subprocess.Popen[bytes]] = []
+    try:
+        pub = _spawn("--role", "lpub", *common)
+        procs.append(pub)
+        address, token = _line(pub, "addr").split()
+        sub = _spawn("--role", "lsub", *common, "--address", address, "--token", token)
+        procs.append(sub)
+        lat: list[float] = json.loads(_line(sub, "lat"))
+        assert pub.stdin is not None
+        pub.stdin.write(b"done\n")
+        pub.stdin.flush()
+        return lat
+    finally:
+        for p in procs:
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+def _latency(args: argparse.Namespace, master: str) -> int:
+    sizes = [int(s) for s in args.lat_sizes.split(",")]
+    modes = args.modes.split(",")
+    print(f"{'size':>6} {'mode':>7} {'median us':>10} {'p99 us':>9} {'first us':>9}")
+    table: dict[tuple[int, str], tuple[float, float, float]] = {}
+    for size in sizes:
+        for mode in modes:
+            lat = _lat_one(mode, size, args.count, master)
+            first, rest = lat[0], sorted(lat[1:])
+            med = statistics.median(rest)
+            p99 = rest[min(len(rest) - 1, int(len(rest) * 0.99))]
+            table[(size, mode)] = (med, p99, first)
+            label = f"{size >> 20}M" if size >= 1 << 20 else f"{size >> 10}K"
+            print(f"{label:>6} {mode:>7} {med * 1e6:>10.0f} {p99 * 1e6:>9.0f} {first * 1e6:>9.0f}", flush=True)
+    return 0
+
+
 # --- the coordinator -----------------------------------------------------------------------------------
 
 
@@ -223,7 +344,11 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--sizes", default="1,8", help="message sizes in MB (1 and/or 8)")
     parser.add_argument("--subs", default="1,4", help="subscriber counts")
     parser.add_argument("--transports", default="shm,tcpros")
-    parser.add_argument("--role", choices=["pub", "sub"], help=argparse.SUPPRESS)
+    parser.add_argument("--latency", action="store_true", help="one-way latency per size and mode (see above)")
+    parser.add_argument("--lat-sizes", default="1024,65536,1048576,8388608", help="latency message sizes, bytes")
+    parser.add_argument("--modes", default="copy,pool,tcpros", help="latency modes")
+    parser.add_argument("--mode", help=argparse.SUPPRESS)
+    parser.add_argument("--role", choices=["pub", "sub", "lpub", "lsub"], help=argparse.SUPPRESS)
     parser.add_argument("--transport", help=argparse.SUPPRESS)
     parser.add_argument("--size", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--count", type=int, help=argparse.SUPPRESS)
@@ -241,12 +366,21 @@ def main(argv: list[str]) -> int:
             uvloop.install()
         except ImportError:
             pass
-        asyncio.run(_pub(args) if args.role == "pub" else _sub(args))
+        roles = {"pub": _pub, "sub": _sub, "lpub": _lat_pub, "lsub": _lat_sub}
+        asyncio.run(roles[args.role](args))
         return 0
+    master, uri = _start_master()
+    if args.latency:
+        if args.count is None:
+            args.count = 100
+        try:
+            return _latency(args, uri)
+        finally:
+            master.terminate()
+            master.wait(10)
     sizes = [int(s) for s in args.sizes.split(",")]
     counts = [int(s) for s in args.subs.split(",")]
     transports = args.transports.split(",")
-    master, uri = _start_master()
     runs: dict[tuple[int, int, str], list[dict[str, float]]] = {}
     try:
         for _ in range(args.rounds):

@@ -7,7 +7,8 @@ there. This module knows nothing of file descriptors or sockets, so that it can 
     header (64 bytes)
     0   4s  magic b"MSHM"
     4   H   layout version (2)
-    6   H   reserved
+    6   H   flags: bit 0 (``POPULATED``) = the publisher faulted every page in at creation, so a subscriber
+            maps the whole ring at once (``MAP_POPULATE``) instead of faulting it page by page
     8   I   slots N
     12  I   reserved
     16  Q   capacity of one slot's data, bytes
@@ -50,6 +51,7 @@ __all__ = [
     "LAYOUT_VERSION",
     "MAGIC",
     "MAX_SLOTS",
+    "POPULATED",
     "SLOT_HEADER",
     "RingCursor",
     "RingLayout",
@@ -63,6 +65,8 @@ HEADER_SIZE = 64
 SLOT_HEADER = 64
 #: More slots than this is refused (a subscriber's drop-oldest queue is at most this long).
 MAX_SLOTS = 4096
+#: Header flag: every page of the ring was touched when it was made (``RingSegment(populate=True)``).
+POPULATED = 1
 
 _HEAD = struct.Struct("=4sHHIIQQQQ16x")
 assert _HEAD.size == HEADER_SIZE
@@ -87,12 +91,12 @@ class RingLayout:
     ``buf`` may be a read-only mapping (subscribers); the write methods then fail in memoryview itself.
     """
 
-    __slots__ = ("_head", "_retired", "_waiting", "buf", "capacity", "data", "slots", "words")
+    __slots__ = ("_head", "_retired", "_waiting", "buf", "capacity", "data", "flags", "slots", "words")
 
     def __init__(self, buf: memoryview) -> None:
         if len(buf) < HEADER_SIZE:
             raise RemoteProtocolError(f"shared-memory ring of {len(buf)} bytes is smaller than its header")
-        magic, version, _r, slots, _r2, capacity, _head, _retired, _waiting = _HEAD.unpack_from(buf, 0)
+        magic, version, flags, slots, _r2, capacity, _head, _retired, _waiting = _HEAD.unpack_from(buf, 0)
         if magic != MAGIC or version != LAYOUT_VERSION:
             raise RemoteProtocolError(f"not an mrosd shared-memory ring v{LAYOUT_VERSION} ({magic!r}, v{version})")
         if not 1 <= slots <= MAX_SLOTS:
@@ -104,6 +108,7 @@ class RingLayout:
         self.buf = buf
         self.slots: int = slots
         self.capacity: int = capacity
+        self.flags: int = flags
         self._head = buf[_HEAD_OFF : _HEAD_OFF + 8].cast("Q")
         self._retired = buf[_RETIRED_OFF : _RETIRED_OFF + 8].cast("Q")
         self._waiting = buf[_WAITING_OFF : _WAITING_OFF + 8].cast("Q")
@@ -116,18 +121,18 @@ class RingLayout:
         ]
 
     @staticmethod
-    def header(slots: int, capacity: int, head: int = 0) -> bytes:
+    def header(slots: int, capacity: int, head: int = 0, flags: int = 0) -> bytes:
         """A fresh header whose first message will be ``head + 1`` (a replacement ring continues the count)."""
-        return _HEAD.pack(MAGIC, LAYOUT_VERSION, 0, slots, 0, capacity, head, 0, 0)
+        return _HEAD.pack(MAGIC, LAYOUT_VERSION, flags, slots, 0, capacity, head, 0, 0)
 
     @classmethod
-    def initialize(cls, buf: memoryview, slots: int, capacity: int, head: int = 0) -> RingLayout:
+    def initialize(cls, buf: memoryview, slots: int, capacity: int, head: int = 0, flags: int = 0) -> RingLayout:
         """Write a fresh header into ``buf`` (zeroed slots) and view it."""
         if not 1 <= slots <= MAX_SLOTS:
             raise LocalProtocolError(f"a ring has 1..{MAX_SLOTS} slots, not {slots}")
         if ring_size(slots, capacity) > len(buf):
             raise LocalProtocolError(f"buffer of {len(buf)} bytes cannot hold {slots} slots of {capacity} bytes")
-        buf[:HEADER_SIZE] = cls.header(slots, capacity, head)
+        buf[:HEADER_SIZE] = cls.header(slots, capacity, head, flags)
         return cls(buf)
 
     def release(self) -> None:

@@ -61,6 +61,8 @@ class PublisherLike(Protocol):
     message_definition: str
     latch: bool
     queue_size: int
+    #: declared largest message: the ring is made, faulted in, at advertise time (None: on demand)
+    max_message_size: int | None
     #: the latched frame, length prefix included
     latched: bytes | None
 
@@ -104,6 +106,16 @@ class ShmTopicPublisher:
                 return None
         return self.endpoint.answer()
 
+    async def prepare(self) -> None:
+        """Make the endpoint and its pool now (advertise time of a publisher that declared its message
+        size), when shared memory is on in this process; a failure is logged once (TCPROS only then)."""
+        if self.endpoint is None and not self._failed and identity() is not None:
+            try:
+                self.endpoint = await self._start()
+            except (OSError, MrosError) as exc:
+                self._failed = True
+                log.warning("%s: shared memory unavailable, serving TCPROS only: %s", self.publisher.topic, exc)
+
     async def _start(self) -> ShmPublisherEndpoint:
         pub = self.publisher
 
@@ -119,7 +131,12 @@ class ShmTopicPublisher:
             )
 
         ep = ShmPublisherEndpoint(
-            pub.topic, queue_size=pub.queue_size, latch=pub.latch, handshake=handshake, on_change=self.on_change
+            pub.topic,
+            queue_size=pub.queue_size,
+            latch=pub.latch,
+            handshake=handshake,
+            on_change=self.on_change,
+            max_message_size=pub.max_message_size,
         )
         await ep.start()
         if pub.latch and pub.latched is not None:

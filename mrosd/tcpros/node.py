@@ -464,9 +464,19 @@ class Node:
             raise LocalProtocolError(f"node {self.name} is not started: use 'async with Node(...)' or await start()")
 
     async def advertise(
-        self, topic: str, msg_class: Any, *, latch: bool = False, queue_size: int = DEFAULT_QUEUE_SIZE
+        self,
+        topic: str,
+        msg_class: Any,
+        *,
+        latch: bool = False,
+        queue_size: int = DEFAULT_QUEUE_SIZE,
+        max_message_size: int | None = None,
     ) -> Publisher:
         """Publish ``topic`` with type ``msg_class``; registers with the master.
+
+        ``max_message_size`` (bytes, serialized): the largest message this publisher will send. Its
+        same-host shared-memory pool is then made now, every page faulted in, so that neither the first
+        message nor a new subscriber pays for fresh memory (``docs/shm.md``).
 
         Raises:
             LocalProtocolError: the topic is already advertised by this node with another type.
@@ -479,9 +489,11 @@ class Node:
             if existing.md5sum != getattr(msg_class, "_md5sum", None):
                 raise LocalProtocolError(f"{name} is already advertised by {self.name} as {existing.type}")
             return existing
-        pub = Publisher(self, name, msg_class, latch=latch, queue_size=queue_size)
+        pub = Publisher(self, name, msg_class, latch=latch, queue_size=queue_size, max_message_size=max_message_size)
         self.publishers[name] = pub
         try:
+            if max_message_size is not None:
+                await pub.shm_prepare()
             await self.master.call("registerPublisher", name, pub.type, self.uri)
         except BaseException:
             self.publishers.pop(name, None)

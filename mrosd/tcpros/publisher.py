@@ -153,7 +153,14 @@ class Publisher:
     """A topic we publish. Create it with ``await node.advertise(topic, Type)``."""
 
     def __init__(
-        self, node: Node, topic: str, msg_class: Any, *, latch: bool = False, queue_size: int = DEFAULT_QUEUE_SIZE
+        self,
+        node: Node,
+        topic: str,
+        msg_class: Any,
+        *,
+        latch: bool = False,
+        queue_size: int = DEFAULT_QUEUE_SIZE,
+        max_message_size: int | None = None,
     ) -> None:
         for attr in ("_type", "_md5sum", "_full_text"):
             if not hasattr(msg_class, attr):
@@ -166,6 +173,8 @@ class Publisher:
         self.message_definition: str = msg_class._full_text
         self.latch = latch
         self.queue_size = queue_size
+        #: declared largest serialized message: the shared-memory pool is made for it up front
+        self.max_message_size = max_message_size
         self.links: list[SubscriberLink] = []
         self.latched: bytes | None = None
         self.messages_published = 0
@@ -296,11 +305,19 @@ class Publisher:
         """requestTopic: the shared-memory answer for a same-host mrosd subscriber, else None (TCPROS)."""
         if not any(isinstance(p, list) and p[:1] == ["MROSSHM"] for p in protocols):
             return None
+        return await self._shm_side().answer(protocols)
+
+    async def shm_prepare(self) -> None:
+        """Make the shared-memory pool now (a publisher that declared ``max_message_size``), not at the first
+        same-host subscriber: its pages are faulted in once, off the data path."""
+        await self._shm_side().prepare()
+
+    def _shm_side(self) -> ShmTopicPublisher:
         if self.shm is None:
             from mrosd.shm.topic import ShmTopicPublisher  # lazy: loaded only when a mrosd peer offers it
 
             self.shm = ShmTopicPublisher(self, on_change=self._subscriber_change.set)
-        return await self.shm.answer(protocols)
+        return self.shm
 
     async def wait_for_subscribers(self, count: int = 1, timeout: float = 10.0) -> None:
         """Wait until at least ``count`` subscribers are connected.
