@@ -51,11 +51,12 @@ from mrosd.shm.channel import (
 )
 from mrosd.shm.negotiate import TRANSPORT, publisher_answer, trusted_uids
 from mrosd.shm.ring import MAX_SLOTS, slot_stride
-from mrosd.shm.segment import AckPage, RingSegment
+from mrosd.shm.segment import MAX_LEASES, AckPage, RingSegment
 from mrosd.spin import loop_spinner
 from mrosd.wire.header import ConnectionHeader, decode_connection_header, encode_header
 
 __all__ = [
+    "DEFAULT_LEASE_SLOTS",
     "DEFAULT_MAX_RING_BYTES",
     "INITIAL_CAPACITY",
     "MAX_PENDING",
@@ -83,6 +84,9 @@ STALL = 0.05
 _RECHECK_MAX = 0.1
 #: First slot size; the ring grows (by replacement) when a bigger message comes.
 INITIAL_CAPACITY = 64 << 10
+#: Slots a ring has beyond its queue for zero-copy subscribers' leases: the sum of all leases granted (each
+#: subscriber's share, decided when it attaches) stays within them, so a slot to write always exists.
+DEFAULT_LEASE_SLOTS = 4
 #: Subscribers that connected but have not attached yet (each has ``ATTACH_TIMEOUT`` seconds).
 MAX_PENDING = 64
 
@@ -142,10 +146,16 @@ class ShmSubscriberLink:
         small_send_buffer(self.wake)
         #: no longer waited for (it fell too far behind) until it catches up
         self.lagging = False
+        #: leases honoured for it (granted at attach; what it writes in more lease words is ignored)
+        self.grant = 0
 
     def acked(self, head: int) -> int:
         """The next message the subscriber wants, as it says, kept within 0..head + 1."""
         return min(self.ack.read(), head + 1)
+
+    def leases(self) -> list[int]:
+        """The messages it holds leases on (at most ``grant`` of them, whatever it wrote)."""
+        return self.ack.leases(self.grant) if self.grant else []
 
     def close(self) -> None:
         if not self.connected:
@@ -173,6 +183,10 @@ class ShmPublisherEndpoint:
             ``mrosd.wire.handshake.publisher_reply`` does); raise ``HandshakeError`` to refuse.
         on_change: called when a subscriber attaches or goes.
         trusted: uids whose processes may attach (default root, ours, ``$MROSD_SHM_TRUSTED_UIDS``).
+        lease_slots: slots beyond the queue for zero-copy subscribers' leases (their shares are granted
+            from these at attach, first come, at most ``MAX_LEASES`` each; a subscriber granted none copies).
+            Default: ``DEFAULT_LEASE_SLOTS`` for a pool declared with ``max_message_size``, else none (a
+            ring sized on demand stays as small as it was; its subscribers copy).
         max_message_size: the publisher's largest message, declared up front: the ring (slots of this
             size) is made at ``start()`` with every page faulted in, so neither the first message nor a new
             subscriber pays for fresh memory (~0.7 ms per MB here); a bigger message still grows it.
@@ -190,6 +204,7 @@ class ShmPublisherEndpoint:
         max_ring_bytes: int = DEFAULT_MAX_RING_BYTES,
         initial_capacity: int = INITIAL_CAPACITY,
         max_message_size: int | None = None,
+        lease_slots: int | None = None,
     ) -> None:
         self.topic = topic
         self.queue_size = queue_size
@@ -199,6 +214,9 @@ class ShmPublisherEndpoint:
         self.trusted = trusted_uids() if trusted is None else trusted
         self.max_ring_bytes = max_ring_bytes
         self.capacity = max(64, initial_capacity if max_message_size is None else max_message_size)
+        if lease_slots is None:
+            lease_slots = DEFAULT_LEASE_SLOTS if max_message_size is not None else 0
+        self.lease_slots = max(0, lease_slots)
         #: rings are made whole and faulted in up front (the publisher declared its message size)
         self.populate = max_message_size is not None
         self.token = secrets.token_hex(16)
@@ -252,8 +270,9 @@ class ShmPublisherEndpoint:
             return  # nobody reads it, and nobody will read this one later
         if not self.backlog:
             ring = self._ring_for(size)
-            if self._free(ring.layout.head + 1):
-                ring.layout.write_parts(parts, size)
+            slot = self._pick()
+            if slot is not None:
+                ring.layout.write_parts(parts, size, slot)
                 self._wake(size, 1)
                 return
         # the slot is not free: queue the message (a piece the caller could change is copied, as over TCPROS)
@@ -270,19 +289,50 @@ class ShmPublisherEndpoint:
                 self._drop(link, "cannot wake it: its wake-up channel is closed")
         self._poke()
 
-    def _free(self, m: int) -> bool:
-        """May message ``m`` go into its slot: has every subscriber still waited for read the one it holds?"""
+    def _pick(self) -> int | None:
+        """A slot the next message may go into, or None: one that holds nothing of this ring yet, or a
+        message that no subscriber holds a lease on and every subscriber still waited for has read; never
+        the last message (a latecomer's first). The oldest such, and first the plain ring's next slot, so
+        that without leases this is the ring it always was."""
         assert self.ring is not None
         layout = self.ring.layout
-        old = m - layout.slots
-        if old < self._ring_first:
-            return True  # the slot has held nothing in this ring
+        head = layout.head
+        links = self.links
+        for link in links:
+            if link.lagging and link.acked(head) > head:
+                link.lagging = False  # caught up: waited for again
+        leased: set[int] = set()
+        for link in links:
+            if link.grant:
+                leased.update(link.leases())
+        waited = [link.acked(head) for link in links if not link.lagging]
+        low = min(waited, default=head + 1)
+        first = self._ring_first
+        best: int | None = None
+        best_held = 0
+        plain: int = head % layout.slots
+        slot: int
+        for slot in (plain, *range(layout.slots)):
+            held = layout.held(slot)
+            if held >= first and (held == head or held in leased or held >= low):
+                continue
+            if slot == plain or held < first:
+                return slot
+            if best is None or held < best_held:
+                best, best_held = slot, held
+        return best
+
+    def _oldest_unleased(self) -> int:
+        """The oldest message of this ring in a slot no lease holds (what waiting subscribers hold back)."""
+        assert self.ring is not None
+        layout = self.ring.layout
+        leased: set[int] = set()
         for link in self.links:
-            if link.acked(m - 1) > old:
-                link.lagging = False
-            elif not link.lagging:
-                return False
-        return True
+            if link.grant:
+                leased.update(link.leases())
+        held = [layout.held(s) for s in range(layout.slots)]
+        free = [h for h in held if h >= self._ring_first and h != layout.head and h not in leased]
+        return min(free, default=layout.head)
 
     def _flush(self) -> None:
         """Write what the backlog holds while slots are free; leave the ring's ``waiting`` word saying whether
@@ -292,11 +342,13 @@ class ShmPublisherEndpoint:
         while backlog:
             parts, size, _queued = backlog[0]
             ring = self._ring_for(size)
-            m = ring.layout.head + 1
-            if not self._free(m) and not self._give_up_waiting(m):
+            slot = self._pick()
+            if slot is None and self._give_up_waiting():
+                slot = self._pick()
+            if slot is None:
                 break
             backlog.popleft()
-            ring.layout.write_parts(parts, size)
+            ring.layout.write_parts(parts, size, slot)
             written += 1
             total += size
         if written:
@@ -312,7 +364,7 @@ class ShmPublisherEndpoint:
             return
         # Set, then look once more: a subscriber that moved on before it could see the word is caught here.
         self.ring.layout.waiting = True
-        if self._free(self.ring.layout.head + 1):
+        if self._pick() is not None:
             self._loop.call_soon(self._flush)
             return
         if self._recheck is None:
@@ -324,12 +376,14 @@ class ShmPublisherEndpoint:
         if not self.closed:
             self._flush()
 
-    def _give_up_waiting(self, m: int) -> bool:
-        """Message ``m`` waits for slow subscribers: stop waiting for them (they become ``lagging``) when the
-        backlog is over ``queue_size`` or they have held back a subscriber that keeps up for ``STALL`` s."""
+    def _give_up_waiting(self) -> bool:
+        """The next message waits for slow subscribers: stop waiting for them (they become ``lagging``) when
+        the backlog is over ``queue_size`` or they have held back a subscriber that keeps up for ``STALL`` s.
+        Leases are never given up: a lagging subscriber loses the messages it has not taken, not its leases."""
         assert self.ring is not None
-        old = m - self.ring.layout.slots
-        slow = [lk for lk in self.links if not lk.lagging and lk.acked(m - 1) <= old]
+        head = self.ring.layout.head
+        old = self._oldest_unleased()
+        slow = [lk for lk in self.links if not lk.lagging and lk.acked(head) <= old]
         over = len(self.backlog) > max(1, self.queue_size)
         if not over:
             if len(slow) == len([lk for lk in self.links if not lk.lagging]):
@@ -358,7 +412,7 @@ class ShmPublisherEndpoint:
         else:
             capacity = _grown(ring.layout.capacity, size)
         head = ring.layout.head if ring is not None else 0
-        slots = slots_for(self.queue_size, capacity, self.max_ring_bytes)
+        slots = min(MAX_SLOTS, slots_for(self.queue_size, capacity, self.max_ring_bytes) + self.lease_slots)
         new = RingSegment(self.label, slots, capacity, head, populate=self.populate)
         new.layout.waiting = bool(self.backlog)
         self.rings_made += 1
@@ -471,7 +525,9 @@ class ShmPublisherEndpoint:
         except OSError as exc:
             refuse(f"cannot make its acknowledgement page: {exc}")
             return
-        attached = control.Attached(header=encode_header(reply)[4:], first=first)
+        granted = sum(lk.grant for lk in self.links)
+        link.grant = max(0, min(msg.leases, MAX_LEASES, self.lease_slots - granted))
+        attached = control.Attached(header=encode_header(reply)[4:], first=first, leases=link.grant)
         if not self._send_ring(link, attached, link.ack.fd, link.peer_end.fileno()):
             return
         link.peer_end.close()  # only the subscriber holds its end

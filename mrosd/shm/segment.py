@@ -24,7 +24,16 @@ from mrosd.errors import RemoteProtocolError
 from mrosd.ixm.resources import reopen, sealed_memfd
 from mrosd.shm.ring import POPULATED, RingLayout, ring_size
 
-__all__ = ["ACK_PAGE", "F_SEAL_FUTURE_WRITE", "SEGMENT_PREFIX", "AckPage", "MappedAck", "MappedRing", "RingSegment"]
+__all__ = [
+    "ACK_PAGE",
+    "F_SEAL_FUTURE_WRITE",
+    "MAX_LEASES",
+    "SEGMENT_PREFIX",
+    "AckPage",
+    "MappedAck",
+    "MappedRing",
+    "RingSegment",
+]
 
 log = logging.getLogger(__name__)
 
@@ -34,8 +43,11 @@ _REQUIRED = fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW
 _SEALS = _REQUIRED | F_SEAL_FUTURE_WRITE | fcntl.F_SEAL_SEAL
 #: Rings show in /proc/PID/fd as ``/memfd:mrosd-shm-<topic> (deleted)``.
 SEGMENT_PREFIX = "mrosd-shm-"
-#: Size of a subscriber's acknowledgement page (one word is used: the next message it wants).
+#: Size of a subscriber's acknowledgement page: word 0 is the next message it wants, words 1..``MAX_LEASES``
+#: the messages it holds leases on (0: none), of which the publisher reads only as many as it granted.
 ACK_PAGE = 4096
+#: Leases a subscriber may be granted at most (its page has room for many more: the publisher reads no more).
+MAX_LEASES = 16
 #: madvise advice of Linux 5.14 (not in Python 3.11's mmap): fault every page of a range in, readable or writable.
 MADV_POPULATE_READ = 22
 MADV_POPULATE_WRITE = 23
@@ -172,10 +184,16 @@ class AckPage:
             os.close(fd)
             raise
         self.fd = fd
-        self.word = memoryview(self.map)[:8].cast("Q")
+        self.word = memoryview(self.map)[: 8 * (1 + MAX_LEASES)].cast("Q")
 
     def read(self) -> int:
         return int(self.word[0])
+
+    def leases(self, granted: int) -> list[int]:
+        """The messages the subscriber says it holds, of the first ``granted`` lease words (0s left out):
+        whatever it writes there, it protects at most ``granted`` slots."""
+        word = self.word
+        return [n for n in word[1 : 1 + min(granted, MAX_LEASES)] if n]
 
     def sent(self) -> None:
         """The page went to its subscriber: our descriptor is no longer needed (the mapping keeps its own)."""
@@ -211,10 +229,16 @@ class MappedAck:
                 raise RemoteProtocolError(f"cannot map the acknowledgement page: {exc.strerror or exc}") from None
         finally:
             os.close(fd)
-        self.word = memoryview(self.map)[:8].cast("Q")
+        self.word = memoryview(self.map)[: 8 * (1 + MAX_LEASES)].cast("Q")
 
     def write(self, next_message: int) -> None:
         self.word[0] = next_message
+
+    def lease(self, index: int, message: int) -> None:
+        """Lease word ``index`` (1..``MAX_LEASES``) now says ``message`` (0: free). A new lease is written
+        before word 0 moves past its message, so the publisher, which reads word 0 first, never sees the
+        message read without seeing it leased (x86-64 keeps stores, and loads, in order)."""
+        self.word[index] = message
 
     def close(self) -> None:
         self.word.release()

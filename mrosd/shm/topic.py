@@ -178,9 +178,18 @@ def request_protocols(allow_shm: bool = True) -> list[list[Any]]:
 
 
 async def attach_subscriber(
-    subscriber: SubscriberLike, uri: str, params: Any, on_frame: Callable[[bytes | bytearray], None], timeout: float
+    subscriber: SubscriberLike,
+    uri: str,
+    params: Any,
+    on_frame: Callable[[Any], None],
+    timeout: float,
+    *,
+    max_leased: int = 0,
 ) -> tuple[ShmSubscriberConnection, ConnectionHeader] | None:
     """Attach to the ring a publisher's requestTopic answer points to; None when it answered TCPROS.
+
+    ``max_leased`` > 0: zero-copy, ``on_frame`` gets leased ``ShmView``s (bytes when the publisher grants
+    no lease).
 
     Returns the connection (``await conn.wait_closed()`` returns when it ends) and the publisher's checked header.
 
@@ -201,7 +210,9 @@ async def attach_subscriber(
         tcp_nodelay="1",
     )
     try:
-        conn = await ShmSubscriberConnection.attach(answer, header, on_frame=on_frame, timeout=timeout)
+        conn = await ShmSubscriberConnection.attach(
+            answer, header, on_frame=on_frame, timeout=timeout, zero_copy=max_leased > 0, max_leased=max_leased
+        )
     except ShmRefused as exc:
         # reported in the words of a TCPROS error header, whichever transport carried it
         check_publisher_reply(

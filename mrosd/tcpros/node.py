@@ -508,8 +508,17 @@ class Node:
         *,
         queue_size: int = DEFAULT_QUEUE_SIZE,
         tcp_nodelay: bool = True,
+        zero_copy: bool = False,
+        max_leased: int = 2,
     ) -> Subscriber:
         """Subscribe to ``topic``: iterate the result, or pass ``callback`` (sync or async).
+
+        ``zero_copy``: a message from a same-host mrosd publisher that declared its pool
+        (``max_message_size``) has its large arrays (``uint8[]``, numeric) as read-only views into the
+        publisher's shared memory (``np.frombuffer(msg.data, np.uint8)`` copies nothing), leased until the
+        message is released (``msg.release()``, ``with msg:``) or dropped; at most ``max_leased`` at once,
+        beyond which further messages are dropped (counted), never waited for. Every message then has
+        ``release()``, whatever transport brought it (docs/shm.md).
 
         Raises:
             LocalProtocolError: this node already subscribes to the topic.
@@ -519,7 +528,16 @@ class Node:
         name = self.resolve_name(topic)
         if name in self.subscribers:
             raise LocalProtocolError(f"{self.name} already subscribes to {name}; share that Subscriber")
-        sub = Subscriber(self, name, msg_class, callback=callback, queue_size=queue_size, tcp_nodelay=tcp_nodelay)
+        sub = Subscriber(
+            self,
+            name,
+            msg_class,
+            callback=callback,
+            queue_size=queue_size,
+            tcp_nodelay=tcp_nodelay,
+            zero_copy=zero_copy,
+            max_leased=max_leased,
+        )
         self.subscribers[name] = sub
         try:
             # Raw call: a malformed publisher list is tolerated (treated as none), not an error.

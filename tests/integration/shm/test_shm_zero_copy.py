@@ -1,0 +1,77 @@
+"""Zero-copy subscribers through ``mrosd.Node`` (issue 25 (b)): typed messages whose arrays are read-only views
+into the publisher's pool, leased until released or dropped, at most ``max_leased`` at once."""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Any
+
+import mrosd
+from mrosd.master import Master
+from mrosd.msg import get_message_class
+
+Image = get_message_class("sensor_msgs/Image")
+String = get_message_class("std_msgs/String")
+FRAME = 640 * 480 * 3
+
+
+def node(name: str, master: str) -> mrosd.Node:
+    return mrosd.Node(name, master_uri=master, argv=[], host="127.0.0.1")
+
+
+def image(i: int) -> Any:
+    return Image(height=480, width=640, encoding="rgb8", step=1920, data=bytes([i]) * FRAME)
+
+
+async def test_a_zero_copy_subscriber_gets_typed_views_leased_until_released_or_dropped() -> None:
+    async with Master(host="127.0.0.1", port=0) as master, node("talker", master.uri) as a:
+        pub = await a.advertise("/image", Image, queue_size=2, max_message_size=FRAME + 4096)
+        async with node("viewer", master.uri) as b:
+            sub = await b.subscribe("/image", Image, zero_copy=True, max_leased=2)
+            await pub.wait_for_subscribers(1, timeout=10)
+            await sub.wait_for_publishers(1, timeout=10)
+            assert [row[3] for row in b.subscribers["/image"].bus_info()] == ["SHMROS"]
+            await pub.publish(image(1))
+            first = await sub.next(timeout=5)
+            assert isinstance(first, Image) and first.encoding == "rgb8" and first.width == 640
+            assert isinstance(first.data, memoryview) and first.data.readonly and len(first.data) == FRAME
+            assert first.data.obj.__class__.__name__ == "mmap"  # the publisher's pool itself: no copy
+            with first.data[:16] as head:
+                assert bytes(head) == b"\x01" * 16
+            endpoint = pub.shm.endpoint  # type: ignore[union-attr]
+            link = endpoint.links[0]
+            assert link.grant == 2 and link.leases()
+
+            for i in range(2, 12):  # laps the pool: never the leased slot
+                await pub.publish(image(i))
+                await asyncio.sleep(0.01)
+            second = await sub.next(timeout=5)  # the second lease
+            assert bytes(first.data[-8:]) == b"\x01" * 8  # still frame 1, however many frames went by
+            await asyncio.sleep(0.05)
+            assert len(link.leases()) == 2
+            dropped_before = sub.stats()[1][0][3]
+            assert dropped_before > 0  # both leases held: later frames were dropped (counted), not waited for
+
+            with first:
+                pass  # released: its slot may be reused
+            assert len(link.leases()) == 1
+            del second  # dropped: its lease ends with it
+            await pub.publish(image(20))
+            third = await sub.next(timeout=5)
+            assert bytes(third.data[:4]) == b"\x14" * 4
+            third.release()
+            assert not link.leases()
+            assert endpoint.rings_made == 1  # the pool made at advertise time served every frame
+
+
+async def test_a_zero_copy_subscriber_of_a_publisher_without_a_pool_gets_copies_with_the_same_api() -> None:
+    async with Master(host="127.0.0.1", port=0) as master, node("talker", master.uri) as a:
+        pub = await a.advertise("/chatter", String)
+        async with node("listener", master.uri) as b:
+            sub = await b.subscribe("/chatter", String, zero_copy=True)
+            await pub.wait_for_subscribers(1, timeout=10)
+            await sub.wait_for_publishers(1, timeout=10)
+            await pub.publish(String(data="hi"))
+            msg = await sub.next(timeout=5)
+            with msg:
+                assert msg.data == "hi" and isinstance(msg, String)
