@@ -59,6 +59,8 @@ __all__ = [
     "DEFAULT_LEASE_SLOTS",
     "DEFAULT_MAX_RING_BYTES",
     "INITIAL_CAPACITY",
+    "LOAN_HEAD",
+    "LOAN_TAIL",
     "MAX_PENDING",
     "MIN_SLOTS",
     "RING_BYTES",
@@ -87,6 +89,10 @@ INITIAL_CAPACITY = 64 << 10
 #: Slots a ring has beyond its queue for zero-copy subscribers' leases: the sum of all leases granted (each
 #: subscriber's share, decided when it attaches) stays within them, so a slot to write always exists.
 DEFAULT_LEASE_SLOTS = 4
+#: Room in a declared pool's slots around a loaned array: its message's fields before it (header, strings,
+#: sizes) are written in front of it, those after it behind it (``mrosd.shm.loan``).
+LOAN_HEAD = 4096
+LOAN_TAIL = 4096
 #: Subscribers that connected but have not attached yet (each has ``ATTACH_TIMEOUT`` seconds).
 MAX_PENDING = 64
 
@@ -213,7 +219,13 @@ class ShmPublisherEndpoint:
         self.on_change = on_change or (lambda: None)
         self.trusted = trusted_uids() if trusted is None else trusted
         self.max_ring_bytes = max_ring_bytes
-        self.capacity = max(64, initial_capacity if max_message_size is None else max_message_size)
+        self.capacity = max(
+            64, initial_capacity if max_message_size is None else max_message_size + LOAN_HEAD + LOAN_TAIL
+        )
+        #: slots lent to the application (filled in place, not yet published), and slots a transport may
+        #: still read (a TCPROS socket fed from a published loan): neither is written
+        self._loaned: set[int] = set()
+        self._pinned: list[tuple[int, Callable[[], bool]]] = []
         if lease_slots is None:
             lease_slots = DEFAULT_LEASE_SLOTS if max_message_size is not None else 0
         self.lease_slots = max(0, lease_slots)
@@ -280,6 +292,46 @@ class ShmPublisherEndpoint:
         self.backlog.append((kept, size, time.monotonic()))
         self._flush()
 
+    # loans -----------------------------------------------------------------------------------------------
+
+    def loan_slot(self, size: int) -> tuple[RingSegment, int] | None:
+        """A slot to fill in place with a message whose array is ``size`` bytes (at ``LOAN_HEAD``), taken
+        out of the ring until ``publish_loaned`` or ``end_loan``; None when the ring cannot lend one now
+        (no declared pool big enough, messages waiting, or every slot busy): the caller copies instead.
+        The old message in the slot is invalidated first (readers see it is gone, never a mix)."""
+        ring = self.ring
+        if self.closed or self.backlog or ring is None or ring.layout.capacity < LOAN_HEAD + size + LOAN_TAIL:
+            return None
+        slot = self._pick()
+        if slot is None:
+            return None
+        layout = ring.layout
+        layout.words[slot][0] = 2 * (layout.head + 1) - 1
+        self._loaned.add(slot)
+        return ring, slot
+
+    def end_loan(self, ring: RingSegment, slot: int) -> None:
+        """A lent slot comes back unpublished."""
+        if ring is self.ring:
+            self._loaned.discard(slot)
+
+    def publish_loaned(self, ring: RingSegment, slot: int, start: int, length: int) -> bool:
+        """Publish the lent ``slot`` as it is (the message at ``start``, ``length`` bytes): no copy. False
+        when it cannot go as it is (the ring was replaced, messages wait before it): copy it then."""
+        if ring is not self.ring or slot not in self._loaned:
+            return False
+        self._loaned.discard(slot)
+        if self.backlog or (not self.links and not self.latch):
+            return False
+        m, _ = ring.layout.begin(slot)
+        ring.layout.commit(m, length, start)
+        self._wake(length, 1)
+        return True
+
+    def pin(self, slot: int, still: Callable[[], bool]) -> None:
+        """Keep ``slot`` unwritten while ``still()`` (a transport still holds bytes of it to send)."""
+        self._pinned.append((slot, still))
+
     def _wake(self, size: int, count: int) -> None:
         """Count ``count`` messages of ``size`` bytes in all for every subscriber, and wake them."""
         for link in list(self.links):
@@ -308,6 +360,10 @@ class ShmPublisherEndpoint:
         waited = [link.acked(head) for link in links if not link.lagging]
         low = min(waited, default=head + 1)
         first = self._ring_first
+        busy = self._loaned
+        if self._pinned:
+            self._pinned = [(s, still) for s, still in self._pinned if still()]
+            busy = busy | {s for s, _ in self._pinned}
         best: int | None = None
         best_held = 0
         plain: int = head % layout.slots
@@ -315,6 +371,8 @@ class ShmPublisherEndpoint:
         for slot in (plain, *range(layout.slots)):
             held = layout.held(slot)
             if held >= first and (held == head or held in leased or held >= low):
+                continue
+            if busy and slot in busy:
                 continue
             if slot == plain or held < first:
                 return slot
@@ -534,7 +592,7 @@ class ShmPublisherEndpoint:
         link.ack.sent()
         if first <= head:  # the latched message
             link.messages_sent += 1
-            link.bytes_sent += int(ring.layout.words[(head - 1) % ring.layout.slots][1])
+            link.bytes_sent += int(ring.layout.words[ring.layout.slot_of(head)][1])
         self.links.append(link)
         self._loop.add_reader(channel.sock.fileno(), self._on_link, link)
         self._loop.add_reader(link.wake.fileno(), self._on_progress, link)

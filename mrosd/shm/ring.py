@@ -20,6 +20,8 @@ there. This module knows nothing of file descriptors or sockets, so that it can 
     slot i at base + i * stride, base = 64 + 8 D rounded up to 64, stride = 64 + capacity rounded up to 64:
     0   Q   seq: 2m - 1 while message m is being written into the slot, 2m once it is complete
     8   Q   length of message m
+    16  Q   start of message m in the slot's data (0, except for a loaned slot: the fixed part of a message
+            is written in front of an array filled in place, ``mrosd.shm.loan``)
     64  ... data (``capacity`` bytes)
 
 The publisher chooses the slot of each message (``begin(slot)``; by default ``(m - 1) % N``, a plain ring):
@@ -145,7 +147,7 @@ class RingLayout:
         self._waiting = buf[_WAITING_OFF : _WAITING_OFF + 8].cast("Q")
         stride = slot_stride(capacity)
         #: per slot: [seq, length] as native 8-byte words
-        self.words = [buf[base + i * stride : base + i * stride + 16].cast("Q") for i in range(slots)]
+        self.words = [buf[base + i * stride : base + i * stride + 24].cast("Q") for i in range(slots)]
         self.data = [
             buf[base + i * stride + SLOT_HEADER : base + i * stride + SLOT_HEADER + capacity] for i in range(slots)
         ]
@@ -205,10 +207,12 @@ class RingLayout:
         self.words[slot][0] = 2 * m - 1
         return m, self.data[slot]
 
-    def commit(self, m: int, length: int) -> None:
-        """Publish message ``m`` of ``length`` bytes: length, seq, directory, then head (in this order)."""
+    def commit(self, m: int, length: int, start: int = 0) -> None:
+        """Publish message ``m`` of ``length`` bytes (from ``start`` in its slot): length, seq, directory,
+        then head (in this order)."""
         slot = self._writing
         words = self.words[slot]
+        words[2] = start
         words[1] = length
         words[0] = 2 * m
         self._dir[m % self.dir_size] = slot
@@ -262,7 +266,7 @@ class RingCursor:
     meanwhile); ``read`` does the three. The halves exist so that tests can interleave a writer between them.
     """
 
-    __slots__ = ("dropped", "next", "ring", "slot")
+    __slots__ = ("dropped", "next", "ring", "slot", "start")
 
     def __init__(self, ring: RingLayout, next_message: int) -> None:
         self.ring = ring
@@ -270,8 +274,9 @@ class RingCursor:
         self.next = next_message
         #: messages lost: overwritten before they were read, or while they were being copied
         self.dropped = 0
-        #: the slot of the message ``begin`` returned last
+        #: the slot of the message ``begin`` returned last, and where in the slot that message starts
         self.slot = 0
+        self.start = 0
 
     def available(self) -> bool:
         """Is there a completed message this cursor has not read yet?"""
@@ -309,11 +314,13 @@ class RingCursor:
                     continue
                 raise RemoteProtocolError(f"ring slot {slot} holds sequence {seq} but the head says {head}")
             n = words[1]
-            if n > ring.capacity:
+            start = words[2]
+            if n > ring.capacity or start > ring.capacity - n:
                 raise RemoteProtocolError(
-                    f"ring slot {slot} claims a {n}-byte message but slots hold {ring.capacity} bytes"
+                    f"ring slot {slot} claims a {n}-byte message at {start} but slots hold {ring.capacity} bytes"
                 )
             self.slot = slot
+            self.start = int(start)
             return nxt, int(n)
 
     def finish(self, m: int) -> bool:
@@ -338,7 +345,7 @@ class RingCursor:
             if got is None:
                 return None
             m, n = got
-            slot = self.ring.data[self.slot][:n]
+            slot = self.ring.data[self.slot][self.start : self.start + n]
             data = pool.copy(slot) if pool is not None and n > LARGE_FRAME else bytes(slot)
             if self.finish(m):
                 return data
@@ -354,7 +361,7 @@ class RingCursor:
         m, n = got
         if self.next == m:
             self.next = m + 1
-        return m, self.ring.data[self.slot][:n].toreadonly()
+        return m, self.ring.data[self.slot][self.start : self.start + n].toreadonly()
 
     def intact(self, m: int, slot: int | None = None) -> bool:
         """Message ``m`` is still in ``slot`` (default: the directory's; a view of it taken earlier shows its

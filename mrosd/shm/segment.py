@@ -112,7 +112,8 @@ class RingSegment:
 
     def close(self) -> None:
         self.layout.release()
-        self.map.close()
+        with contextlib.suppress(BufferError):  # a loaned view is still out: the mapping goes with it
+            self.map.close()
         with contextlib.suppress(OSError):
             os.close(self.fd)
 

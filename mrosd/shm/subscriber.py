@@ -405,7 +405,8 @@ class ShmSubscriberConnection:
                 continue
             cursor.next = m + 1
             self._acknowledge(m + 1)
-            return ShmView(self, m, slot, index, cursor.ring.data[slot][:n].toreadonly())
+            start = cursor.start
+            return ShmView(self, m, slot, index, cursor.ring.data[slot][start : start + n].toreadonly())
 
     def _unlease(self, index: int) -> None:
         """A lease ended: its word goes back to 0 (the publisher may reuse the slot) and is free again."""

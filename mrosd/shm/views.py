@@ -21,9 +21,10 @@ import struct
 import sys
 from typing import Any
 
+from mrosd.errors import LocalProtocolError
 from mrosd.msg.runtime import ZERO_COPY_MIN
 
-__all__ = ["Span", "decode_view", "leased_class", "view_spans"]
+__all__ = ["Span", "decode_view", "field_offset", "leased_class", "view_spans"]
 
 #: wire size of each fixed-size builtin; ``None`` marks a string
 _SIZES: dict[str, int | None] = {
@@ -78,8 +79,24 @@ def _split(type_text: str) -> tuple[str, bool, int | None]:
     return type_text, False, None
 
 
-def _walk(cls: Any, b: memoryview, at: int, path: tuple[str, ...] | None, *, out: list[Span], resolve: Any) -> int:
+class _Found(Exception):
+    def __init__(self, at: int) -> None:
+        self.at = at
+
+
+def _walk(
+    cls: Any,
+    b: memoryview,
+    at: int,
+    path: tuple[str, ...] | None,
+    *,
+    out: list[Span],
+    resolve: Any,
+    stop: str | None = None,
+) -> int:
     for name, type_text in zip(cls.__struct_fields__, cls._field_types, strict=False):
+        if stop is not None and path == () and name == stop:
+            raise _Found(at)
         base, is_array, fixed = _split(type_text)
         here = None if path is None else (*path, name)
         if not is_array:
@@ -139,6 +156,21 @@ def view_spans(cls: Any, body: memoryview) -> list[Span] | None:
     except (_NotViewable, struct.error, AttributeError, ValueError):
         return None
     return out if end == len(body) else None
+
+
+def field_offset(cls: Any, body: bytes, name: str) -> int:
+    """Where the top-level field ``name`` starts in ``body`` (a message of ``cls``).
+
+    Raises:
+        LocalProtocolError: the type has no such field, or its layout cannot be walked here.
+    """
+    try:
+        _walk(cls, memoryview(body), 0, (), out=[], resolve=_resolver(cls), stop=name)
+    except _Found as found:
+        return found.at
+    except (_NotViewable, struct.error, AttributeError, ValueError) as exc:
+        raise LocalProtocolError(f"cannot lay out a {cls._type} in place: {exc}") from None
+    raise LocalProtocolError(f"{cls._type} has no field {name!r}")
 
 
 _leased: dict[type, type] = {}

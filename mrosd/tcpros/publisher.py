@@ -210,10 +210,21 @@ class Publisher:
         """
         if type(msg) is not self.msg_class and getattr(msg, "_md5sum", None) != self.md5sum:
             raise LocalProtocolError(f"{self.topic} publishes {self.type}, got {type(msg).__name__}")
+        loan = getattr(msg, "_shm_loan", None)
+        if loan is not None and (loan.published or self.closed):
+            raise LocalProtocolError(
+                f"publisher of {self.topic} is closed" if self.closed else "this loan was published already"
+            )
         if self._has_header:
             # As rospy and roscpp do for a message whose first field is ``Header header``.
             msg.header.seq = self.seq
             self.seq = (self.seq + 1) & 0xFFFFFFFF
+        if loan is not None:
+            from mrosd.shm.loan import publish_loan
+
+            self._poke()
+            publish_loan(self, msg)  # filled in place: published without serializing or copying the array
+            return
         serialize_parts = getattr(msg, "serialize_parts", None)
         if serialize_parts is None:
             self.publish_serialized(msg.serialize())
@@ -236,6 +247,22 @@ class Publisher:
         frame = (frame_prefix(size), *(p if is_immutable(p) else bytes(p) for p in parts))
         for link in self.links:
             link.send_parts(frame, size + 4)
+
+    def loan(self, template: Any = None, **sizes: int) -> Any:
+        """A message to fill in place: its ``uint8[]`` field (``loan(data=N)``, or the largest one of
+        ``template``, whose other fields are copied) is a writable view into a slot of this topic's
+        shared-memory pool (declared with ``max_message_size``), and ``publish(msg)`` sends it without
+        serializing or copying that array, to shared-memory and TCPROS subscribers alike. Without a pool it
+        is a plain buffer, published as any message. A loan is published once (docs/shm.md).
+
+        Raises:
+            LocalProtocolError: not one ``uint8[]`` field, or the publisher is closed.
+        """
+        if self.closed:
+            raise LocalProtocolError(f"publisher of {self.topic} is closed")
+        from mrosd.shm.loan import make_loan
+
+        return make_loan(self, template, sizes)
 
     def publish_serialized(self, body: bytes | bytearray | memoryview) -> None:
         """Send an already serialized message body (no length prefix), e.g. from a bridge.

@@ -4,9 +4,13 @@ into the publisher's pool, leased until released or dropped, at most ``max_lease
 from __future__ import annotations
 
 import asyncio
+import os
 from typing import Any
 
+import pytest
+
 import mrosd
+from mrosd.errors import LocalProtocolError
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 
@@ -75,3 +79,47 @@ async def test_a_zero_copy_subscriber_of_a_publisher_without_a_pool_gets_copies_
             msg = await sub.next(timeout=5)
             with msg:
                 assert msg.data == "hi" and isinstance(msg, String)
+
+
+async def test_a_loan_is_filled_in_place_published_without_a_copy_and_only_once() -> None:
+    async with Master(host="127.0.0.1", port=0) as master, node("camera", master.uri) as a:
+        pub = await a.advertise("/image", Image, queue_size=2, max_message_size=FRAME + 4096)
+        async with node("viewer", master.uri) as b, node("tcp_viewer", master.uri) as c:
+            sub = await b.subscribe("/image", Image, zero_copy=True)
+            await sub.wait_for_publishers(1, timeout=10)
+            assert [row[3] for row in sub.bus_info()] == ["SHMROS"]
+            os.environ["MROSD_SHM"] = "0"  # c's next connection: TCPROS (read when it asks for the topic)
+            try:
+                tcp = await c.subscribe("/image", Image)
+                await tcp.wait_for_publishers(1, timeout=10)
+            finally:
+                os.environ["MROSD_SHM"] = "1"
+            await pub.wait_for_subscribers(2, timeout=10)
+            await sub.wait_for_publishers(1, timeout=10)
+            assert [row[3] for row in tcp.bus_info()] == ["TCPROS"]
+            endpoint = pub.shm.endpoint  # type: ignore[union-attr]
+            for i in range(1, 4):
+                msg = pub.loan(data=FRAME)
+                assert isinstance(msg, Image) and len(msg.data) == FRAME and not msg.data.readonly
+                assert msg.data.obj is endpoint.ring.map  # the pool itself
+                msg.data[:] = bytes([i]) * FRAME  # as np.frombuffer(msg.data, np.uint8)[:] = i would
+                msg.height, msg.width, msg.encoding, msg.step = 480, 640, "rgb8", 1920
+                msg.header.frame_id = "camera"
+                await pub.publish(msg)
+                with pytest.raises(LocalProtocolError, match="published already"):
+                    await pub.publish(msg)
+                with pytest.raises(ValueError):
+                    msg.data[0] = 1  # the view went with the publish
+                got = await sub.next(timeout=5)
+                assert got._shm_lease is not None  # a view of the slot
+                with got:
+                    assert got.header.frame_id == "camera" and got.encoding == "rgb8" and got.header.seq == i - 1
+                    assert bytes(got.data[:3]) == bytes([i]) * 3 and bytes(got.data[-3:]) == bytes([i]) * 3
+                over_tcp = await tcp.next(timeout=5)
+                assert over_tcp.header.frame_id == "camera" and bytes(over_tcp.data[-3:]) == bytes([i]) * 3
+                assert len(over_tcp.data) == FRAME
+            template = pub.loan(image(7))
+            assert template.encoding == "rgb8" and len(template.data) == FRAME and bytes(template.data[:1]) != b"\x07"
+            del template  # never published: its slot comes back
+            assert not endpoint._loaned
+            assert endpoint.rings_made == 1
