@@ -62,7 +62,32 @@ async def _pub(args: argparse.Namespace) -> None:
     body = os.urandom(args.size)
     subs = int(args.subs)
     changed = asyncio.Event()
-    if args.transport == "shm":
+    if args.transport == "loan":
+        from mrosd import Node
+        from mrosd.msg import get_message_class
+
+        node = Node("bench_pub", master_uri=args.master, argv=[], rosout=False, logger_services=False)
+        await node.start()
+        lpub = await node.advertise(
+            TOPIC, get_message_class("sensor_msgs/Image"), queue_size=args.count + WARMUP, max_message_size=args.size
+        )
+        _say("ready")
+        await lpub.wait_for_subscribers(subs, timeout=30)
+        await asyncio.sleep(0.3)
+
+        def loaned(_body: Any) -> None:
+            endpoint = lpub.shm.endpoint if lpub.shm is not None else None
+            while endpoint is not None and not endpoint.can_lend(args.size - 64):
+                time.sleep(0.0002)  # every slot busy: a camera would wait for its next frame
+            msg = lpub.loan(data=args.size - 64)
+            msg.data[:8] = body[:8]  # the application writes its frame into the pool (not measured here)
+            lpub.publish_nowait(msg)
+
+        publish: Any = loaned
+        for _ in range(WARMUP):
+            publish(body)
+        closer: Any = node.aclose
+    elif args.transport == "shm":
         from mrosd.shm import ShmPublisherEndpoint
 
         ep = ShmPublisherEndpoint(TOPIC, queue_size=args.count, on_change=changed.set, max_ring_bytes=1 << 30)
@@ -74,7 +99,7 @@ async def _pub(args: argparse.Namespace) -> None:
         for _ in range(WARMUP):
             ep.publish(body)
         publish = ep.publish
-        closer: Any = ep.aclose
+        closer = ep.aclose
     else:
         from mrosd import Node
         from mrosd.msg import get_message_class
@@ -94,7 +119,7 @@ async def _pub(args: argparse.Namespace) -> None:
     cpu0, t0 = time.process_time(), time.monotonic()
     for _ in range(args.count):
         publish(body)
-        await asyncio.sleep(0)
+        await asyncio.sleep(args.pace_ms / 1e3)
     await line  # the bench says every subscriber is done
     _say("pub", json.dumps({"t0": t0, "cpu": (time.process_time() - cpu0) / args.count}))
     await closer()
@@ -113,7 +138,28 @@ async def _sub(args: argparse.Namespace) -> None:
         if got >= total:
             done.set()
 
-    if args.transport == "shm":
+    if args.transport == "loan":
+        from mrosd import Node
+        from mrosd.msg import get_message_class
+
+        def on_msg(msg: Any) -> None:
+            msg.release()  # a view: nothing copied; the lease ends at once
+            on_body(msg)
+
+        node = Node(f"bench_sub{os.getpid()}", master_uri=args.master, argv=[], rosout=False, logger_services=False)
+        await node.start()
+        sub = await node.subscribe(
+            TOPIC,
+            get_message_class("sensor_msgs/Image"),
+            on_msg,
+            queue_size=args.count + WARMUP,
+            zero_copy=True,
+            max_leased=1,
+        )
+        await asyncio.wait_for(done.wait(), 120)
+        dropped = sum(row[3] for row in sub.stats()[1])
+        await node.aclose()
+    elif args.transport == "shm":
         from mrosd.shm import ShmSubscriberConnection, parse_answer
         from mrosd.shm.negotiate import PROTOCOL, VERSION
         from mrosd.wire.header import ConnectionHeader
@@ -147,7 +193,28 @@ LAT_GAP = 0.02
 async def _lat_pub(args: argparse.Namespace) -> None:
     body = bytearray(args.size)
     changed = asyncio.Event()
-    if args.mode in ("copy", "pool"):
+    if args.mode == "loan":
+        from mrosd import Node
+        from mrosd.msg import get_message_class
+
+        node = Node("bench_lat_pub", master_uri=args.master, argv=[], rosout=False, logger_services=False)
+        await node.start()
+        pub = await node.advertise(
+            TOPIC, get_message_class("sensor_msgs/Image"), queue_size=4, max_message_size=args.size + 4096
+        )
+        _say("addr", "-", "-")
+        await pub.wait_for_subscribers(1, timeout=30)
+        await asyncio.sleep(0.2)  # the subscriber's side of the attachment completes
+
+        def loaned(_body: Any) -> None:
+            msg = pub.loan(data=args.size)
+            _STAMP.pack_into(msg.data, 0, time.monotonic())  # stamped at the publish call, into the pool
+            msg.encoding = "mono8"
+            pub.publish_nowait(msg)
+
+        publish: Any = loaned
+        closer: Any = node.aclose
+    elif args.mode in ("copy", "pool"):
         from mrosd.shm import ShmPublisherEndpoint
 
         declared = args.size if args.mode == "pool" else None
@@ -157,8 +224,8 @@ async def _lat_pub(args: argparse.Namespace) -> None:
         while not ep.links:
             changed.clear()
             await changed.wait()
-        publish: Any = ep.publish
-        closer: Any = ep.aclose
+        publish = ep.publish
+        closer = ep.aclose
     else:
         from mrosd import Node
         from mrosd.msg import get_message_class
@@ -187,7 +254,21 @@ async def _lat_sub(args: argparse.Namespace) -> None:
         if len(lat) > args.count:
             done.set()
 
-    if args.mode in ("copy", "pool"):
+    if args.mode == "loan":
+        from mrosd import Node
+        from mrosd.msg import get_message_class
+
+        def on_view(msg: Any) -> None:
+            with msg:
+                on_body(msg.data)
+
+        node = Node(f"bench_sub{os.getpid()}", master_uri=args.master, argv=[], rosout=False, logger_services=False)
+        await node.start()
+        image = get_message_class("sensor_msgs/Image")
+        await node.subscribe(TOPIC, image, on_view, queue_size=4, zero_copy=True, max_leased=1)
+        await asyncio.wait_for(done.wait(), 120)
+        await node.aclose()
+    elif args.mode in ("copy", "pool"):
         from mrosd.shm import ShmSubscriberConnection, parse_answer
         from mrosd.shm.negotiate import PROTOCOL, VERSION
         from mrosd.wire.header import ConnectionHeader
@@ -277,9 +358,10 @@ def _spawn(*argv: str) -> subprocess.Popen[bytes]:
     )
 
 
-def _one(transport: str, size_mb: int, subs: int, master: str) -> dict[str, float]:
+def _one(transport: str, size_mb: int, subs: int, master: str, pace_ms: float = 0.0) -> dict[str, float]:
     count = COUNTS[size_mb]
     common = ["--transport", transport, "--size", str(size_mb << 20), "--count", str(count), "--master", master]
+    common += ["--pace-ms", str(pace_ms)]
     procs: list[subprocess.Popen[bytes]] = []
     try:
         pub = _spawn("--role", "pub", "--subs", str(subs), *common)
@@ -344,9 +426,10 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--sizes", default="1,8", help="message sizes in MB (1 and/or 8)")
     parser.add_argument("--subs", default="1,4", help="subscriber counts")
     parser.add_argument("--transports", default="shm,tcpros")
+    parser.add_argument("--pace-ms", type=float, default=0.0, help="pause between two messages (0: back to back)")
     parser.add_argument("--latency", action="store_true", help="one-way latency per size and mode (see above)")
     parser.add_argument("--lat-sizes", default="1024,65536,1048576,8388608", help="latency message sizes, bytes")
-    parser.add_argument("--modes", default="copy,pool,tcpros", help="latency modes")
+    parser.add_argument("--modes", default="loan,copy,pool,tcpros", help="latency modes")
     parser.add_argument("--mode", help=argparse.SUPPRESS)
     parser.add_argument("--role", choices=["pub", "sub", "lpub", "lsub"], help=argparse.SUPPRESS)
     parser.add_argument("--transport", help=argparse.SUPPRESS)
@@ -358,7 +441,7 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     # the tcpros rows go through mrosd.Node: keep them on TCPROS whatever the caller's environment says (the
     # shared-memory rows drive the endpoints directly)
-    os.environ["MROSD_SHM"] = "0"
+    os.environ["MROSD_SHM"] = "1" if args.mode == "loan" or args.transport == "loan" else "0"
     if args.role:
         try:
             import uvloop
@@ -387,7 +470,9 @@ def main(argv: list[str]) -> int:
             for size in sizes:
                 for subs in counts:
                     for transport in transports:
-                        runs.setdefault((size, subs, transport), []).append(_one(transport, size, subs, uri))
+                        runs.setdefault((size, subs, transport), []).append(
+                            _one(transport, size, subs, uri, args.pace_ms)
+                        )
     finally:
         master.terminate()
         master.wait(10)

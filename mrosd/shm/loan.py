@@ -57,6 +57,11 @@ class Loan:
         self.slot = slot
         self.published = False
 
+    @property
+    def in_place(self) -> bool:
+        """The array is in a pool slot (False: a private buffer, copied when published)."""
+        return self.ring is not None
+
     def close(self) -> None:
         """Give the slot back unpublished (a loan dropped without publishing)."""
         if not self.published and self.endpoint is not None and self.ring is not None:
@@ -167,7 +172,7 @@ def publish_loan(publisher: Any, msg: Any) -> None:
     else:
         if endpoint is not None and ring is not None:
             endpoint.end_loan(ring, loan.slot)
-        body = memoryview(head + bytes(loan.view) + tail)  # no pool: serialized as any message is
+        body = memoryview(b"".join((head, loan.view, tail)))  # no pool: one copy, as serialize() makes
         if publisher.shm is not None:
             publisher.shm.publish(body)
         _send_tcpros(publisher, body, None, -1)

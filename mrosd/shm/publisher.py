@@ -310,6 +310,17 @@ class ShmPublisherEndpoint:
         self._loaned.add(slot)
         return ring, slot
 
+    def can_lend(self, size: int) -> bool:
+        """Would ``loan_slot(size)`` lend a slot now (a producer that would rather wait than copy asks)."""
+        ring = self.ring
+        return (
+            not self.closed
+            and not self.backlog
+            and ring is not None
+            and ring.layout.capacity >= LOAN_HEAD + size + LOAN_TAIL
+            and self._pick() is not None
+        )
+
     def end_loan(self, ring: RingSegment, slot: int) -> None:
         """A lent slot comes back unpublished."""
         if ring is self.ring:
@@ -321,7 +332,7 @@ class ShmPublisherEndpoint:
         if ring is not self.ring or slot not in self._loaned:
             return False
         self._loaned.discard(slot)
-        if self.backlog or (not self.links and not self.latch):
+        if self.backlog:
             return False
         m, _ = ring.layout.begin(slot)
         ring.layout.commit(m, length, start)
@@ -369,10 +380,12 @@ class ShmPublisherEndpoint:
         plain: int = head % layout.slots
         slot: int
         for slot in (plain, *range(layout.slots)):
-            held = layout.held(slot)
-            if held >= first and (held == head or held in leased or held >= low):
-                continue
             if busy and slot in busy:
+                continue
+            seq = layout.words[slot][0]
+            # odd: no message (a loan given back unpublished left it invalidated): free
+            held = first - 1 if seq & 1 else seq >> 1
+            if held >= first and (held == head or held in leased or held >= low):
                 continue
             if slot == plain or held < first:
                 return slot

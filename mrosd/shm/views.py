@@ -17,6 +17,7 @@ numpy array, still exports them (then the lease ends when that goes: ``mrosd.shm
 
 from __future__ import annotations
 
+import functools
 import struct
 import sys
 from typing import Any
@@ -71,6 +72,7 @@ class _NotViewable(Exception):
     """A field type this walker does not know (then the message is decoded by copy, as always)."""
 
 
+@functools.cache
 def _split(type_text: str) -> tuple[str, bool, int | None]:
     if type_text.endswith("]"):
         base, _, rest = type_text.partition("[")
@@ -131,16 +133,24 @@ def _walk(
     return at
 
 
-def _resolver(cls: Any) -> Any:
+@functools.cache
+def _resolve(package: str, name: str) -> Any:
+    """The class of a nested type, once per name (a failure is not cached: raised each time)."""
     from mrosd.msg import get_message_class
 
+    if name == "Header":
+        name = "std_msgs/Header"
+    elif "/" not in name:
+        name = f"{package}/{name}"
+    return get_message_class(name)
+
+
+def _resolver(cls: Any) -> Any:
+    package = cls._type.split("/")[0]
+
     def resolve(name: str) -> Any:
-        if name == "Header":
-            name = "std_msgs/Header"
-        elif "/" not in name:
-            name = f"{cls._type.split('/')[0]}/{name}"
         try:
-            return get_message_class(name)
+            return _resolve(package, name)
         except Exception as exc:  # any failure to resolve means: decode by copy
             raise _NotViewable(name) from exc
 

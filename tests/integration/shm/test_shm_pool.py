@@ -67,3 +67,20 @@ async def test_declared_size_makes_the_pool_at_start_and_subscribers_map_it_whol
             await conn.aclose()
     finally:
         await ep.aclose()
+
+
+async def test_loans_given_back_or_published_without_subscribers_never_use_up_the_pool() -> None:
+    ep = ShmPublisherEndpoint("/pool", queue_size=2, max_message_size=4096)
+    await ep.start()
+    try:
+        assert ep.ring is not None
+        for _ in range(3 * ep.ring.layout.slots):  # lent and given back unpublished
+            lent = ep.loan_slot(100)
+            assert lent is not None
+            ep.end_loan(*lent)
+        for _ in range(3 * ep.ring.layout.slots):  # lent and published with nobody listening
+            lent = ep.loan_slot(100)
+            assert lent is not None and ep.publish_loaned(*lent, 0, 10)
+        assert ep.can_lend(100) and not ep._loaned
+    finally:
+        await ep.aclose()
