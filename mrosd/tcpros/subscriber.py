@@ -316,6 +316,10 @@ class Subscriber:
         #: same-host messages as typed views into the publisher's pool, each leased until released or
         #: dropped, at most ``max_leased`` at once (docs/shm.md); 0 when not zero-copy
         self.max_leased = max(1, max_leased) if zero_copy and msg_class is not AnyMsg else 0
+        if self.max_leased:
+            from mrosd.shm.views import prepare
+
+            prepare(msg_class)  # not on the first message's path
         self.node = node
         self.topic = topic
         self.msg_class = msg_class
