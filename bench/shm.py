@@ -17,7 +17,9 @@ read CLOCK_MONOTONIC; the publisher writes its clock into the message's first 8 
 ``--count`` messages 20 ms apart (no queueing), for 1 KB, 64 KB, 1 MB and 8 MB messages (``--lat-sizes``),
 per mode (``--modes``): ``copy`` (today's shared-memory path: serialized into the ring, copied out),
 ``pool`` (the same, with ``max_message_size`` declared: the ring made and faulted in before the subscriber
-attaches), ``tcpros`` (``mrosd.Node`` over TCPROS). The first message on a new connection (published as
+attaches), ``loan`` (``mrosd.Node`` publisher loans, ``zero_copy`` subscriber views: nothing copied),
+``tcpros`` (``mrosd.Node`` over TCPROS), ``roscpp`` (``bench/shm_roscpp.cpp``, compiled for the run).
+The first message on a new connection (published as
 soon as the subscriber is attached) is reported separately.
 """
 
@@ -28,12 +30,15 @@ import asyncio
 import json
 import os
 import select
+import shutil
 import socket
 import statistics
 import struct
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 from typing import Any
 
 COUNTS = {1: 30, 8: 10}  # messages per run, by size in MB
@@ -291,14 +296,45 @@ async def _lat_sub(args: argparse.Namespace) -> None:
     _say("lat", json.dumps(lat))
 
 
-def _lat_one(mode: str, size: int, count: int, master: str) -> list[float]:
+def _compile_roscpp() -> str | None:
+    """The roscpp partner (``bench/shm_roscpp.cpp``), built once per run; None without g++ or roscpp."""
+    if shutil.which("g++") is None:
+        return None
+    flags = subprocess.run(
+        ["pkg-config", "--cflags", "--libs", "roscpp", "sensor_msgs"], capture_output=True, text=True, check=False
+    )
+    if flags.returncode != 0:
+        return None
+    out = Path(tempfile.mkdtemp(prefix="bench-shm-")) / "shm_roscpp"
+    source = Path(__file__).with_name("shm_roscpp.cpp")
+    build = subprocess.run(
+        ["g++", "-O2", "-o", str(out), str(source), *flags.stdout.split()], capture_output=True, check=False
+    )
+    return str(out) if build.returncode == 0 else None
+
+
+def _cpp(binary: str, master: str, *argv: str) -> subprocess.Popen[bytes]:
+    env = {**os.environ, "ROS_MASTER_URI": master, "ROS_HOSTNAME": "127.0.0.1"}
+    return subprocess.Popen(
+        [binary, *argv], stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True, env=env
+    )
+
+
+def _lat_one(mode: str, size: int, count: int, master: str, cpp: str | None = None) -> list[float]:
     common = ["--mode", mode, "--size", str(size), "--count", str(count), "--master", master]
     procs: list[subprocess.Popen[bytes]] = []
     try:
-        pub = _spawn("--role", "lpub", *common)
-        procs.append(pub)
-        address, token = _line(pub, "addr").split()
-        sub = _spawn("--role", "lsub", *common, "--address", address, "--token", token)
+        if mode == "roscpp":
+            assert cpp is not None
+            pub = _cpp(cpp, master, "pub", str(size), str(count))
+            procs.append(pub)
+            _line(pub, "addr")
+            sub = _cpp(cpp, master, "sub", str(count))
+        else:
+            pub = _spawn("--role", "lpub", *common)
+            procs.append(pub)
+            address, token = _line(pub, "addr").split()
+            sub = _spawn("--role", "lsub", *common, "--address", address, "--token", token)
         procs.append(sub)
         lat: list[float] = json.loads(_line(sub, "lat"))
         assert pub.stdin is not None
@@ -317,17 +353,29 @@ def _lat_one(mode: str, size: int, count: int, master: str) -> list[float]:
 def _latency(args: argparse.Namespace, master: str) -> int:
     sizes = [int(s) for s in args.lat_sizes.split(",")]
     modes = args.modes.split(",")
+    cpp = _compile_roscpp() if "roscpp" in modes else None
+    if "roscpp" in modes and cpp is None:
+        print("roscpp: cannot compile bench/shm_roscpp.cpp (g++ or the roscpp headers missing); skipped")
+        modes.remove("roscpp")
     print(f"{'size':>6} {'mode':>7} {'median us':>10} {'p99 us':>9} {'first us':>9}")
     table: dict[tuple[int, str], tuple[float, float, float]] = {}
     for size in sizes:
         for mode in modes:
-            lat = _lat_one(mode, size, args.count, master)
+            lat = _lat_one(mode, size, args.count, master, cpp)
             first, rest = lat[0], sorted(lat[1:])
             med = statistics.median(rest)
             p99 = rest[min(len(rest) - 1, int(len(rest) * 0.99))]
             table[(size, mode)] = (med, p99, first)
             label = f"{size >> 20}M" if size >= 1 << 20 else f"{size >> 10}K"
             print(f"{label:>6} {mode:>7} {med * 1e6:>10.0f} {p99 * 1e6:>9.0f} {first * 1e6:>9.0f}", flush=True)
+    big, small = max(sizes), min(sizes)
+    loan_big, loan_small = table.get((big, "loan")), table.get((small, "loan"))
+    if loan_big and loan_small:
+        print(f"loan: median at {big} bytes = {loan_big[0] / loan_small[0]:.2f}x that at {small} bytes")
+        for mode in modes:
+            other = table.get((big, mode))
+            if other and mode != "loan":
+                print(f"{mode} / loan median at {big} bytes: {other[0] / loan_big[0]:.1f}x")
     return 0
 
 
@@ -429,7 +477,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--pace-ms", type=float, default=0.0, help="pause between two messages (0: back to back)")
     parser.add_argument("--latency", action="store_true", help="one-way latency per size and mode (see above)")
     parser.add_argument("--lat-sizes", default="1024,65536,1048576,8388608", help="latency message sizes, bytes")
-    parser.add_argument("--modes", default="loan,copy,pool,tcpros", help="latency modes")
+    parser.add_argument("--modes", default="loan,copy,pool,tcpros,roscpp", help="latency modes")
     parser.add_argument("--mode", help=argparse.SUPPRESS)
     parser.add_argument("--role", choices=["pub", "sub", "lpub", "lsub"], help=argparse.SUPPRESS)
     parser.add_argument("--transport", help=argparse.SUPPRESS)
