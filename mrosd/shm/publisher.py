@@ -657,6 +657,20 @@ class ShmPublisherEndpoint:
             for lk in self.links
         ]
 
+    def pool(self) -> dict[str, Any]:
+        """The shared memory this topic holds (for introspection: its size is bounded and visible): slots,
+        bytes per slot, total bytes, whether populated up front, lease slots and leases granted, loans out."""
+        ring = self.ring
+        return {
+            "slots": ring.layout.slots if ring is not None else 0,
+            "slot_bytes": ring.layout.capacity if ring is not None else 0,
+            "bytes": ring.size if ring is not None else 0,
+            "populated": self.populate,
+            "lease_slots": self.lease_slots,
+            "leases_granted": sum(lk.grant for lk in self.links),
+            "loans_out": len(self._loaned),
+        }
+
     def bus_info(self) -> list[list[Any]]:
         """getBusInfo rows of the shared-memory subscribers (transport ``SHMROS``)."""
         return [[lk.id, lk.callerid, "o", TRANSPORT, self.topic, lk.connected, f"pid {lk.pid}"] for lk in self.links]

@@ -149,12 +149,13 @@ class PublisherLink:
 
     def _shm_frame(self, body: Any) -> None:
         """A message from shared memory: bytes, or a leased ``ShmView`` (``zero_copy`` subscribers)."""
-        self.bytes_received += len(body) + 4 if not hasattr(body, "views") else len(body.data) + 4
         self.messages_received += 1
-        if hasattr(body, "views"):
-            self.subscriber._deliver_view(body, self)
-        else:
+        if isinstance(body, (bytes, bytearray)):
+            self.bytes_received += len(body) + 4
             self.subscriber._deliver(body, self)
+        else:
+            self.bytes_received += len(body.data) + 4
+            self.subscriber._deliver_view(body, self)
 
     @property
     def connected(self) -> bool:

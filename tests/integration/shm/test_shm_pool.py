@@ -7,6 +7,7 @@ import asyncio
 import os
 
 from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection, parse_answer
+from mrosd.shm import publisher as shm_publisher
 from mrosd.shm.ring import POPULATED
 from mrosd.shm.segment import RingSegment
 from mrosd.wire.header import ConnectionHeader
@@ -44,6 +45,9 @@ async def test_declared_size_makes_the_pool_at_start_and_subscribers_map_it_whol
     await ep.start()
     try:
         assert ep.ring is not None and ep.rings_made == 1  # before any subscriber or message
+        pool = ep.pool()
+        assert pool["populated"] and pool["slot_bytes"] >= size and pool["bytes"] == ep.ring.size
+        assert pool["lease_slots"] == shm_publisher.DEFAULT_LEASE_SLOTS and pool["leases_granted"] == 0
         assert ep.ring.layout.capacity >= size and ep.ring.layout.flags & POPULATED
         got: list[bytes] = []
         arrived = asyncio.Event()
