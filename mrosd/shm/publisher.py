@@ -154,6 +154,8 @@ class ShmSubscriberLink:
         self.lagging = False
         #: leases honoured for it (granted at attach; what it writes in more lease words is ignored)
         self.grant = 0
+        #: its uid (from the kernel): a foreign uid's subscribers share half of the lease slots
+        self.uid = -1
 
     def acked(self, head: int) -> int:
         """The next message the subscriber wants, as it says, kept within 0..head + 1."""
@@ -534,7 +536,7 @@ class ShmPublisherEndpoint:
             fd = conn.fileno()
             timer = self._loop.call_later(ATTACH_TIMEOUT, self._abandon, fd, "did not attach in time")
             self._pending[fd] = (channel, timer)
-            self._loop.add_reader(fd, self._on_pending, fd, pid)
+            self._loop.add_reader(fd, self._on_pending, fd, pid, uid)
 
     def _abandon(self, fd: int, why: str) -> None:
         entry = self._pending.pop(fd, None)
@@ -547,7 +549,7 @@ class ShmPublisherEndpoint:
         _ratelog.warning("abandon", "%s: closing a shared-memory subscriber connection: %s", self.topic, why)
         channel.close()
 
-    def _on_pending(self, fd: int, pid: int) -> None:
+    def _on_pending(self, fd: int, pid: int, uid: int) -> None:
         channel = self._pending[fd][0]
         try:
             got = channel.receive()
@@ -567,9 +569,9 @@ class ShmPublisherEndpoint:
         entry = self._pending.pop(fd)
         entry[1].cancel()
         self._loop.remove_reader(fd)
-        self._attach(channel, msg, pid)
+        self._attach(channel, msg, pid, uid)
 
-    def _attach(self, channel: ControlChannel, msg: control.Attach, pid: int) -> None:
+    def _attach(self, channel: ControlChannel, msg: control.Attach, pid: int, uid: int) -> None:
         def refuse(why: str) -> None:
             _ratelog.warning("refuse", "%s: refusing shared-memory subscriber (pid %d): %s", self.topic, pid, why)
             with contextlib.suppress(OSError):
@@ -596,8 +598,8 @@ class ShmPublisherEndpoint:
         except OSError as exc:
             refuse(f"cannot make its acknowledgement page: {exc}")
             return
-        granted = sum(lk.grant for lk in self.links)
-        link.grant = max(0, min(msg.leases, MAX_LEASES, self.lease_slots - granted))
+        link.uid = uid
+        link.grant = self._grant(uid, msg.leases)
         attached = control.Attached(header=encode_header(reply)[4:], first=first, leases=link.grant)
         if not self._send_ring(link, attached, link.ack.fd, link.peer_end.fileno()):
             return
@@ -610,6 +612,16 @@ class ShmPublisherEndpoint:
         self._loop.add_reader(channel.sock.fileno(), self._on_link, link)
         self._loop.add_reader(link.wake.fileno(), self._on_progress, link)
         self.on_change()
+
+    def _grant(self, uid: int, wanted: int) -> int:
+        """Leases for a new subscriber of ``uid``: what it asks, at most ``MAX_LEASES``, within what the
+        pool's lease slots have left; the subscribers of any other uid than ours and root's hold at most half
+        of them together, so that one trusted foreign uid attaching again and again cannot take them all."""
+        granted = sum(lk.grant for lk in self.links)
+        left = self.lease_slots - granted
+        if uid not in (0, os.getuid()):
+            left = min(left, self.lease_slots // 2 - sum(lk.grant for lk in self.links if lk.uid == uid))
+        return max(0, min(wanted, MAX_LEASES, left))
 
     def _on_link(self, link: ShmSubscriberLink) -> None:
         try:

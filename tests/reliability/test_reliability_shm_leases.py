@@ -3,7 +3,8 @@
 A subscriber killed while it holds leases frees them (its control socket closing is the signal): the
 publisher keeps its rate and every slot is written again. A hostile subscriber that writes lease words for
 every message, far beyond its grant, and never acknowledges anything keeps at most its grant of slots: an
-honest subscriber gets every message and the publisher never waits. Loaned messages keep the ring's rules:
+honest subscriber gets every message and the publisher never waits. A trusted uid other than ours attaching
+again and again gets half of the lease slots at most (root: a second uid). Loaned messages keep the ring's rules:
 a loan never takes a leased slot, and the pool stays unwritable by subscribers.
 """
 
@@ -16,6 +17,7 @@ import signal
 import subprocess
 import sys
 import time
+from typing import Any
 
 import pytest
 
@@ -23,6 +25,7 @@ from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection
 from mrosd.shm.negotiate import VERSION, ShmAnswer
 from mrosd.shm.segment import MAX_LEASES
 from mrosd.wire.header import ConnectionHeader
+from tests.integration.ixm.hostile import Child, nobody
 
 HEADER = ConnectionHeader(callerid="/victim", topic="/t", md5sum="*", type="*")
 
@@ -190,4 +193,49 @@ async def test_a_declared_pool_with_a_loan_out_is_still_unwritable_by_subscriber
         ep.end_loan(*lent)
     finally:
         await sub.aclose()
+        await ep.aclose()
+
+
+def lease_hoarder(address: str, token: str) -> Any:
+    """Attach to the pool twice, asking for every lease each time; report the grants (runs as another uid)."""
+
+    def run(report: Any) -> dict[str, Any]:
+        async def main() -> list[int]:
+            conns = [
+                await ShmSubscriberConnection.attach(
+                    ShmAnswer(version=VERSION, address=address, token=token),
+                    HEADER,
+                    zero_copy=True,
+                    max_leased=MAX_LEASES,
+                    trusted=frozenset({0}),
+                )
+                for _ in range(2)
+            ]
+            grants = [c.max_leased for c in conns]
+            report({"grants": grants})  # holds its connections until the parent says go
+            for c in conns:
+                await c.aclose()
+            return grants
+
+        return {"grants": asyncio.run(main())}
+
+    return run
+
+
+@pytest.mark.root
+async def test_a_trusted_foreign_uid_cannot_take_every_lease_slot() -> None:
+    attacker = nobody()
+    ep = ShmPublisherEndpoint(
+        "/t", queue_size=4, max_message_size=64 << 10, lease_slots=4, trusted=frozenset({0, attacker.pw_uid})
+    )
+    await ep.start()
+    child = Child(attacker, lease_hoarder(ep.address, ep.token))
+    try:
+        first = await asyncio.to_thread(child.line)
+        assert first == {"grants": [2, 0]}  # that uid's share: half of the lease slots, however often it attaches
+        ours = await ShmSubscriberConnection.attach(answer(ep), HEADER, zero_copy=True, max_leased=2)
+        assert ours.max_leased == 2  # the rest is still there for our own uid
+        await ours.aclose()
+    finally:
+        child.close()
         await ep.aclose()
