@@ -296,7 +296,7 @@ async def _lat_sub(args: argparse.Namespace) -> None:
     _say("lat", json.dumps(lat))
 
 
-def _compile_roscpp() -> str | None:
+def _compile_roscpp(tmp: Path) -> str | None:
     """The roscpp partner (``bench/shm_roscpp.cpp``), built once per run; None without g++ or roscpp."""
     if shutil.which("g++") is None:
         return None
@@ -305,7 +305,7 @@ def _compile_roscpp() -> str | None:
     )
     if flags.returncode != 0:
         return None
-    out = Path(tempfile.mkdtemp(prefix="bench-shm-")) / "shm_roscpp"
+    out = tmp / "shm_roscpp"
     source = Path(__file__).with_name("shm_roscpp.cpp")
     build = subprocess.run(
         ["g++", "-O2", "-o", str(out), str(source), *flags.stdout.split()], capture_output=True, check=False
@@ -353,7 +353,12 @@ def _lat_one(mode: str, size: int, count: int, master: str, cpp: str | None = No
 def _latency(args: argparse.Namespace, master: str) -> int:
     sizes = [int(s) for s in args.lat_sizes.split(",")]
     modes = args.modes.split(",")
-    cpp = _compile_roscpp() if "roscpp" in modes else None
+    with tempfile.TemporaryDirectory(prefix="bench-shm-") as tmp:
+        cpp = _compile_roscpp(Path(tmp)) if "roscpp" in modes else None
+        return _latency_rows(args, master, sizes, modes, cpp)
+
+
+def _latency_rows(args: argparse.Namespace, master: str, sizes: list[int], modes: list[str], cpp: str | None) -> int:
     if "roscpp" in modes and cpp is None:
         print("roscpp: cannot compile bench/shm_roscpp.cpp (g++ or the roscpp headers missing); skipped")
         modes.remove("roscpp")
