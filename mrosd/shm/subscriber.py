@@ -189,7 +189,7 @@ class ShmSubscriberConnection:
         #: dropped because every lease was held
         self.max_leased = 0
         self._free_leases: list[int] = []
-        self._deferred: list[ShmView] = []
+        self._deferred: collections.deque[ShmView] = collections.deque()
         self.lease_drops = 0
         #: rings the publisher moved on to, not yet switched to (the current one still has messages)
         self._next_rings: collections.deque[MappedRing] = collections.deque()
@@ -409,7 +409,8 @@ class ShmSubscriberConnection:
             return ShmView(self, m, slot, index, cursor.ring.data[slot][start : start + n].toreadonly())
 
     def _unlease(self, index: int) -> None:
-        """A lease ended: its word goes back to 0 (the publisher may reuse the slot) and is free again."""
+        """A lease ended: its word goes back to 0 (the publisher may reuse the slot) and is free again. May run
+        on another thread (a frame handed to a worker): one word written, one list append, one ``send``."""
         ack = self._ack
         if ack is None or self._ended:
             return
@@ -425,16 +426,14 @@ class ShmSubscriberConnection:
         self._deferred.append(view)
 
     def _retry_deferred(self) -> None:
-        if not self._deferred:
-            return
-        kept: list[ShmView] = []
-        for view in self._deferred:
+        deferred = self._deferred  # a deque: another thread may drop a view (append) meanwhile
+        for _ in range(len(deferred)):
+            view = deferred.popleft()
             if view.in_use():
-                kept.append(view)
+                deferred.append(view)
             else:
                 view._release_views()
                 self._unlease(view._index)
-        self._deferred = kept
 
     def _acknowledge(self, next_message: int) -> None:
         """Tell the publisher we are done with the messages before ``next_message``; wake it if it waits."""

@@ -123,3 +123,25 @@ async def test_a_loan_is_filled_in_place_published_without_a_copy_and_only_once(
             del template  # never published: its slot comes back
             assert not endpoint._loaned
             assert endpoint.rings_made == 1
+
+
+async def test_a_frame_handed_to_a_worker_thread_is_released_there() -> None:
+    async with Master(host="127.0.0.1", port=0) as master, node("camera", master.uri) as a:
+        pub = await a.advertise("/image", Image, queue_size=2, max_message_size=FRAME + 4096)
+        async with node("viewer", master.uri) as b:
+            sub = await b.subscribe("/image", Image, zero_copy=True, max_leased=1)
+            await pub.wait_for_subscribers(1, timeout=10)
+            await sub.wait_for_publishers(1, timeout=10)
+            link = pub.shm.endpoint.links[0]  # type: ignore[union-attr]
+            for i in range(3):  # one lease: each frame must come back from the worker for the next to arrive
+                await pub.publish(image(i))
+                msg = await sub.next(timeout=5)
+
+                def work(frame: Any = msg) -> int:
+                    with frame:
+                        return int(frame.data[0]) + int(frame.data[-1])
+
+                assert await asyncio.to_thread(work) == 2 * i
+                del msg
+                assert not link.leases()
+            assert sub.stats()[1][0][3] == 0  # nothing dropped: every lease came back in time
