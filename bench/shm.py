@@ -11,6 +11,16 @@ publisher and ``AnyMsg`` subscribers through an mrosd master started for the run
 transports; the median is printed.
 
 Usage: ``python -m bench.shm [--rounds 3] [--sizes 1,8] [--subs 1,4] [--transports shm,tcpros]``.
+
+``--latency``: one-way latency instead, from the publish call to the subscriber's callback (both processes
+read CLOCK_MONOTONIC; the publisher writes its clock into the message's first 8 bytes), median and p99 over
+``--count`` messages 20 ms apart (no queueing), for 1 KB, 64 KB, 1 MB and 8 MB messages (``--lat-sizes``),
+per mode (``--modes``): ``copy`` (today's shared-memory path: serialized into the ring, copied out),
+``pool`` (the same, with ``max_message_size`` declared: the ring made and faulted in before the subscriber
+attaches), ``loan`` (``mrosd.Node`` publisher loans, ``zero_copy`` subscriber views: nothing copied),
+``tcpros`` (``mrosd.Node`` over TCPROS), ``roscpp`` (``bench/shm_roscpp.cpp``, compiled for the run).
+The first message on a new connection (published as
+soon as the subscriber is attached) is reported separately.
 """
 
 from __future__ import annotations
@@ -20,11 +30,15 @@ import asyncio
 import json
 import os
 import select
+import shutil
 import socket
 import statistics
+import struct
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 from typing import Any
 
 COUNTS = {1: 30, 8: 10}  # messages per run, by size in MB
@@ -53,7 +67,32 @@ async def _pub(args: argparse.Namespace) -> None:
     body = os.urandom(args.size)
     subs = int(args.subs)
     changed = asyncio.Event()
-    if args.transport == "shm":
+    if args.transport == "loan":
+        from mrosd import Node
+        from mrosd.msg import get_message_class
+
+        node = Node("bench_pub", master_uri=args.master, argv=[], rosout=False, logger_services=False)
+        await node.start()
+        lpub = await node.advertise(
+            TOPIC, get_message_class("sensor_msgs/Image"), queue_size=args.count + WARMUP, max_message_size=args.size
+        )
+        _say("ready")
+        await lpub.wait_for_subscribers(subs, timeout=30)
+        await asyncio.sleep(0.3)
+
+        def loaned(_body: Any) -> None:
+            endpoint = lpub.shm.endpoint if lpub.shm is not None else None
+            while endpoint is not None and not endpoint.can_lend(args.size - 64):
+                time.sleep(0.0002)  # every slot busy: a camera would wait for its next frame
+            msg = lpub.loan(data=args.size - 64)
+            msg.data[:8] = body[:8]  # the application writes its frame into the pool (not measured here)
+            lpub.publish_nowait(msg)
+
+        publish: Any = loaned
+        for _ in range(WARMUP):
+            publish(body)
+        closer: Any = node.aclose
+    elif args.transport == "shm":
         from mrosd.shm import ShmPublisherEndpoint
 
         ep = ShmPublisherEndpoint(TOPIC, queue_size=args.count, on_change=changed.set, max_ring_bytes=1 << 30)
@@ -65,7 +104,7 @@ async def _pub(args: argparse.Namespace) -> None:
         for _ in range(WARMUP):
             ep.publish(body)
         publish = ep.publish
-        closer: Any = ep.aclose
+        closer = ep.aclose
     else:
         from mrosd import Node
         from mrosd.msg import get_message_class
@@ -85,7 +124,7 @@ async def _pub(args: argparse.Namespace) -> None:
     cpu0, t0 = time.process_time(), time.monotonic()
     for _ in range(args.count):
         publish(body)
-        await asyncio.sleep(0)
+        await asyncio.sleep(args.pace_ms / 1e3)
     await line  # the bench says every subscriber is done
     _say("pub", json.dumps({"t0": t0, "cpu": (time.process_time() - cpu0) / args.count}))
     await closer()
@@ -104,7 +143,28 @@ async def _sub(args: argparse.Namespace) -> None:
         if got >= total:
             done.set()
 
-    if args.transport == "shm":
+    if args.transport == "loan":
+        from mrosd import Node
+        from mrosd.msg import get_message_class
+
+        def on_msg(msg: Any) -> None:
+            msg.release()  # a view: nothing copied; the lease ends at once
+            on_body(msg)
+
+        node = Node(f"bench_sub{os.getpid()}", master_uri=args.master, argv=[], rosout=False, logger_services=False)
+        await node.start()
+        sub = await node.subscribe(
+            TOPIC,
+            get_message_class("sensor_msgs/Image"),
+            on_msg,
+            queue_size=args.count + WARMUP,
+            zero_copy=True,
+            max_leased=1,
+        )
+        await asyncio.wait_for(done.wait(), 120)
+        dropped = sum(row[3] for row in sub.stats()[1])
+        await node.aclose()
+    elif args.transport == "shm":
         from mrosd.shm import ShmSubscriberConnection, parse_answer
         from mrosd.shm.negotiate import PROTOCOL, VERSION
         from mrosd.wire.header import ConnectionHeader
@@ -127,6 +187,201 @@ async def _sub(args: argparse.Namespace) -> None:
         dropped = 0
         await node.aclose()
     _say("sub", json.dumps({"last": last, "got": got, "dropped": dropped}))
+
+
+# --- latency ---------------------------------------------------------------------------------------------
+
+_STAMP = struct.Struct("=d")
+LAT_GAP = 0.02
+
+
+async def _lat_pub(args: argparse.Namespace) -> None:
+    body = bytearray(args.size)
+    changed = asyncio.Event()
+    if args.mode == "loan":
+        from mrosd import Node
+        from mrosd.msg import get_message_class
+
+        node = Node("bench_lat_pub", master_uri=args.master, argv=[], rosout=False, logger_services=False)
+        await node.start()
+        pub = await node.advertise(
+            TOPIC, get_message_class("sensor_msgs/Image"), queue_size=4, max_message_size=args.size + 4096
+        )
+        _say("addr", "-", "-")
+        await pub.wait_for_subscribers(1, timeout=30)
+        await asyncio.sleep(0.2)  # the subscriber's side of the attachment completes
+
+        def loaned(_body: Any) -> None:
+            msg = pub.loan(data=args.size)
+            _STAMP.pack_into(msg.data, 0, time.monotonic())  # stamped at the publish call, into the pool
+            msg.encoding = "mono8"
+            pub.publish_nowait(msg)
+
+        publish: Any = loaned
+        closer: Any = node.aclose
+    elif args.mode in ("copy", "pool"):
+        from mrosd.shm import ShmPublisherEndpoint
+
+        declared = args.size if args.mode == "pool" else None
+        ep = ShmPublisherEndpoint(TOPIC, queue_size=4, on_change=changed.set, max_message_size=declared)
+        await ep.start()
+        _say("addr", ep.address, ep.token)
+        while not ep.links:
+            changed.clear()
+            await changed.wait()
+        publish = ep.publish
+        closer = ep.aclose
+    else:
+        from mrosd import Node
+        from mrosd.msg import get_message_class
+
+        node = Node("bench_lat_pub", master_uri=args.master, argv=[], rosout=False, logger_services=False)
+        await node.start()
+        pub = await node.advertise(TOPIC, get_message_class("std_msgs/UInt8MultiArray"), queue_size=4)
+        _say("addr", "-", "-")
+        await pub.wait_for_subscribers(1, timeout=30)
+        publish = pub.publish_serialized
+        closer = node.aclose
+    for i in range(args.count + 1):  # the first one as the subscriber is attached, then one every LAT_GAP
+        _STAMP.pack_into(body, 0, time.monotonic())
+        publish(body)
+        await asyncio.sleep(0.2 if i == 0 else LAT_GAP)
+    await _stdin_line()
+    await closer()
+
+
+async def _lat_sub(args: argparse.Namespace) -> None:
+    lat: list[float] = []
+    done = asyncio.Event()
+
+    def on_body(body: Any) -> None:
+        lat.append(time.monotonic() - _STAMP.unpack_from(body, 0)[0])
+        if len(lat) > args.count:
+            done.set()
+
+    if args.mode == "loan":
+        from mrosd import Node
+        from mrosd.msg import get_message_class
+
+        def on_view(msg: Any) -> None:
+            with msg:
+                on_body(msg.data)
+
+        node = Node(f"bench_sub{os.getpid()}", master_uri=args.master, argv=[], rosout=False, logger_services=False)
+        await node.start()
+        image = get_message_class("sensor_msgs/Image")
+        await node.subscribe(TOPIC, image, on_view, queue_size=4, zero_copy=True, max_leased=1)
+        await asyncio.wait_for(done.wait(), 120)
+        await node.aclose()
+    elif args.mode in ("copy", "pool"):
+        from mrosd.shm import ShmSubscriberConnection, parse_answer
+        from mrosd.shm.negotiate import PROTOCOL, VERSION
+        from mrosd.wire.header import ConnectionHeader
+
+        answer = parse_answer([PROTOCOL, VERSION, args.address, args.token])
+        assert answer is not None
+        header = ConnectionHeader(callerid=f"/bench_sub{os.getpid()}", topic=TOPIC, md5sum="*", type="*")
+        conn = await ShmSubscriberConnection.attach(answer, header, on_frame=on_body)
+        await asyncio.wait_for(done.wait(), 120)
+        await conn.aclose()
+    else:
+        from mrosd import Node
+        from mrosd.tcpros.subscriber import AnyMsg
+
+        node = Node(f"bench_sub{os.getpid()}", master_uri=args.master, argv=[], rosout=False, logger_services=False)
+        await node.start()
+        await node.subscribe(TOPIC, AnyMsg, lambda raw: on_body(raw.data), queue_size=4)
+        await asyncio.wait_for(done.wait(), 120)
+        await node.aclose()
+    _say("lat", json.dumps(lat))
+
+
+def _compile_roscpp(tmp: Path) -> str | None:
+    """The roscpp partner (``bench/shm_roscpp.cpp``), built once per run; None without g++ or roscpp."""
+    if shutil.which("g++") is None:
+        return None
+    flags = subprocess.run(
+        ["pkg-config", "--cflags", "--libs", "roscpp", "sensor_msgs"], capture_output=True, text=True, check=False
+    )
+    if flags.returncode != 0:
+        return None
+    out = tmp / "shm_roscpp"
+    source = Path(__file__).with_name("shm_roscpp.cpp")
+    build = subprocess.run(
+        ["g++", "-O2", "-o", str(out), str(source), *flags.stdout.split()], capture_output=True, check=False
+    )
+    return str(out) if build.returncode == 0 else None
+
+
+def _cpp(binary: str, master: str, *argv: str) -> subprocess.Popen[bytes]:
+    env = {**os.environ, "ROS_MASTER_URI": master, "ROS_HOSTNAME": "127.0.0.1"}
+    return subprocess.Popen(
+        [binary, *argv], stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True, env=env
+    )
+
+
+def _lat_one(mode: str, size: int, count: int, master: str, cpp: str | None = None) -> list[float]:
+    common = ["--mode", mode, "--size", str(size), "--count", str(count), "--master", master]
+    procs: list[subprocess.Popen[bytes]] = []
+    try:
+        if mode == "roscpp":
+            assert cpp is not None
+            pub = _cpp(cpp, master, "pub", str(size), str(count))
+            procs.append(pub)
+            _line(pub, "addr")
+            sub = _cpp(cpp, master, "sub", str(count))
+        else:
+            pub = _spawn("--role", "lpub", *common)
+            procs.append(pub)
+            address, token = _line(pub, "addr").split()
+            sub = _spawn("--role", "lsub", *common, "--address", address, "--token", token)
+        procs.append(sub)
+        lat: list[float] = json.loads(_line(sub, "lat"))
+        assert pub.stdin is not None
+        pub.stdin.write(b"done\n")
+        pub.stdin.flush()
+        return lat
+    finally:
+        for p in procs:
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+def _latency(args: argparse.Namespace, master: str) -> int:
+    sizes = [int(s) for s in args.lat_sizes.split(",")]
+    modes = args.modes.split(",")
+    with tempfile.TemporaryDirectory(prefix="bench-shm-") as tmp:
+        cpp = _compile_roscpp(Path(tmp)) if "roscpp" in modes else None
+        return _latency_rows(args, master, sizes, modes, cpp)
+
+
+def _latency_rows(args: argparse.Namespace, master: str, sizes: list[int], modes: list[str], cpp: str | None) -> int:
+    if "roscpp" in modes and cpp is None:
+        print("roscpp: cannot compile bench/shm_roscpp.cpp (g++ or the roscpp headers missing); skipped")
+        modes.remove("roscpp")
+    print(f"{'size':>6} {'mode':>7} {'median us':>10} {'p99 us':>9} {'first us':>9}")
+    table: dict[tuple[int, str], tuple[float, float, float]] = {}
+    for size in sizes:
+        for mode in modes:
+            lat = _lat_one(mode, size, args.count, master, cpp)
+            first, rest = lat[0], sorted(lat[1:])
+            med = statistics.median(rest)
+            p99 = rest[min(len(rest) - 1, int(len(rest) * 0.99))]
+            table[(size, mode)] = (med, p99, first)
+            label = f"{size >> 20}M" if size >= 1 << 20 else f"{size >> 10}K"
+            print(f"{label:>6} {mode:>7} {med * 1e6:>10.0f} {p99 * 1e6:>9.0f} {first * 1e6:>9.0f}", flush=True)
+    big, small = max(sizes), min(sizes)
+    loan_big, loan_small = table.get((big, "loan")), table.get((small, "loan"))
+    if loan_big and loan_small:
+        print(f"loan: median at {big} bytes = {loan_big[0] / loan_small[0]:.2f}x that at {small} bytes")
+        for mode in modes:
+            other = table.get((big, mode))
+            if other and mode != "loan":
+                print(f"{mode} / loan median at {big} bytes: {other[0] / loan_big[0]:.1f}x")
+    return 0
 
 
 # --- the coordinator -----------------------------------------------------------------------------------
@@ -156,9 +411,10 @@ def _spawn(*argv: str) -> subprocess.Popen[bytes]:
     )
 
 
-def _one(transport: str, size_mb: int, subs: int, master: str) -> dict[str, float]:
+def _one(transport: str, size_mb: int, subs: int, master: str, pace_ms: float = 0.0) -> dict[str, float]:
     count = COUNTS[size_mb]
     common = ["--transport", transport, "--size", str(size_mb << 20), "--count", str(count), "--master", master]
+    common += ["--pace-ms", str(pace_ms)]
     procs: list[subprocess.Popen[bytes]] = []
     try:
         pub = _spawn("--role", "pub", "--subs", str(subs), *common)
@@ -223,7 +479,12 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--sizes", default="1,8", help="message sizes in MB (1 and/or 8)")
     parser.add_argument("--subs", default="1,4", help="subscriber counts")
     parser.add_argument("--transports", default="shm,tcpros")
-    parser.add_argument("--role", choices=["pub", "sub"], help=argparse.SUPPRESS)
+    parser.add_argument("--pace-ms", type=float, default=0.0, help="pause between two messages (0: back to back)")
+    parser.add_argument("--latency", action="store_true", help="one-way latency per size and mode (see above)")
+    parser.add_argument("--lat-sizes", default="1024,65536,1048576,8388608", help="latency message sizes, bytes")
+    parser.add_argument("--modes", default="loan,copy,pool,tcpros,roscpp", help="latency modes")
+    parser.add_argument("--mode", help=argparse.SUPPRESS)
+    parser.add_argument("--role", choices=["pub", "sub", "lpub", "lsub"], help=argparse.SUPPRESS)
     parser.add_argument("--transport", help=argparse.SUPPRESS)
     parser.add_argument("--size", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--count", type=int, help=argparse.SUPPRESS)
@@ -233,7 +494,7 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     # the tcpros rows go through mrosd.Node: keep them on TCPROS whatever the caller's environment says (the
     # shared-memory rows drive the endpoints directly)
-    os.environ["MROSD_SHM"] = "0"
+    os.environ["MROSD_SHM"] = "1" if args.mode == "loan" or args.transport == "loan" else "0"
     if args.role:
         try:
             import uvloop
@@ -241,19 +502,30 @@ def main(argv: list[str]) -> int:
             uvloop.install()
         except ImportError:
             pass
-        asyncio.run(_pub(args) if args.role == "pub" else _sub(args))
+        roles = {"pub": _pub, "sub": _sub, "lpub": _lat_pub, "lsub": _lat_sub}
+        asyncio.run(roles[args.role](args))
         return 0
+    master, uri = _start_master()
+    if args.latency:
+        if args.count is None:
+            args.count = 100
+        try:
+            return _latency(args, uri)
+        finally:
+            master.terminate()
+            master.wait(10)
     sizes = [int(s) for s in args.sizes.split(",")]
     counts = [int(s) for s in args.subs.split(",")]
     transports = args.transports.split(",")
-    master, uri = _start_master()
     runs: dict[tuple[int, int, str], list[dict[str, float]]] = {}
     try:
         for _ in range(args.rounds):
             for size in sizes:
                 for subs in counts:
                     for transport in transports:
-                        runs.setdefault((size, subs, transport), []).append(_one(transport, size, subs, uri))
+                        runs.setdefault((size, subs, transport), []).append(
+                            _one(transport, size, subs, uri, args.pace_ms)
+                        )
     finally:
         master.terminate()
         master.wait(10)

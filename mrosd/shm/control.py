@@ -33,11 +33,15 @@ MAX_CONTROL_FRAME = 1 << 20
 class Attach(msgspec.Struct, tag="attach", gc=False):
     token: str
     header: bytes
+    #: leases the subscriber would like to hold at once (zero-copy views; 0: it copies every message out)
+    leases: int = 0
 
 
 class Attached(msgspec.Struct, tag="attached", gc=False):
     header: bytes
     first: int
+    #: leases the publisher honours for this subscriber (its share of the pool; may be fewer than asked)
+    leases: int = 0
 
 
 class Refused(msgspec.Struct, tag="refused", gc=False):

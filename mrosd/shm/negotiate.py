@@ -46,8 +46,10 @@ TRANSPORT = "SHMROS"
 #: 2: acknowledgement pages and the publisher's queue (an Attached carries three descriptors, ring layout v2).
 #: 3: wake-ups through a socket pair the publisher makes instead of an eventfd each way (Attach carries no
 #: descriptor), so that neither side can make the other's wake-up block (issue 24).
+#: 4: ring layout v3 (a directory from message numbers to slots, so that the publisher skips slots a subscriber
+#: holds a lease on, issue 25) and acknowledgement pages that list leases.
 #: Peers of another version do not share memory: they find each other's offer unknown and use TCPROS.
-VERSION = 3
+VERSION = 4
 #: Comma-separated uids whose nodes may read (subscriber side: write) our topics' memory, besides ours and root.
 TRUSTED_UIDS_ENV = "MROSD_SHM_TRUSTED_UIDS"
 #: Turns the shared-memory transport off for this process when set to 0.

@@ -51,13 +51,16 @@ from mrosd.shm.channel import (
 )
 from mrosd.shm.negotiate import TRANSPORT, publisher_answer, trusted_uids
 from mrosd.shm.ring import MAX_SLOTS, slot_stride
-from mrosd.shm.segment import AckPage, RingSegment
+from mrosd.shm.segment import MAX_LEASES, AckPage, RingSegment
 from mrosd.spin import loop_spinner
 from mrosd.wire.header import ConnectionHeader, decode_connection_header, encode_header
 
 __all__ = [
+    "DEFAULT_LEASE_SLOTS",
     "DEFAULT_MAX_RING_BYTES",
     "INITIAL_CAPACITY",
+    "LOAN_HEAD",
+    "LOAN_TAIL",
     "MAX_PENDING",
     "MIN_SLOTS",
     "RING_BYTES",
@@ -83,6 +86,13 @@ STALL = 0.05
 _RECHECK_MAX = 0.1
 #: First slot size; the ring grows (by replacement) when a bigger message comes.
 INITIAL_CAPACITY = 64 << 10
+#: Slots a ring has beyond its queue for zero-copy subscribers' leases: the sum of all leases granted (each
+#: subscriber's share, decided when it attaches) stays within them, so a slot to write always exists.
+DEFAULT_LEASE_SLOTS = 4
+#: Room in a declared pool's slots around a loaned array: its message's fields before it (header, strings,
+#: sizes) are written in front of it, those after it behind it (``mrosd.shm.loan``).
+LOAN_HEAD = 4096
+LOAN_TAIL = 4096
 #: Subscribers that connected but have not attached yet (each has ``ATTACH_TIMEOUT`` seconds).
 MAX_PENDING = 64
 
@@ -142,10 +152,18 @@ class ShmSubscriberLink:
         small_send_buffer(self.wake)
         #: no longer waited for (it fell too far behind) until it catches up
         self.lagging = False
+        #: leases honoured for it (granted at attach; what it writes in more lease words is ignored)
+        self.grant = 0
+        #: its uid (from the kernel): a foreign uid's subscribers share half of the lease slots
+        self.uid = -1
 
     def acked(self, head: int) -> int:
         """The next message the subscriber wants, as it says, kept within 0..head + 1."""
         return min(self.ack.read(), head + 1)
+
+    def leases(self) -> list[int]:
+        """The messages it holds leases on (at most ``grant`` of them, whatever it wrote)."""
+        return self.ack.leases(self.grant) if self.grant else []
 
     def close(self) -> None:
         if not self.connected:
@@ -173,6 +191,13 @@ class ShmPublisherEndpoint:
             ``mrosd.wire.handshake.publisher_reply`` does); raise ``HandshakeError`` to refuse.
         on_change: called when a subscriber attaches or goes.
         trusted: uids whose processes may attach (default root, ours, ``$MROSD_SHM_TRUSTED_UIDS``).
+        lease_slots: slots beyond the queue for zero-copy subscribers' leases (their shares are granted
+            from these at attach, first come, at most ``MAX_LEASES`` each; a subscriber granted none copies).
+            Default: ``DEFAULT_LEASE_SLOTS`` for a pool declared with ``max_message_size``, else none (a
+            ring sized on demand stays as small as it was; its subscribers copy).
+        max_message_size: the publisher's largest message, declared up front: the ring (slots of this
+            size) is made at ``start()`` with every page faulted in, so neither the first message nor a new
+            subscriber pays for fresh memory (~0.7 ms per MB here); a bigger message still grows it.
     """
 
     def __init__(
@@ -186,6 +211,8 @@ class ShmPublisherEndpoint:
         trusted: frozenset[int] | None = None,
         max_ring_bytes: int = DEFAULT_MAX_RING_BYTES,
         initial_capacity: int = INITIAL_CAPACITY,
+        max_message_size: int | None = None,
+        lease_slots: int | None = None,
     ) -> None:
         self.topic = topic
         self.queue_size = queue_size
@@ -194,7 +221,18 @@ class ShmPublisherEndpoint:
         self.on_change = on_change or (lambda: None)
         self.trusted = trusted_uids() if trusted is None else trusted
         self.max_ring_bytes = max_ring_bytes
-        self.capacity = max(64, initial_capacity)
+        self.capacity = max(
+            64, initial_capacity if max_message_size is None else max_message_size + LOAN_HEAD + LOAN_TAIL
+        )
+        #: slots lent to the application (filled in place, not yet published), and slots a transport may
+        #: still read (a TCPROS socket fed from a published loan): neither is written
+        self._loaned: set[int] = set()
+        self._pinned: list[tuple[int, Callable[[], bool]]] = []
+        if lease_slots is None:
+            lease_slots = DEFAULT_LEASE_SLOTS if max_message_size is not None else 0
+        self.lease_slots = max(0, lease_slots)
+        #: rings are made whole and faulted in up front (the publisher declared its message size)
+        self.populate = max_message_size is not None
         self.token = secrets.token_hex(16)
         self.address = "@mrosd-shm-" + secrets.token_hex(12)
         self.label = topic.strip("/").replace("/", "-")
@@ -225,6 +263,8 @@ class ShmPublisherEndpoint:
             raise
         self._sock = sock
         self._loop.add_reader(sock.fileno(), self._accept)
+        if self.populate:
+            self._ring_for(0)  # the pool, once, now: not on the first message's path
 
     def answer(self) -> list[Any]:
         """requestTopic's protocol parameters that send a subscriber here."""
@@ -244,14 +284,66 @@ class ShmPublisherEndpoint:
             return  # nobody reads it, and nobody will read this one later
         if not self.backlog:
             ring = self._ring_for(size)
-            if self._free(ring.layout.head + 1):
-                ring.layout.write_parts(parts, size)
+            slot = self._pick()
+            if slot is not None:
+                ring.layout.write_parts(parts, size, slot)
                 self._wake(size, 1)
                 return
         # the slot is not free: queue the message (a piece the caller could change is copied, as over TCPROS)
         kept = tuple(p if is_immutable(p) else bytes(p) for p in parts)
         self.backlog.append((kept, size, time.monotonic()))
         self._flush()
+
+    # loans -----------------------------------------------------------------------------------------------
+
+    def loan_slot(self, size: int) -> tuple[RingSegment, int] | None:
+        """A slot to fill in place with a message whose array is ``size`` bytes (at ``LOAN_HEAD``), taken
+        out of the ring until ``publish_loaned`` or ``end_loan``; None when the ring cannot lend one now
+        (no declared pool big enough, messages waiting, or every slot busy): the caller copies instead.
+        The old message in the slot is invalidated first (readers see it is gone, never a mix)."""
+        ring = self.ring
+        if self.closed or self.backlog or ring is None or ring.layout.capacity < LOAN_HEAD + size + LOAN_TAIL:
+            return None
+        slot = self._pick()
+        if slot is None:
+            return None
+        layout = ring.layout
+        layout.words[slot][0] = 2 * (layout.head + 1) - 1
+        self._loaned.add(slot)
+        return ring, slot
+
+    def can_lend(self, size: int) -> bool:
+        """Would ``loan_slot(size)`` lend a slot now (a producer that would rather wait than copy asks)."""
+        ring = self.ring
+        return (
+            not self.closed
+            and not self.backlog
+            and ring is not None
+            and ring.layout.capacity >= LOAN_HEAD + size + LOAN_TAIL
+            and self._pick() is not None
+        )
+
+    def end_loan(self, ring: RingSegment, slot: int) -> None:
+        """A lent slot comes back unpublished."""
+        if ring is self.ring:
+            self._loaned.discard(slot)
+
+    def publish_loaned(self, ring: RingSegment, slot: int, start: int, length: int) -> bool:
+        """Publish the lent ``slot`` as it is (the message at ``start``, ``length`` bytes): no copy. False
+        when it cannot go as it is (the ring was replaced, messages wait before it): copy it then."""
+        if ring is not self.ring or slot not in self._loaned:
+            return False
+        self._loaned.discard(slot)
+        if self.backlog:
+            return False
+        m, _ = ring.layout.begin(slot)
+        ring.layout.commit(m, length, start)
+        self._wake(length, 1)
+        return True
+
+    def pin(self, slot: int, still: Callable[[], bool]) -> None:
+        """Keep ``slot`` unwritten while ``still()`` (a transport still holds bytes of it to send)."""
+        self._pinned.append((slot, still))
 
     def _wake(self, size: int, count: int) -> None:
         """Count ``count`` messages of ``size`` bytes in all for every subscriber, and wake them."""
@@ -262,19 +354,58 @@ class ShmPublisherEndpoint:
                 self._drop(link, "cannot wake it: its wake-up channel is closed")
         self._poke()
 
-    def _free(self, m: int) -> bool:
-        """May message ``m`` go into its slot: has every subscriber still waited for read the one it holds?"""
+    def _pick(self) -> int | None:
+        """A slot the next message may go into, or None: one that holds nothing of this ring yet, or a
+        message that no subscriber holds a lease on and every subscriber still waited for has read; never
+        the last message (a latecomer's first). The oldest such, and first the plain ring's next slot, so
+        that without leases this is the ring it always was."""
         assert self.ring is not None
         layout = self.ring.layout
-        old = m - layout.slots
-        if old < self._ring_first:
-            return True  # the slot has held nothing in this ring
+        head = layout.head
+        links = self.links
+        for link in links:
+            if link.lagging and link.acked(head) > head:
+                link.lagging = False  # caught up: waited for again
+        leased: set[int] = set()
+        for link in links:
+            if link.grant:
+                leased.update(link.leases())
+        waited = [link.acked(head) for link in links if not link.lagging]
+        low = min(waited, default=head + 1)
+        first = self._ring_first
+        busy = self._loaned
+        if self._pinned:
+            self._pinned = [(s, still) for s, still in self._pinned if still()]
+            busy = busy | {s for s, _ in self._pinned}
+        best: int | None = None
+        best_held = 0
+        plain: int = head % layout.slots
+        slot: int
+        for slot in (plain, *range(layout.slots)):
+            if busy and slot in busy:
+                continue
+            seq = layout.words[slot][0]
+            # odd: no message (a loan given back unpublished left it invalidated): free
+            held = first - 1 if seq & 1 else seq >> 1
+            if held >= first and (held == head or held in leased or held >= low):
+                continue
+            if slot == plain or held < first:
+                return slot
+            if best is None or held < best_held:
+                best, best_held = slot, held
+        return best
+
+    def _oldest_unleased(self) -> int:
+        """The oldest message of this ring in a slot no lease holds (what waiting subscribers hold back)."""
+        assert self.ring is not None
+        layout = self.ring.layout
+        leased: set[int] = set()
         for link in self.links:
-            if link.acked(m - 1) > old:
-                link.lagging = False
-            elif not link.lagging:
-                return False
-        return True
+            if link.grant:
+                leased.update(link.leases())
+        held = [layout.held(s) for s in range(layout.slots)]
+        free = [h for h in held if h >= self._ring_first and h != layout.head and h not in leased]
+        return min(free, default=layout.head)
 
     def _flush(self) -> None:
         """Write what the backlog holds while slots are free; leave the ring's ``waiting`` word saying whether
@@ -284,11 +415,13 @@ class ShmPublisherEndpoint:
         while backlog:
             parts, size, _queued = backlog[0]
             ring = self._ring_for(size)
-            m = ring.layout.head + 1
-            if not self._free(m) and not self._give_up_waiting(m):
+            slot = self._pick()
+            if slot is None and self._give_up_waiting():
+                slot = self._pick()
+            if slot is None:
                 break
             backlog.popleft()
-            ring.layout.write_parts(parts, size)
+            ring.layout.write_parts(parts, size, slot)
             written += 1
             total += size
         if written:
@@ -304,7 +437,7 @@ class ShmPublisherEndpoint:
             return
         # Set, then look once more: a subscriber that moved on before it could see the word is caught here.
         self.ring.layout.waiting = True
-        if self._free(self.ring.layout.head + 1):
+        if self._pick() is not None:
             self._loop.call_soon(self._flush)
             return
         if self._recheck is None:
@@ -316,12 +449,14 @@ class ShmPublisherEndpoint:
         if not self.closed:
             self._flush()
 
-    def _give_up_waiting(self, m: int) -> bool:
-        """Message ``m`` waits for slow subscribers: stop waiting for them (they become ``lagging``) when the
-        backlog is over ``queue_size`` or they have held back a subscriber that keeps up for ``STALL`` s."""
+    def _give_up_waiting(self) -> bool:
+        """The next message waits for slow subscribers: stop waiting for them (they become ``lagging``) when
+        the backlog is over ``queue_size`` or they have held back a subscriber that keeps up for ``STALL`` s.
+        Leases are never given up: a lagging subscriber loses the messages it has not taken, not its leases."""
         assert self.ring is not None
-        old = m - self.ring.layout.slots
-        slow = [lk for lk in self.links if not lk.lagging and lk.acked(m - 1) <= old]
+        head = self.ring.layout.head
+        old = self._oldest_unleased()
+        slow = [lk for lk in self.links if not lk.lagging and lk.acked(head) <= old]
         over = len(self.backlog) > max(1, self.queue_size)
         if not over:
             if len(slow) == len([lk for lk in self.links if not lk.lagging]):
@@ -350,8 +485,8 @@ class ShmPublisherEndpoint:
         else:
             capacity = _grown(ring.layout.capacity, size)
         head = ring.layout.head if ring is not None else 0
-        slots = slots_for(self.queue_size, capacity, self.max_ring_bytes)
-        new = RingSegment(self.label, slots, capacity, head)
+        slots = min(MAX_SLOTS, slots_for(self.queue_size, capacity, self.max_ring_bytes) + self.lease_slots)
+        new = RingSegment(self.label, slots, capacity, head, populate=self.populate)
         new.layout.waiting = bool(self.backlog)
         self.rings_made += 1
         self.capacity = capacity
@@ -401,7 +536,7 @@ class ShmPublisherEndpoint:
             fd = conn.fileno()
             timer = self._loop.call_later(ATTACH_TIMEOUT, self._abandon, fd, "did not attach in time")
             self._pending[fd] = (channel, timer)
-            self._loop.add_reader(fd, self._on_pending, fd, pid)
+            self._loop.add_reader(fd, self._on_pending, fd, pid, uid)
 
     def _abandon(self, fd: int, why: str) -> None:
         entry = self._pending.pop(fd, None)
@@ -414,7 +549,7 @@ class ShmPublisherEndpoint:
         _ratelog.warning("abandon", "%s: closing a shared-memory subscriber connection: %s", self.topic, why)
         channel.close()
 
-    def _on_pending(self, fd: int, pid: int) -> None:
+    def _on_pending(self, fd: int, pid: int, uid: int) -> None:
         channel = self._pending[fd][0]
         try:
             got = channel.receive()
@@ -434,9 +569,9 @@ class ShmPublisherEndpoint:
         entry = self._pending.pop(fd)
         entry[1].cancel()
         self._loop.remove_reader(fd)
-        self._attach(channel, msg, pid)
+        self._attach(channel, msg, pid, uid)
 
-    def _attach(self, channel: ControlChannel, msg: control.Attach, pid: int) -> None:
+    def _attach(self, channel: ControlChannel, msg: control.Attach, pid: int, uid: int) -> None:
         def refuse(why: str) -> None:
             _ratelog.warning("refuse", "%s: refusing shared-memory subscriber (pid %d): %s", self.topic, pid, why)
             with contextlib.suppress(OSError):
@@ -463,18 +598,30 @@ class ShmPublisherEndpoint:
         except OSError as exc:
             refuse(f"cannot make its acknowledgement page: {exc}")
             return
-        attached = control.Attached(header=encode_header(reply)[4:], first=first)
+        link.uid = uid
+        link.grant = self._grant(uid, msg.leases)
+        attached = control.Attached(header=encode_header(reply)[4:], first=first, leases=link.grant)
         if not self._send_ring(link, attached, link.ack.fd, link.peer_end.fileno()):
             return
         link.peer_end.close()  # only the subscriber holds its end
         link.ack.sent()
         if first <= head:  # the latched message
             link.messages_sent += 1
-            link.bytes_sent += int(ring.layout.words[(head - 1) % ring.layout.slots][1])
+            link.bytes_sent += int(ring.layout.words[ring.layout.slot_of(head)][1])
         self.links.append(link)
         self._loop.add_reader(channel.sock.fileno(), self._on_link, link)
         self._loop.add_reader(link.wake.fileno(), self._on_progress, link)
         self.on_change()
+
+    def _grant(self, uid: int, wanted: int) -> int:
+        """Leases for a new subscriber of ``uid``: what it asks, at most ``MAX_LEASES``, within what the
+        pool's lease slots have left; the subscribers of any other uid than ours and root's hold at most half
+        of them together, so that one trusted foreign uid attaching again and again cannot take them all."""
+        granted = sum(lk.grant for lk in self.links)
+        left = self.lease_slots - granted
+        if uid not in (0, os.getuid()):
+            left = min(left, self.lease_slots // 2 - sum(lk.grant for lk in self.links if lk.uid == uid))
+        return max(0, min(wanted, MAX_LEASES, left))
 
     def _on_link(self, link: ShmSubscriberLink) -> None:
         try:
@@ -521,6 +668,20 @@ class ShmPublisherEndpoint:
             }
             for lk in self.links
         ]
+
+    def pool(self) -> dict[str, Any]:
+        """The shared memory this topic holds (for introspection: its size is bounded and visible): slots,
+        bytes per slot, total bytes, whether populated up front, lease slots and leases granted, loans out."""
+        ring = self.ring
+        return {
+            "slots": ring.layout.slots if ring is not None else 0,
+            "slot_bytes": ring.layout.capacity if ring is not None else 0,
+            "bytes": ring.size if ring is not None else 0,
+            "populated": self.populate,
+            "lease_slots": self.lease_slots,
+            "leases_granted": sum(lk.grant for lk in self.links),
+            "loans_out": len(self._loaned),
+        }
 
     def bus_info(self) -> list[list[Any]]:
         """getBusInfo rows of the shared-memory subscribers (transport ``SHMROS``)."""

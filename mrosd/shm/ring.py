@@ -6,28 +6,36 @@ there. This module knows nothing of file descriptors or sockets, so that it can 
 
     header (64 bytes)
     0   4s  magic b"MSHM"
-    4   H   layout version (2)
-    6   H   reserved
+    4   H   layout version (3)
+    6   H   flags: bit 0 (``POPULATED``) = the publisher faulted every page in at creation, so a subscriber
+            maps the whole ring at once (``MAP_POPULATE``) instead of faulting it page by page
     8   I   slots N
-    12  I   reserved
+    12  I   directory entries D (``dir_entries(N)``)
     16  Q   capacity of one slot's data, bytes
     24  Q   head: number of the last completed message (messages are numbered from 1; 0 = none yet)
     32  Q   retired: 1 once the publisher moved to a bigger ring (its messages up to ``head`` stay final)
     40  Q   waiting: 1 while the publisher holds messages back until a subscriber frees a slot (it then wants
             to be woken: see ``mrosd.shm.publisher``)
-    slot i at 64 + i * stride, stride = 64 + capacity rounded up to 64:
+    directory at 64: D words; word ``m % D`` is the slot that holds (or held) message ``m``
+    slot i at base + i * stride, base = 64 + 8 D rounded up to 64, stride = 64 + capacity rounded up to 64:
     0   Q   seq: 2m - 1 while message m is being written into the slot, 2m once it is complete
     8   Q   length of message m
+    16  Q   start of message m in the slot's data (0, except for a loaned slot: the fixed part of a message
+            is written in front of an array filled in place, ``mrosd.shm.loan``)
     64  ... data (``capacity`` bytes)
 
-Message ``m`` lives in slot ``(m - 1) % N``. The writer of message ``m`` stores ``seq = 2m - 1`` (readers of
-the older message in that slot now know it is going), copies, stores the length, stores ``seq = 2m``, then
-``head = m``. A reader that wants message ``m`` checks ``seq == 2m`` before and after its copy: anything else
-after means the slot was overwritten meanwhile (the reader was lapped) and the copy is discarded and counted
-as a drop. A reader more than N messages behind jumps to the oldest message still in the ring and counts
-what it skipped. The ring itself never makes the writer wait: whether the publisher writes into a slot that
-a subscriber has not read yet is the publisher's decision (it queues messages for a while first, as a
-TCPROS publisher's queue does; ``mrosd.shm.publisher``).
+The publisher chooses the slot of each message (``begin(slot)``; by default ``(m - 1) % N``, a plain ring):
+it skips slots that a subscriber holds a lease on (``mrosd.shm.publisher``), so message numbers and slots
+are related only through the directory. The writer of message ``m`` into slot ``s`` stores ``seq = 2m - 1``
+in ``s`` (readers of the older message there now know it is going), copies, stores the length, stores
+``seq = 2m``, then the directory word ``m % D = s``, then ``head = m``. A reader that wants message ``m <=
+head`` looks its slot up in the directory; the slot's seq then says everything: ``2m`` is the message, more
+is a newer one (the message is lost), less is a publisher that lies. A reader checks ``seq == 2m`` before
+and after its copy: anything else after means the slot was overwritten meanwhile (the reader was lapped)
+and the copy is discarded and counted as a drop. A reader more than N messages behind jumps to the oldest
+message still in the ring and counts what it skipped. The ring itself never makes the writer wait: whether
+the publisher writes into a slot that a subscriber has not read yet is the publisher's decision (it queues
+messages for a while first, as a TCPROS publisher's queue does; ``mrosd.shm.publisher``).
 Every word is read and written as one aligned 8-byte ``memoryview.cast('Q')`` item (atomic on x86-64 and
 arm64, stores kept in order by x86-64's memory model), as ``mrosd.ixm.layout`` does.
 
@@ -50,6 +58,7 @@ __all__ = [
     "LAYOUT_VERSION",
     "MAGIC",
     "MAX_SLOTS",
+    "POPULATED",
     "SLOT_HEADER",
     "RingCursor",
     "RingLayout",
@@ -58,17 +67,25 @@ __all__ = [
 ]
 
 MAGIC = b"MSHM"
-LAYOUT_VERSION = 2
+LAYOUT_VERSION = 3
 HEADER_SIZE = 64
 SLOT_HEADER = 64
 #: More slots than this is refused (a subscriber's drop-oldest queue is at most this long).
 MAX_SLOTS = 4096
+#: Header flag: every page of the ring was touched when it was made (``RingSegment(populate=True)``).
+POPULATED = 1
 
 _HEAD = struct.Struct("=4sHHIIQQQQ16x")
 assert _HEAD.size == HEADER_SIZE
 _HEAD_OFF = 24
 _RETIRED_OFF = 32
 _WAITING_OFF = 40
+
+
+def dir_entries(slots: int) -> int:
+    """Directory words of a ring of ``slots`` slots: four per slot (a reader that far behind has lost the
+    message anyway), a whole number of cache lines."""
+    return (4 * slots + 7) // 8 * 8
 
 
 def slot_stride(capacity: int) -> int:
@@ -78,7 +95,7 @@ def slot_stride(capacity: int) -> int:
 
 def ring_size(slots: int, capacity: int) -> int:
     """Bytes a ring of ``slots`` slots of ``capacity`` bytes needs."""
-    return HEADER_SIZE + slots * slot_stride(capacity)
+    return HEADER_SIZE + 8 * dir_entries(slots) + slots * slot_stride(capacity)
 
 
 class RingLayout:
@@ -87,16 +104,31 @@ class RingLayout:
     ``buf`` may be a read-only mapping (subscribers); the write methods then fail in memoryview itself.
     """
 
-    __slots__ = ("_head", "_retired", "_waiting", "buf", "capacity", "data", "slots", "words")
+    __slots__ = (
+        "_dir",
+        "_head",
+        "_retired",
+        "_waiting",
+        "_writing",
+        "buf",
+        "capacity",
+        "data",
+        "dir_size",
+        "flags",
+        "slots",
+        "words",
+    )
 
     def __init__(self, buf: memoryview) -> None:
         if len(buf) < HEADER_SIZE:
             raise RemoteProtocolError(f"shared-memory ring of {len(buf)} bytes is smaller than its header")
-        magic, version, _r, slots, _r2, capacity, _head, _retired, _waiting = _HEAD.unpack_from(buf, 0)
+        magic, version, flags, slots, dsize, capacity, _head, _retired, _waiting = _HEAD.unpack_from(buf, 0)
         if magic != MAGIC or version != LAYOUT_VERSION:
             raise RemoteProtocolError(f"not an mrosd shared-memory ring v{LAYOUT_VERSION} ({magic!r}, v{version})")
         if not 1 <= slots <= MAX_SLOTS:
             raise RemoteProtocolError(f"shared-memory ring claims {slots} slots (1..{MAX_SLOTS} allowed)")
+        if dsize != dir_entries(slots):
+            raise RemoteProtocolError(f"shared-memory ring of {slots} slots claims {dsize} directory entries")
         if ring_size(slots, capacity) > len(buf):
             raise RemoteProtocolError(
                 f"shared-memory ring claims {slots} slots of {capacity} bytes but the mapping has {len(buf)}"
@@ -104,35 +136,40 @@ class RingLayout:
         self.buf = buf
         self.slots: int = slots
         self.capacity: int = capacity
+        self.flags: int = flags
+        self.dir_size: int = dsize
+        self._dir = buf[HEADER_SIZE : HEADER_SIZE + 8 * dsize].cast("Q")
+        base = HEADER_SIZE + 8 * dsize
+        #: the slot the writer is filling (between ``begin`` and ``commit``)
+        self._writing = 0
         self._head = buf[_HEAD_OFF : _HEAD_OFF + 8].cast("Q")
         self._retired = buf[_RETIRED_OFF : _RETIRED_OFF + 8].cast("Q")
         self._waiting = buf[_WAITING_OFF : _WAITING_OFF + 8].cast("Q")
         stride = slot_stride(capacity)
         #: per slot: [seq, length] as native 8-byte words
-        self.words = [buf[HEADER_SIZE + i * stride : HEADER_SIZE + i * stride + 16].cast("Q") for i in range(slots)]
+        self.words = [buf[base + i * stride : base + i * stride + 24].cast("Q") for i in range(slots)]
         self.data = [
-            buf[HEADER_SIZE + i * stride + SLOT_HEADER : HEADER_SIZE + i * stride + SLOT_HEADER + capacity]
-            for i in range(slots)
+            buf[base + i * stride + SLOT_HEADER : base + i * stride + SLOT_HEADER + capacity] for i in range(slots)
         ]
 
     @staticmethod
-    def header(slots: int, capacity: int, head: int = 0) -> bytes:
+    def header(slots: int, capacity: int, head: int = 0, flags: int = 0) -> bytes:
         """A fresh header whose first message will be ``head + 1`` (a replacement ring continues the count)."""
-        return _HEAD.pack(MAGIC, LAYOUT_VERSION, 0, slots, 0, capacity, head, 0, 0)
+        return _HEAD.pack(MAGIC, LAYOUT_VERSION, flags, slots, dir_entries(slots), capacity, head, 0, 0)
 
     @classmethod
-    def initialize(cls, buf: memoryview, slots: int, capacity: int, head: int = 0) -> RingLayout:
+    def initialize(cls, buf: memoryview, slots: int, capacity: int, head: int = 0, flags: int = 0) -> RingLayout:
         """Write a fresh header into ``buf`` (zeroed slots) and view it."""
         if not 1 <= slots <= MAX_SLOTS:
             raise LocalProtocolError(f"a ring has 1..{MAX_SLOTS} slots, not {slots}")
         if ring_size(slots, capacity) > len(buf):
             raise LocalProtocolError(f"buffer of {len(buf)} bytes cannot hold {slots} slots of {capacity} bytes")
-        buf[:HEADER_SIZE] = cls.header(slots, capacity, head)
+        buf[:HEADER_SIZE] = cls.header(slots, capacity, head, flags)
         return cls(buf)
 
     def release(self) -> None:
         """Release every view so that the mapping can be closed."""
-        for view in (*self.words, *self.data, self._head, self._retired, self._waiting):
+        for view in (*self.words, *self.data, self._dir, self._head, self._retired, self._waiting):
             view.release()
         self.buf.release()
 
@@ -160,36 +197,57 @@ class RingLayout:
 
     # writing (the publisher: one writer per ring) ----------------------------------------------------------
 
-    def begin(self) -> tuple[int, memoryview]:
-        """Start message ``head + 1``: mark its slot in progress; returns its number and the slot's data view."""
+    def begin(self, slot: int | None = None) -> tuple[int, memoryview]:
+        """Start message ``head + 1`` in ``slot`` (default: ``(m - 1) % N``): mark it in progress; returns the
+        message's number and the slot's data view."""
         m = int(self._head[0]) + 1
-        slot = (m - 1) % self.slots
+        if slot is None:
+            slot = (m - 1) % self.slots
+        self._writing = slot
         self.words[slot][0] = 2 * m - 1
         return m, self.data[slot]
 
-    def commit(self, m: int, length: int) -> None:
-        """Publish message ``m`` of ``length`` bytes: length, then seq, then head (in this order)."""
-        slot = (m - 1) % self.slots
+    def commit(self, m: int, length: int, start: int = 0) -> None:
+        """Publish message ``m`` of ``length`` bytes (from ``start`` in its slot): length, seq, directory,
+        then head (in this order)."""
+        slot = self._writing
         words = self.words[slot]
+        words[2] = start
         words[1] = length
         words[0] = 2 * m
+        self._dir[m % self.dir_size] = slot
         self._head[0] = m
 
-    def write(self, data: bytes | bytearray | memoryview) -> int:
+    def held(self, slot: int) -> int:
+        """The message ``slot`` holds (0: none yet); the publisher's own bookkeeping, from its own words."""
+        return int(self.words[slot][0]) // 2
+
+    def slot_of(self, m: int) -> int:
+        """The slot the directory gives for message ``m`` (check its seq before trusting it).
+
+        Raises:
+            RemoteProtocolError: the directory names a slot the ring does not have.
+        """
+        slot = int(self._dir[m % self.dir_size])
+        if slot >= self.slots:
+            raise RemoteProtocolError(f"the ring's directory names slot {slot} of {self.slots}")
+        return slot
+
+    def write(self, data: bytes | bytearray | memoryview, slot: int | None = None) -> int:
         """Copy one serialized message into the next slot and publish it; returns its number."""
         n = len(data)
         if n > self.capacity:
             raise LocalProtocolError(f"message of {n} bytes does not fit the ring's {self.capacity}-byte slots")
-        m, view = self.begin()
+        m, view = self.begin(slot)
         view[:n] = data
         self.commit(m, n)
         return m
 
-    def write_parts(self, parts: Iterable[bytes | bytearray | memoryview], size: int) -> int:
+    def write_parts(self, parts: Iterable[bytes | bytearray | memoryview], size: int, slot: int | None = None) -> int:
         """``write(b"".join(parts))`` (``size`` bytes in all) without building the concatenation."""
         if size > self.capacity:
             raise LocalProtocolError(f"message of {size} bytes does not fit the ring's {self.capacity}-byte slots")
-        m, view = self.begin()
+        m, view = self.begin(slot)
         at = 0
         for part in parts:
             end = at + len(part)
@@ -208,7 +266,7 @@ class RingCursor:
     meanwhile); ``read`` does the three. The halves exist so that tests can interleave a writer between them.
     """
 
-    __slots__ = ("dropped", "next", "ring")
+    __slots__ = ("dropped", "next", "ring", "slot", "start")
 
     def __init__(self, ring: RingLayout, next_message: int) -> None:
         self.ring = ring
@@ -216,6 +274,9 @@ class RingCursor:
         self.next = next_message
         #: messages lost: overwritten before they were read, or while they were being copied
         self.dropped = 0
+        #: the slot of the message ``begin`` returned last, and where in the slot that message starts
+        self.slot = 0
+        self.start = 0
 
     def available(self) -> bool:
         """Is there a completed message this cursor has not read yet?"""
@@ -242,7 +303,7 @@ class RingCursor:
             if nxt < oldest:
                 self.dropped += oldest - nxt
                 self.next = nxt = oldest
-            slot = (nxt - 1) % slots
+            slot = ring.slot_of(nxt)
             words = ring.words[slot]
             want = 2 * nxt
             seq = words[0]
@@ -253,16 +314,18 @@ class RingCursor:
                     continue
                 raise RemoteProtocolError(f"ring slot {slot} holds sequence {seq} but the head says {head}")
             n = words[1]
-            if n > ring.capacity:
+            start = words[2]
+            if n > ring.capacity or start > ring.capacity - n:
                 raise RemoteProtocolError(
-                    f"ring slot {slot} claims a {n}-byte message but slots hold {ring.capacity} bytes"
+                    f"ring slot {slot} claims a {n}-byte message at {start} but slots hold {ring.capacity} bytes"
                 )
+            self.slot = slot
+            self.start = int(start)
             return nxt, int(n)
 
     def finish(self, m: int) -> bool:
         """After copying message ``m``: True if the copy is consistent (the cursor moves on either way)."""
-        ring = self.ring
-        ok = ring.words[(m - 1) % ring.slots][0] == 2 * m
+        ok = self.ring.words[self.slot][0] == 2 * m
         if not ok:
             self.dropped += 1
         if self.next == m:
@@ -282,7 +345,7 @@ class RingCursor:
             if got is None:
                 return None
             m, n = got
-            slot = self.ring.data[(m - 1) % self.ring.slots][:n]
+            slot = self.ring.data[self.slot][self.start : self.start + n]
             data = pool.copy(slot) if pool is not None and n > LARGE_FRAME else bytes(slot)
             if self.finish(m):
                 return data
@@ -298,9 +361,10 @@ class RingCursor:
         m, n = got
         if self.next == m:
             self.next = m + 1
-        return m, self.ring.data[(m - 1) % self.ring.slots][:n].toreadonly()
+        return m, self.ring.data[self.slot][self.start : self.start + n].toreadonly()
 
-    def intact(self, m: int) -> bool:
-        """Message ``m`` is still in its slot (a view of it taken earlier shows its bytes, not a newer one's)."""
+    def intact(self, m: int, slot: int | None = None) -> bool:
+        """Message ``m`` is still in ``slot`` (default: the directory's; a view of it taken earlier shows its
+        bytes, not a newer one's)."""
         ring = self.ring
-        return bool(ring.words[(m - 1) % ring.slots][0] == 2 * m)
+        return bool(ring.words[ring.slot_of(m) if slot is None else slot][0] == 2 * m)

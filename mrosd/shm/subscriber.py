@@ -18,6 +18,7 @@ import collections
 import contextlib
 import logging
 import socket
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -35,7 +36,7 @@ from mrosd.shm.channel import (
 )
 from mrosd.shm.negotiate import ShmAnswer, trusted_uids
 from mrosd.shm.ring import RingCursor
-from mrosd.shm.segment import MappedAck, MappedRing
+from mrosd.shm.segment import MAX_LEASES, MappedAck, MappedRing
 from mrosd.spin import loop_spinner
 from mrosd.wire.header import ConnectionHeader, decode_connection_header, encode_header
 
@@ -67,28 +68,84 @@ class ShmRefused(HandshakeError):
         super().__init__(f"publisher refused the shared-memory connection: {reason}")
 
 
-class ShmView:
-    """A zero-copy, read-only view of one message in the publisher's ring.
+def _refs(views: list[memoryview]) -> int:
+    """The most references any of ``views`` has (the list's, the loop's, getrefcount's argument: unused)."""
+    return max((sys.getrefcount(view) for view in views), default=0)
 
-    Lifetime: in a callback, the view is released when the callback returns; from ``async for``, when the
-    next message is asked for. The message is acknowledged only then, so the publisher does not overwrite
-    the slot while you hold the view, unless this subscriber lags (it held the ring back too long: see
-    ``mrosd.shm.publisher``): the bytes read through ``data`` were those of this message if ``intact()`` is
-    still True after reading them (copy what you keep, then check).
+
+#: what ``_refs`` says of views nothing else references (measured, not assumed)
+_UNUSED = _refs([memoryview(b"")])
+
+
+class ShmView:
+    """A zero-copy, read-only view of one message in a slot of the publisher's ring, under a lease.
+
+    The subscriber wrote the message's number into one of its lease words before it took the view: the
+    publisher does not write that slot until the lease ends, whether this subscriber keeps up or lags. The
+    lease ends with ``release()`` (or ``with view:``), or once neither the view nor anything made from it is
+    referenced any more (``data``, a typed message's arrays in ``views``, a numpy array over them): not when a
+    callback returns, so a view may go to another thread. ``release()`` releases ``data`` and ``views`` too,
+    so that a use after it raises ``ValueError`` rather than read a slot that may hold another message by
+    then. ``intact()``: the slot still holds this message (always True under a lease).
     """
 
-    __slots__ = ("_cursor", "data", "number")
+    __slots__ = ("__weakref__", "_conn", "_index", "_layout", "_slot", "number", "views")
 
-    def __init__(self, cursor: RingCursor, number: int, data: memoryview) -> None:
-        self._cursor = cursor
+    def __init__(self, conn: ShmSubscriberConnection, number: int, slot: int, index: int, data: memoryview) -> None:
+        self._conn: ShmSubscriberConnection | None = conn
+        self._layout = conn._ring.layout if conn._ring is not None else None
+        self._slot = slot
+        self._index = index
         self.number = number
-        self.data = data
+        #: every view of the slot handed out: the message's bytes first, then a typed message's arrays
+        self.views: list[memoryview] = [data]
+
+    @property
+    def data(self) -> memoryview:
+        """The message's serialized bytes, read-only, in the slot."""
+        return self.views[0]
 
     def intact(self) -> bool:
-        return self._cursor.intact(self.number)
+        layout = self._layout
+        try:
+            return layout is not None and bool(layout.words[self._slot][0] == 2 * self.number)
+        except ValueError:  # the ring was unmapped (the connection ended)
+            return False
+
+    @property
+    def leased(self) -> bool:
+        return self._conn is not None
+
+    def in_use(self) -> bool:
+        """Is any of its views referenced or exported outside this object?"""
+        return _refs(self.views) > _UNUSED
+
+    def _release_views(self) -> None:
+        for view in self.views:
+            with contextlib.suppress(BufferError):  # exported (numpy): it stays readable; the slot may change
+                view.release()
 
     def release(self) -> None:
-        self.data.release()
+        """End the lease now (idempotent); its views are released (a use after it is a ``ValueError``)."""
+        conn, self._conn = self._conn, None
+        if conn is not None:
+            self._release_views()
+            conn._unlease(self._index)
+
+    def __del__(self) -> None:
+        conn, self._conn = self._conn, None
+        if conn is not None:
+            if self.in_use():
+                conn._defer(self)  # a view of it lives on: the lease lasts until that is gone
+            else:
+                self._release_views()
+                conn._unlease(self._index)
+
+    def __enter__(self) -> ShmView:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.release()
 
 
 Frame = bytes | bytearray | ShmView
@@ -129,7 +186,13 @@ class ShmSubscriberConnection:
         self._on_frame: Callable[[Any], None] | None = None
         self._zero_copy = False
         self._event = asyncio.Event()
-        self._last_view: ShmView | None = None
+        #: leases: words of our acknowledgement page we may use (granted by the publisher), free ones, the
+        #: views dropped while still exported (their lease ends when the export does), and the messages
+        #: dropped because every lease was held
+        self.max_leased = 0
+        self._free_leases: list[int] = []
+        self._deferred: collections.deque[ShmView] = collections.deque()
+        self.lease_drops = 0
         #: rings the publisher moved on to, not yet switched to (the current one still has messages)
         self._next_rings: collections.deque[MappedRing] = collections.deque()
         self._scheduled = False
@@ -144,11 +207,17 @@ class ShmSubscriberConnection:
         *,
         on_frame: Callable[[Any], None] | None = None,
         zero_copy: bool = False,
+        max_leased: int = 2,
         timeout: float = ATTACH_TIMEOUT,
         trusted: frozenset[int] | None = None,
         max_map_bytes: int = DEFAULT_MAX_MAP_BYTES,
     ) -> ShmSubscriberConnection:
         """Connect to ``answer.address``, show the token and ``header``, map the ring.
+
+        ``zero_copy``: deliver ``ShmView``s under leases, at most ``max_leased`` held at once (the publisher
+        may grant fewer: ``max_leased`` then says how many; with none granted, messages are copied out).
+        With every lease held, further messages are dropped (``lease_drops``, counted in ``dropped``): the
+        publisher never waits for a lease.
 
         Raises:
             HandshakeError: the publisher refused us (its reason).
@@ -159,6 +228,7 @@ class ShmSubscriberConnection:
         self._on_frame = on_frame
         self._zero_copy = zero_copy
         self._max_map = max_map_bytes
+        self.max_leased = max(0, max_leased) if zero_copy else 0
         try:
             async with asyncio.timeout(timeout):
                 await self._handshake(answer, header, trusted_uids() if trusted is None else trusted)
@@ -176,7 +246,7 @@ class ShmSubscriberConnection:
         if uid not in trusted:
             raise RemoteProtocolError(f"the shared-memory publisher (pid {pid}) runs as untrusted uid {uid}")
         self.publisher_pid, self.publisher_uid = pid, uid
-        channel.send(control.Attach(token=answer.token, header=encode_header(header)[4:]))
+        channel.send(control.Attach(token=answer.token, header=encode_header(header)[4:], leases=self.max_leased))
         got: list[tuple[control.Message, list[int]]] = []
         while not got:
             ready = loop.create_future()
@@ -215,6 +285,11 @@ class ShmSubscriberConnection:
             close_fds([ring_fd])
             raise
         self.reply_header = decode_connection_header(msg.header)
+        self.max_leased = max(0, min(msg.leases, self.max_leased, MAX_LEASES))
+        self._free_leases = list(range(self.max_leased, 0, -1))
+        if self._zero_copy and not self.max_leased:
+            log.info("shared-memory publisher pid %d grants no leases: copying its messages out", pid)
+            self._zero_copy = False
         self._ring = MappedRing(ring_fd, self._max_map)
         self._cursor = RingCursor(self._ring.layout, max(1, msg.first))
         loop.add_reader(self._wake.fileno(), self._on_wake)
@@ -229,7 +304,7 @@ class ShmSubscriberConnection:
     @property
     def dropped(self) -> int:
         """Messages lost: overwritten in the ring before this subscriber read them."""
-        return self._dropped_before + (self._cursor.dropped if self._cursor is not None else 0)
+        return self._dropped_before + self.lease_drops + (self._cursor.dropped if self._cursor is not None else 0)
 
     @property
     def connected(self) -> bool:
@@ -302,10 +377,6 @@ class ShmSubscriberConnection:
                     callback(frame)
                 except Exception:
                     log.exception("shared-memory subscriber callback failed")
-                finally:
-                    if isinstance(frame, ShmView):
-                        frame.release()
-                        self._acknowledge(frame.number + 1)
                 del frame  # not held while the next one is copied: its buffer can be refilled
             else:
                 self._schedule()
@@ -321,11 +392,10 @@ class ShmSubscriberConnection:
             return None
         while True:
             if self._zero_copy:
-                got = cursor.view()
-                if got is not None:
-                    m, view = got
-                    frame: Frame = ShmView(cursor, m, view)
-                    n = len(view)
+                leased = self._lease_next(cursor)
+                if leased is not None:
+                    frame: Frame = leased
+                    n = len(leased.data)
                     break
             else:
                 data = cursor.read(self._pool)
@@ -339,6 +409,64 @@ class ShmSubscriberConnection:
         self.messages_received += 1
         self.bytes_received += n
         return frame
+
+    def _lease_next(self, cursor: RingCursor) -> ShmView | None:
+        """The next message under a lease, or None when none is ready. Every lease held: the message is
+        dropped (counted), not waited for. The lease is written before the slot is checked again, and
+        before the acknowledgement moves past the message (the order the publisher relies on)."""
+        ack = self._ack
+        if ack is None:
+            return None
+        self._retry_deferred()
+        while True:
+            got = cursor.begin()
+            if got is None:
+                return None
+            m, n = got
+            slot = cursor.slot
+            if not self._free_leases:
+                self.lease_drops += 1
+                cursor.next = m + 1
+                self._acknowledge(m + 1)
+                continue
+            index = self._free_leases.pop()
+            ack.lease(index, m)
+            if not cursor.intact(m, slot):  # overwritten before the lease was seen: lost, as a copy would be
+                ack.lease(index, 0)
+                self._free_leases.append(index)
+                cursor.finish(m)
+                continue
+            cursor.next = m + 1
+            self._acknowledge(m + 1)
+            start = cursor.start
+            return ShmView(self, m, slot, index, cursor.ring.data[slot][start : start + n].toreadonly())
+
+    def _unlease(self, index: int) -> None:
+        """A lease ended: its word goes back to 0 (the publisher may reuse the slot) and is free again. May run
+        on another thread (a frame handed to a worker): one word written, one list append, one ``send``."""
+        ack = self._ack
+        if ack is None or self._ended:
+            return
+        ack.lease(index, 0)
+        self._free_leases.append(index)
+        ring = self._ring
+        if ring is not None and ring.layout.waiting and self._wake is not None:
+            wake_socket(self._wake)
+
+    def _defer(self, view: ShmView) -> None:
+        """A lease dropped while one of its views is still referenced (kept, or a numpy array over it): it
+        lasts until that is gone, looked at again before each message is leased."""
+        self._deferred.append(view)
+
+    def _retry_deferred(self) -> None:
+        deferred = self._deferred  # a deque: another thread may drop a view (append) meanwhile
+        for _ in range(len(deferred)):
+            view = deferred.popleft()
+            if view.in_use():
+                deferred.append(view)
+            else:
+                view._release_views()
+                self._unlease(view._index)
 
     def _acknowledge(self, next_message: int) -> None:
         """Tell the publisher we are done with the messages before ``next_message``; wake it if it waits."""
@@ -397,8 +525,7 @@ class ShmSubscriberConnection:
         self._dropped_before += cursor.dropped
         self._ring = new
         self._cursor = RingCursor(new.layout, cursor.next)
-        self._release_view()
-        old.close()
+        old.close()  # views still leased keep their mapping (and the publisher never writes a retired ring)
         return self._cursor
 
     # iteration --------------------------------------------------------------------------------------------
@@ -407,10 +534,9 @@ class ShmSubscriberConnection:
         return self
 
     async def __anext__(self) -> Frame:
-        """The next message (bytes, or an ``ShmView`` valid until the next call); stops when the connection ends."""
+        """The next message (bytes, or a leased ``ShmView``); stops when the connection ends."""
         if self._on_frame is not None:
             raise LocalProtocolError("this connection delivers to a callback; it cannot be iterated")
-        self._release_view()
         while True:
             if self._ended or self._cursor is None:
                 raise StopAsyncIteration
@@ -422,19 +548,11 @@ class ShmSubscriberConnection:
                 raise StopAsyncIteration from None
             if frame is not None:
                 self._report()
-                if isinstance(frame, ShmView):
-                    self._last_view = frame
                 return frame
             if self._leaving:
                 self._end("")
                 raise StopAsyncIteration
             await self._event.wait()  # set by a wake-up, a new ring, or the end of the connection
-
-    def _release_view(self) -> None:
-        if self._last_view is not None:
-            self._last_view.release()
-            self._acknowledge(self._last_view.number + 1)
-            self._last_view = None
 
     # lifecycle --------------------------------------------------------------------------------------------
 
@@ -466,7 +584,7 @@ class ShmSubscriberConnection:
                 loop.remove_reader(self._channel.sock.fileno())
             self._channel.close()
             self._channel = None
-        self._release_view()
+        self._deferred.clear()
         if self._cursor is not None:
             self._dropped_before += self._cursor.dropped
             self._cursor = None

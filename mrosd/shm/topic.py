@@ -61,6 +61,8 @@ class PublisherLike(Protocol):
     message_definition: str
     latch: bool
     queue_size: int
+    #: declared largest message: the ring is made, faulted in, at advertise time (None: on demand)
+    max_message_size: int | None
     #: the latched frame, length prefix included
     latched: bytes | None
 
@@ -104,6 +106,16 @@ class ShmTopicPublisher:
                 return None
         return self.endpoint.answer()
 
+    async def prepare(self) -> None:
+        """Make the endpoint and its pool now (advertise time of a publisher that declared its message
+        size), when shared memory is on in this process; a failure is logged once (TCPROS only then)."""
+        if self.endpoint is None and not self._failed and identity() is not None:
+            try:
+                self.endpoint = await self._start()
+            except (OSError, MrosError) as exc:
+                self._failed = True
+                log.warning("%s: shared memory unavailable, serving TCPROS only: %s", self.publisher.topic, exc)
+
     async def _start(self) -> ShmPublisherEndpoint:
         pub = self.publisher
 
@@ -119,7 +131,12 @@ class ShmTopicPublisher:
             )
 
         ep = ShmPublisherEndpoint(
-            pub.topic, queue_size=pub.queue_size, latch=pub.latch, handshake=handshake, on_change=self.on_change
+            pub.topic,
+            queue_size=pub.queue_size,
+            latch=pub.latch,
+            handshake=handshake,
+            on_change=self.on_change,
+            max_message_size=pub.max_message_size,
         )
         await ep.start()
         if pub.latch and pub.latched is not None:
@@ -161,9 +178,18 @@ def request_protocols(allow_shm: bool = True) -> list[list[Any]]:
 
 
 async def attach_subscriber(
-    subscriber: SubscriberLike, uri: str, params: Any, on_frame: Callable[[bytes | bytearray], None], timeout: float
+    subscriber: SubscriberLike,
+    uri: str,
+    params: Any,
+    on_frame: Callable[[Any], None],
+    timeout: float,
+    *,
+    max_leased: int = 0,
 ) -> tuple[ShmSubscriberConnection, ConnectionHeader] | None:
     """Attach to the ring a publisher's requestTopic answer points to; None when it answered TCPROS.
+
+    ``max_leased`` > 0: zero-copy, ``on_frame`` gets leased ``ShmView``s (bytes when the publisher grants
+    no lease).
 
     Returns the connection (``await conn.wait_closed()`` returns when it ends) and the publisher's checked header.
 
@@ -184,7 +210,9 @@ async def attach_subscriber(
         tcp_nodelay="1",
     )
     try:
-        conn = await ShmSubscriberConnection.attach(answer, header, on_frame=on_frame, timeout=timeout)
+        conn = await ShmSubscriberConnection.attach(
+            answer, header, on_frame=on_frame, timeout=timeout, zero_copy=max_leased > 0, max_leased=max_leased
+        )
     except ShmRefused as exc:
         # reported in the words of a TCPROS error header, whichever transport carried it
         check_publisher_reply(

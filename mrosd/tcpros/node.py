@@ -497,9 +497,19 @@ class Node:
             raise LocalProtocolError(f"node {self.name} is not started: use 'async with Node(...)' or await start()")
 
     async def advertise(
-        self, topic: str, msg_class: Any, *, latch: bool = False, queue_size: int = DEFAULT_QUEUE_SIZE
+        self,
+        topic: str,
+        msg_class: Any,
+        *,
+        latch: bool = False,
+        queue_size: int = DEFAULT_QUEUE_SIZE,
+        max_message_size: int | None = None,
     ) -> Publisher:
         """Publish ``topic`` with type ``msg_class``; registers with the master.
+
+        ``max_message_size`` (bytes, serialized): the largest message this publisher will send. Its
+        same-host shared-memory pool is then made now, every page faulted in, so that neither the first
+        message nor a new subscriber pays for fresh memory (``docs/shm.md``).
 
         Raises:
             LocalProtocolError: the topic is already advertised by this node with another type.
@@ -512,9 +522,11 @@ class Node:
             if existing.md5sum != getattr(msg_class, "_md5sum", None):
                 raise LocalProtocolError(f"{name} is already advertised by {self.name} as {existing.type}")
             return existing
-        pub = Publisher(self, name, msg_class, latch=latch, queue_size=queue_size)
+        pub = Publisher(self, name, msg_class, latch=latch, queue_size=queue_size, max_message_size=max_message_size)
         self.publishers[name] = pub
         try:
+            if max_message_size is not None:
+                await pub.shm_prepare()
             await self.master.call("registerPublisher", name, pub.type, self.uri)
         except BaseException as exc:
             self.publishers.pop(name, None)
@@ -530,8 +542,17 @@ class Node:
         *,
         queue_size: int = DEFAULT_QUEUE_SIZE,
         tcp_nodelay: bool = True,
+        zero_copy: bool = False,
+        max_leased: int = 2,
     ) -> Subscriber:
         """Subscribe to ``topic``: iterate the result, or pass ``callback`` (sync or async).
+
+        ``zero_copy``: a message from a same-host mrosd publisher that declared its pool
+        (``max_message_size``) has its large arrays (``uint8[]``, numeric) as read-only views into the
+        publisher's shared memory (``np.frombuffer(msg.data, np.uint8)`` copies nothing), leased until the
+        message is released (``msg.release()``, ``with msg:``) or dropped; at most ``max_leased`` at once,
+        beyond which further messages are dropped (counted), never waited for. Every message then has
+        ``release()``, whatever transport brought it (docs/shm.md).
 
         Raises:
             LocalProtocolError: this node already subscribes to the topic.
@@ -541,7 +562,16 @@ class Node:
         name = self.resolve_name(topic)
         if name in self.subscribers:
             raise LocalProtocolError(f"{self.name} already subscribes to {name}; share that Subscriber")
-        sub = Subscriber(self, name, msg_class, callback=callback, queue_size=queue_size, tcp_nodelay=tcp_nodelay)
+        sub = Subscriber(
+            self,
+            name,
+            msg_class,
+            callback=callback,
+            queue_size=queue_size,
+            tcp_nodelay=tcp_nodelay,
+            zero_copy=zero_copy,
+            max_leased=max_leased,
+        )
         self.subscribers[name] = sub
         try:
             # Raw call: a malformed publisher list is tolerated (treated as none), not an error.

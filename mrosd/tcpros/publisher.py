@@ -153,7 +153,14 @@ class Publisher:
     """A topic we publish. Create it with ``await node.advertise(topic, Type)``."""
 
     def __init__(
-        self, node: Node, topic: str, msg_class: Any, *, latch: bool = False, queue_size: int = DEFAULT_QUEUE_SIZE
+        self,
+        node: Node,
+        topic: str,
+        msg_class: Any,
+        *,
+        latch: bool = False,
+        queue_size: int = DEFAULT_QUEUE_SIZE,
+        max_message_size: int | None = None,
     ) -> None:
         for attr in ("_type", "_md5sum", "_full_text"):
             if not hasattr(msg_class, attr):
@@ -166,6 +173,8 @@ class Publisher:
         self.message_definition: str = msg_class._full_text
         self.latch = latch
         self.queue_size = queue_size
+        #: declared largest serialized message: the shared-memory pool is made for it up front
+        self.max_message_size = max_message_size
         self.links: list[SubscriberLink] = []
         self.latched: bytes | None = None
         self.messages_published = 0
@@ -201,10 +210,21 @@ class Publisher:
         """
         if type(msg) is not self.msg_class and getattr(msg, "_md5sum", None) != self.md5sum:
             raise LocalProtocolError(f"{self.topic} publishes {self.type}, got {type(msg).__name__}")
+        loan = getattr(msg, "_shm_loan", None)
+        if loan is not None and (loan.published or self.closed):
+            raise LocalProtocolError(
+                f"publisher of {self.topic} is closed" if self.closed else "this loan was published already"
+            )
         if self._has_header:
             # As rospy and roscpp do for a message whose first field is ``Header header``.
             msg.header.seq = self.seq
             self.seq = (self.seq + 1) & 0xFFFFFFFF
+        if loan is not None:
+            from mrosd.shm.loan import publish_loan
+
+            self._poke()
+            publish_loan(self, msg)  # filled in place: published without serializing or copying the array
+            return
         serialize_parts = getattr(msg, "serialize_parts", None)
         if serialize_parts is None:
             self.publish_serialized(msg.serialize())
@@ -227,6 +247,22 @@ class Publisher:
         frame = (frame_prefix(size), *(p if is_immutable(p) else bytes(p) for p in parts))
         for link in self.links:
             link.send_parts(frame, size + 4)
+
+    def loan(self, template: Any = None, **sizes: int) -> Any:
+        """A message to fill in place: its ``uint8[]`` field (``loan(data=N)``, or the largest one of
+        ``template``, whose other fields are copied) is a writable view into a slot of this topic's
+        shared-memory pool (declared with ``max_message_size``), and ``publish(msg)`` sends it without
+        serializing or copying that array, to shared-memory and TCPROS subscribers alike. Without a pool it
+        is a plain buffer, published as any message. A loan is published once (docs/shm.md).
+
+        Raises:
+            LocalProtocolError: not one ``uint8[]`` field, or the publisher is closed.
+        """
+        if self.closed:
+            raise LocalProtocolError(f"publisher of {self.topic} is closed")
+        from mrosd.shm.loan import make_loan
+
+        return make_loan(self, template, sizes)
 
     def publish_serialized(self, body: bytes | bytearray | memoryview) -> None:
         """Send an already serialized message body (no length prefix), e.g. from a bridge.
@@ -296,11 +332,24 @@ class Publisher:
         """requestTopic: the shared-memory answer for a same-host mrosd subscriber, else None (TCPROS)."""
         if not any(isinstance(p, list) and p[:1] == ["MROSSHM"] for p in protocols):
             return None
+        return await self._shm_side().answer(protocols)
+
+    async def shm_prepare(self) -> None:
+        """Make the shared-memory pool now (a publisher that declared ``max_message_size``), not at the first
+        same-host subscriber: its pages are faulted in once, off the data path."""
+        await self._shm_side().prepare()
+        from mrosd.shm.loan import loaned_class
+        from mrosd.shm.views import prepare
+
+        prepare(self.msg_class)  # loans lay messages out with the same walk: ready before the first
+        loaned_class(self.msg_class)
+
+    def _shm_side(self) -> ShmTopicPublisher:
         if self.shm is None:
             from mrosd.shm.topic import ShmTopicPublisher  # lazy: loaded only when a mrosd peer offers it
 
             self.shm = ShmTopicPublisher(self, on_change=self._subscriber_change.set)
-        return await self.shm.answer(protocols)
+        return self.shm
 
     async def wait_for_subscribers(self, count: int = 1, timeout: float = 10.0) -> None:
         """Wait until at least ``count`` subscribers are connected.

@@ -147,10 +147,15 @@ class PublisherLink:
     def transport_name(self) -> str:
         return "SHMROS" if self.shm is not None else "TCPROS"
 
-    def _shm_frame(self, body: bytes | bytearray) -> None:
-        self.bytes_received += len(body) + 4
+    def _shm_frame(self, body: Any) -> None:
+        """A message from shared memory: bytes, or a leased ``ShmView`` (``zero_copy`` subscribers)."""
         self.messages_received += 1
-        self.subscriber._deliver(body, self)
+        if isinstance(body, (bytes, bytearray)):
+            self.bytes_received += len(body) + 4
+            self.subscriber._deliver(body, self)
+        else:
+            self.bytes_received += len(body.data) + 4
+            self.subscriber._deliver_view(body, self)
 
     @property
     def connected(self) -> bool:
@@ -232,7 +237,7 @@ class PublisherLink:
             if isinstance(params, list) and params[:1] == ["MROSSHM"]:
                 try:
                     attached = await shm_topic.attach_subscriber(
-                        sub, self.uri, params, self._shm_frame, timeout=CONNECT_TIMEOUT
+                        sub, self.uri, params, self._shm_frame, timeout=CONNECT_TIMEOUT, max_leased=sub.max_leased
                     )
                 except HandshakeError:
                     raise
@@ -287,6 +292,10 @@ class PublisherLink:
             pass
 
 
+def _fields(msg: Any) -> dict[str, Any]:
+    return {name: getattr(msg, name) for name in msg.__struct_fields__}
+
+
 class Subscriber:
     """A topic subscription. Create it with ``await node.subscribe(topic, Type)``; iterate it or give a callback."""
 
@@ -299,10 +308,19 @@ class Subscriber:
         callback: Callable[[Any], Any] | None = None,
         queue_size: int = DEFAULT_QUEUE_SIZE,
         tcp_nodelay: bool = True,
+        zero_copy: bool = False,
+        max_leased: int = 2,
     ) -> None:
         for attr in ("_type", "_md5sum", "_full_text"):
             if not hasattr(msg_class, attr):
                 raise LocalProtocolError(f"{msg_class!r} is not a message class (no {attr}); use mrosd.msg or AnyMsg")
+        #: same-host messages as typed views into the publisher's pool, each leased until released or
+        #: dropped, at most ``max_leased`` at once (docs/shm.md); 0 when not zero-copy
+        self.max_leased = max(1, max_leased) if zero_copy and msg_class is not AnyMsg else 0
+        if self.max_leased:
+            from mrosd.shm.views import prepare
+
+            prepare(msg_class)  # not on the first message's path
         self.node = node
         self.topic = topic
         self.msg_class = msg_class
@@ -367,6 +385,25 @@ class Subscriber:
 
     # --- delivery --------------------------------------------------------------------------------
 
+    def _deliver_view(self, view: Any, link: PublisherLink) -> None:
+        """A leased message in shared memory: decoded with its large arrays as views of the slot (the
+        message holds the lease: ``mrosd.shm.views``); a type without such arrays is copied and released."""
+        from mrosd.shm.views import decode_view, leased_class
+
+        try:
+            got = decode_view(self.msg_class, view.data, view)
+            if got is None:
+                msg = leased_class(self.msg_class)(**_fields(self.msg_class.deserialize(bytes(view.data))))
+                view.release()
+            else:
+                msg, views = got
+                view.views.extend(views)
+        except MrosError as exc:
+            view.release()
+            log.warning("%s: dropping a message from %s that does not decode: %s", self.topic, link.uri, exc)
+            return
+        self._hand_over(msg)
+
     def _deliver(self, body: bytes | bytearray, link: PublisherLink) -> None:
         if self.raw:
             assert link.header is not None
@@ -379,6 +416,13 @@ class Subscriber:
             except MrosError as exc:
                 log.warning("%s: dropping a message from %s that does not decode: %s", self.topic, link.uri, exc)
                 return
+            if self.max_leased:  # one API whatever the transport: release() and ``with`` (no lease here)
+                from mrosd.shm.views import leased_class
+
+                msg = leased_class(self.msg_class)(**_fields(msg))
+        self._hand_over(msg)
+
+    def _hand_over(self, msg: Any) -> None:
         if self.callback is not None and not self._async_callback:
             try:
                 self.callback(msg)

@@ -110,26 +110,31 @@ async def test_uids_are_checked_on_both_sides() -> None:
         await ep.aclose()
 
 
-async def test_zero_copy_views_live_until_the_callback_returns() -> None:
-    ep = await endpoint(queue_size=2)
+async def test_a_zero_copy_view_is_leased_past_its_callback_until_released_or_dropped() -> None:
+    ep = await endpoint(queue_size=2, lease_slots=2)
     kept: list[ShmView] = []
-    seen: list[tuple[bytes, bool]] = []
 
-    def on_frame(view: ShmView) -> None:
-        seen.append((bytes(view.data), view.intact()))
-        kept.append(view)
-
-    conn = await ShmSubscriberConnection.attach(answer(ep), HEADER, on_frame=on_frame, zero_copy=True)
+    conn = await ShmSubscriberConnection.attach(answer(ep), HEADER, on_frame=kept.append, zero_copy=True)
     try:
         await until(lambda: ep.links)
+        assert conn.max_leased == 2 and ep.links[0].grant == 2
         ep.publish(b"hello")
-        await until(lambda: seen)
-        assert seen == [(b"hello", True)]
+        await until(lambda: kept)
+        first = kept[0]
+        assert first.leased and bytes(first.data) == b"hello"
+        assert ep.ring is not None
+        for i in range(3 * ep.ring.layout.slots):  # laps the ring many times: never the leased slot
+            ep.publish(bytes([i]) * 10)
+            await asyncio.sleep(0)
+        await until(lambda: len(kept) + conn.lease_drops == 1 + 3 * ep.ring.layout.slots)  # type: ignore[union-attr]
+        assert first.intact() and bytes(first.data) == b"hello" and ep.links[0].leases()
+        assert conn.lease_drops > 0  # the second lease was taken, then every later message was dropped
+        with first:
+            pass
         with pytest.raises(ValueError):
-            bytes(kept[0].data)  # released when the callback returned
-        for _ in range(3):
-            ep.publish(b"x")
-        assert not kept[0].intact()  # its slot was reused
+            bytes(first.data)  # released: reading it is an error, not a read of whatever the slot holds now
+        kept.clear()  # the other lease goes with its view (garbage)
+        await until(lambda: not ep.links[0].leases())
         with pytest.raises(LocalProtocolError):
             await anext(conn)
     finally:
@@ -252,7 +257,7 @@ async def test_a_lone_stalled_subscriber_is_queued_for_at_most_queue_size_then_l
 
 
 async def test_a_held_zero_copy_view_is_not_overwritten_until_it_is_released() -> None:
-    ep = await endpoint(queue_size=100)
+    ep = await endpoint(queue_size=100, lease_slots=2)
     conn = await ShmSubscriberConnection.attach(answer(ep), HEADER, zero_copy=True)
     try:
         await until(lambda: ep.links)

@@ -1,7 +1,9 @@
-"""A rospy publisher answers our shared-memory offer with TCPROS, as it answers any protocol it does not know."""
+"""A rospy publisher answers our shared-memory offer with TCPROS, as it answers any protocol it does not know;
+a rospy subscriber of a topic whose messages are loaned gets them over TCPROS, sent from the slot."""
 
 from __future__ import annotations
 
+import asyncio
 import subprocess
 import time
 import xmlrpc.client
@@ -10,8 +12,10 @@ from typing import Any
 
 import pytest
 
+import mrosd
+from mrosd.msg import get_message_class
 from mrosd.shm import local_identity, parse_answer, subscriber_offer
-from tests.rosenv import ROS_PYTHON, Processes, needs_ros, ros_env
+from tests.rosenv import ROS_PYTHON, Processes, iter_lines_until, needs_ros, ros_env
 
 pytestmark = [needs_ros, pytest.mark.interop]
 
@@ -41,3 +45,27 @@ def test_rospy_answers_tcpros_to_an_offer_of_shared_memory_first(procs: Processe
     code, params = answer[0], answer[2]
     assert code == 1 and params[0] == "TCPROS"
     assert parse_answer(params) is None
+
+
+async def test_a_rospy_subscriber_gets_loaned_images_sent_from_the_slot(procs: Processes, rosmaster: str) -> None:
+    image = get_message_class("sensor_msgs/Image")
+    listener = procs.start(
+        [ROS_PYTHON, ROSPY_NODE, "listen", "image", "/loaned", "3"],
+        ros_env(rosmaster, procs.tmp),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+    )
+    assert list(iter_lines_until(listener, 1, 30)) == ["up"]
+    async with mrosd.Node("camera", master_uri=rosmaster, argv=[], host="127.0.0.1") as node:
+        pub = await node.advertise("/loaned", image, max_message_size=1 << 16)
+        await pub.wait_for_subscribers(1, timeout=30)
+        assert pub.shm is not None and pub.shm.endpoint is not None  # a pool, though its subscriber is TCPROS
+        for i in range(3):
+            msg = pub.loan(data=4)
+            assert msg._shm_loan.in_place
+            msg.data[:] = bytes([i, i, i, 255])
+            msg.height, msg.width, msg.encoding = 1, 1, "rgba8"
+            await pub.publish(msg)
+            await asyncio.sleep(0.05)
+        lines = await asyncio.get_running_loop().run_in_executor(None, lambda: list(iter_lines_until(listener, 3, 30)))
+    assert lines == [f"1 1 rgba8 {bytes([i, i, i, 255]).hex()}" for i in range(3)]

@@ -28,6 +28,7 @@ class FakePublisher:
     message_definition: str = "string data"
     latch: bool = True
     queue_size: int = 10
+    max_message_size: int | None = None
     latched: bytes | None = b"\x03\x00\x00\x00old"
     node: Any = field(default_factory=lambda: FakeNode("/talker"))
 
@@ -94,3 +95,15 @@ async def test_tcpros_answers_and_other_hosts_are_left_to_tcpros(monkeypatch: py
     monkeypatch.setenv("MROSD_SHM", "0")
     assert shm_topic.request_protocols() == [["TCPROS"]]
     assert await side.answer([subscriber_offer(HostIdentity("b", "n", 0)), ["TCPROS"]]) is None
+
+
+async def test_a_declared_message_size_makes_the_pool_before_any_subscriber() -> None:
+    side = shm_topic.ShmTopicPublisher(FakePublisher(latch=False, latched=None, max_message_size=1 << 20))
+    try:
+        await side.prepare()
+        assert side.endpoint is not None and side.endpoint.ring is not None
+        assert side.endpoint.ring.layout.capacity >= 1 << 20
+        params = await side.answer(shm_topic.request_protocols())
+        assert params is not None and side.endpoint.rings_made == 1
+    finally:
+        await side.aclose()

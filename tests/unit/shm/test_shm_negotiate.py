@@ -100,7 +100,8 @@ def test_a_tcpros_answer_is_not_a_shm_answer() -> None:
         [PROTOCOL],
         [PROTOCOL, 1, "@x", "t" * 32],  # the first version (one descriptor per Attached): not ours
         [PROTOCOL, 2, "@x", "t" * 32],  # eventfds both ways, which either side could make blocking: not ours
-        [PROTOCOL, 4, "@x", "t" * 32],
+        [PROTOCOL, 3, "@x", "t" * 32],  # ring layout v2 (slot = message number mod N): no slot a lease can keep
+        [PROTOCOL, 5, "@x", "t" * 32],
         [PROTOCOL, True, "@x", "t" * 32],
         [PROTOCOL, VERSION, "/tmp/sock", "t" * 32],
         [PROTOCOL, VERSION, "@" + "x" * 200, "t" * 32],

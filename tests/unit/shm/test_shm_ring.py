@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from mrosd.errors import LocalProtocolError, RemoteProtocolError
 from mrosd.msg.runtime import FrameBuffer, FramePool
-from mrosd.shm.ring import HEADER_SIZE, RingCursor, RingLayout, ring_size, slot_stride
+from mrosd.shm.ring import HEADER_SIZE, RingCursor, RingLayout, dir_entries, ring_size, slot_stride
 from mrosd.wire.framing import LARGE_FRAME
 
 
@@ -26,7 +26,37 @@ def test_layout_round_trip_and_sizes() -> None:
     again = RingLayout(ring.buf)
     assert (again.slots, again.capacity, again.head, again.retired) == (3, 100, 0, False)
     assert slot_stride(100) == 64 + 128
-    assert ring_size(3, 100) == HEADER_SIZE + 3 * 192
+    assert ring_size(3, 100) == HEADER_SIZE + 8 * dir_entries(3) + 3 * 192 and dir_entries(3) == 16
+
+
+def test_the_writer_chooses_slots_and_readers_follow_the_directory() -> None:
+    ring = fresh(slots=3)
+    cur = RingCursor(ring, 1)
+    ring.write(b"one", slot=2)
+    ring.write(b"two", slot=0)
+    ring.write(b"three", slot=2)  # message 1's slot reused: it is lost to a reader that did not take it yet
+    assert cur.read() == b"two" and cur.dropped == 1 and cur.read() == b"three"
+    assert [ring.held(s) for s in range(3)] == [2, 0, 3]
+    got = RingCursor(ring, 2).view()
+    assert got is not None and bytes(got[1]) == b"two" and ring.slot_of(2) == 0
+    got[1].release()
+
+
+def test_a_directory_naming_a_slot_the_ring_lacks_is_a_protocol_error() -> None:
+    ring = fresh(slots=2)
+    ring.write(b"x")
+    ring._dir[1] = 7
+    with pytest.raises(RemoteProtocolError, match="directory"):
+        RingCursor(ring, 1).read()
+
+
+def test_a_directory_pointing_at_an_older_message_is_a_protocol_error() -> None:
+    ring = fresh(slots=2)
+    ring.write(b"x", slot=0)
+    ring.write(b"y", slot=1)
+    ring._dir[2] = 0  # message 2 "is" in slot 0, which holds message 1
+    with pytest.raises(RemoteProtocolError):
+        RingCursor(ring, 2).read()
 
 
 def test_messages_are_read_in_order_once() -> None:
