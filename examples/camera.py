@@ -51,4 +51,4 @@ if __name__ == "__main__":
     parser.add_argument("--rate", type=float, default=30.0)
     parser.add_argument("--count", type=int, default=None)
     args = parser.parse_args()
-    asyncio.run(main(rate=args.rate, count=args.count))
+    mrosd.run(main(rate=args.rate, count=args.count))

@@ -9,7 +9,6 @@ hold one), or later frames are dropped. Run ``python examples/camera.py`` beside
 from __future__ import annotations
 
 import argparse
-import asyncio
 import time
 from typing import Any
 
@@ -49,4 +48,4 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--count", type=int, default=None)
     args = parser.parse_args()
-    asyncio.run(main(count=args.count))
+    mrosd.run(main(count=args.count))
