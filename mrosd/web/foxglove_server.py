@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import asyncio
 import base64
-import collections
 import contextlib
 import logging
 import time
@@ -28,14 +27,17 @@ from typing import Any
 from aiohttp import WSMsgType, web
 
 from mrosd.errors import MrosError
+from mrosd.lograte import RateLimitedLog
 from mrosd.master.cleanup import Probe, probe_get_pid
 from mrosd.master.client import GraphSnapshot
 from mrosd.web import foxglove as fg
 from mrosd.web.hub import PAUSE_BYTES, HoldingSink, ServiceInfo, TopicInfo, WebHub
-from mrosd.web.queue import ByteQueue, trim_to_budget
+from mrosd.web.queue import ByteQueue, ControlQueue, trim_to_budget
 from mrosd.web.rates import RateWindow
 
 log = logging.getLogger(__name__)
+#: a client can make these at will (connect, ask, never read): at most a few lines per period
+_ratelog = RateLimitedLog(log)
 
 __all__ = ["FoxgloveSession", "SessionLimits"]
 
@@ -100,8 +102,8 @@ class FoxgloveSession:
         self._channels: dict[int, _ClientChannel] = {}
         self._params: set[str] = set()
         self._graph_state: fg.SystemState | None = None
-        self._control: collections.deque[tuple[bool, bytes]] = collections.deque()
-        self._control_bytes = 0
+        #: (is text, frame) to send ahead of subscription data
+        self._control = ControlQueue(limits.control_bytes)
         self._wake = asyncio.Event()
         self._rr = 0
         self._closed = False
@@ -178,10 +180,8 @@ class FoxgloveSession:
     def _queue_control(self, text: bool, data: bytes) -> None:
         if self._closed:
             return
-        self._control.append((text, data))
-        self._control_bytes += len(data)
-        if self._control_bytes > self.limits.control_bytes:
-            log.warning("web: %s does not read its control messages; disconnecting it", self.peer)
+        if not self._control.push(text, data):
+            _ratelog.warning("slow", "web: %s does not read its control messages; disconnecting it", self.peer)
             self._closed = True
             self._close_task = asyncio.get_running_loop().create_task(
                 self.ws.close(code=1008, message=b"client too slow")
@@ -229,8 +229,7 @@ class FoxgloveSession:
                     await ws.send_bytes(fg.time_message(stamp))
                     continue
                 if self._control:
-                    text, data = self._control.popleft()
-                    self._control_bytes -= len(data)
+                    text, data = self._control.pop()
                     if text:
                         await ws.send_str(data.decode())
                     else:

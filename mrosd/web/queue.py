@@ -12,7 +12,7 @@ from __future__ import annotations
 import collections
 from typing import Any, Generic, TypeVar
 
-__all__ = ["ByteQueue", "Ledger", "trim_to_budget"]
+__all__ = ["ByteQueue", "ControlQueue", "Ledger", "trim_to_budget"]
 
 T = TypeVar("T")
 
@@ -24,6 +24,41 @@ class Ledger:
 
     def __init__(self) -> None:
         self.size = 0
+
+
+class ControlQueue:
+    """Frames a session sends in order, ahead of subscription data (replies, statuses, advertisements).
+
+    Each frame carries the session's own flag (text or binary). ``size`` counts the bytes pushed and not yet
+    popped; ``push`` reports when it passes ``max_bytes``: the client does not read what it asked for, and the
+    session disconnects it. Pieces put in front (a message's later fragments) are that message's bytes, already
+    bounded by its subscription queue: they are not counted, and popping them gives nothing back.
+    """
+
+    __slots__ = ("_items", "max_bytes", "size")
+
+    def __init__(self, max_bytes: int) -> None:
+        self._items: collections.deque[tuple[bool, bytes, int]] = collections.deque()
+        self.max_bytes = max_bytes
+        self.size = 0
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def push(self, flag: bool, data: bytes) -> bool:
+        """Queue a frame at the end; False once the queued bytes exceed ``max_bytes``."""
+        self._items.append((flag, data, len(data)))
+        self.size += len(data)
+        return self.size <= self.max_bytes
+
+    def push_front(self, frames: list[tuple[bool, bytes]]) -> None:
+        """Put ``frames``, in their order, ahead of everything queued; they are not counted."""
+        self._items.extendleft((flag, data, 0) for flag, data in reversed(frames))
+
+    def pop(self) -> tuple[bool, bytes]:
+        flag, data, counted = self._items.popleft()
+        self.size -= counted
+        return flag, data
 
 
 class ByteQueue(Generic[T]):

@@ -26,14 +26,17 @@ import msgspec
 from aiohttp import WSMsgType, web
 
 from mrosd.errors import MrosError
+from mrosd.lograte import RateLimitedLog
 from mrosd.master.client import GraphSnapshot
 from mrosd.msg import get_service_class, load_type
 from mrosd.web import rosbridge as rb
 from mrosd.web.foxglove_server import SessionLimits
 from mrosd.web.hub import PAUSE_BYTES, ServiceInfo, TopicInfo, WebHub
-from mrosd.web.queue import ByteQueue, trim_to_budget
+from mrosd.web.queue import ByteQueue, ControlQueue, trim_to_budget
 
 log = logging.getLogger(__name__)
+#: a client can make these at will (connect, ask, never read): at most a few lines per period
+_ratelog = RateLimitedLog(log)
 
 __all__ = ["RosbridgeSession"]
 
@@ -76,8 +79,8 @@ class RosbridgeSession:
         self._token = token
         self.subs: dict[str, _Sub] = {}
         self._published: dict[str, Any] = {}  # topic -> publisher
-        self._control: collections.deque[tuple[bool, bytes]] = collections.deque()
-        self._control_bytes = 0
+        #: (is binary, frame) to send ahead of subscription data
+        self._control = ControlQueue(limits.control_bytes)
         self._wake = asyncio.Event()
         self._closed = False
         self._calls: set[asyncio.Task[None]] = set()
@@ -125,10 +128,8 @@ class RosbridgeSession:
     def _send(self, data: bytes, binary: bool = False) -> None:
         if self._closed:
             return
-        self._control.append((binary, data))
-        self._control_bytes += len(data)
-        if self._control_bytes > self.limits.control_bytes:
-            log.warning("web: rosbridge client %s does not read; disconnecting it", self.peer)
+        if not self._control.push(binary, data):
+            _ratelog.warning("slow", "web: rosbridge client %s does not read; disconnecting it", self.peer)
             self._closed = True
             self._close_task = asyncio.get_running_loop().create_task(
                 self.ws.close(code=1008, message=b"client too slow")
@@ -166,9 +167,8 @@ class RosbridgeSession:
                 pieces = rb.fragments(
                     data.decode(), sub.fragment_size, f"publish:{sub.topic}:{next(self._request_ids)}"
                 )
-                # The rest go first in the next turns, ahead of anything else; they are one message's bytes,
-                # already bounded by the queue, so they do not count against the control budget.
-                self._control.extendleft((False, piece) for piece in reversed(pieces[1:]))
+                # The rest go first in the next turns, ahead of anything else (uncounted: see ControlQueue).
+                self._control.push_front([(False, piece) for piece in pieces[1:]])
                 return False, pieces[0]
             return False, data
         return None
@@ -180,8 +180,7 @@ class RosbridgeSession:
             self._wake.clear()
             while not self._closed:
                 if self._control:
-                    binary, data = self._control.popleft()
-                    self._control_bytes -= len(data)
+                    binary, data = self._control.pop()
                 else:
                     frame = self._next_message()
                     if frame is None:
