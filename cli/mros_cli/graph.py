@@ -130,5 +130,6 @@ async def shared_memory_section(master: MasterClient, topic: str, publishers: li
                 continue  # gone or unreachable: topic info already listed it as it could
             for row in rows if isinstance(rows, list) else []:
                 if isinstance(row, list) and len(row) >= 5 and row[2:5] == ["o", "SHMROS", topic]:
-                    lines.append(f" * {node} -> {row[1]}\n")
+                    info = row[6] if len(row) >= 7 and isinstance(row[6], str) else ""
+                    lines.append(f" * {node} -> {row[1]}" + (f" ({info})" if info else "") + "\n")
     return "Shared memory: \n" + "".join(lines) + "\n" if lines else ""

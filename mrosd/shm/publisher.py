@@ -683,9 +683,25 @@ class ShmPublisherEndpoint:
             "loans_out": len(self._loaned),
         }
 
+    def pool_summary(self) -> str:
+        """``pool()`` in words, for getBusInfo's free-text column: ``pool 4 x 1.0 MiB = 4.0 MiB, populated``."""
+        p = self.pool()
+        text = f"pool {p['slots']} x {p['slot_bytes'] / 2**20:.1f} MiB = {p['bytes'] / 2**20:.1f} MiB"
+        if p["populated"]:
+            text += ", populated"
+        if p["lease_slots"]:
+            text += f", {p['leases_granted']}/{p['lease_slots']} lease slots granted"
+        if p["loans_out"]:
+            text += f", {p['loans_out']} loaned"
+        return text
+
     def bus_info(self) -> list[list[Any]]:
-        """getBusInfo rows of the shared-memory subscribers (transport ``SHMROS``)."""
-        return [[lk.id, lk.callerid, "o", TRANSPORT, self.topic, lk.connected, f"pid {lk.pid}"] for lk in self.links]
+        """getBusInfo rows of the shared-memory subscribers (transport ``SHMROS``); the free-text column names
+        the subscriber's pid and the pool this topic holds, so its size is visible (``mros topic info``)."""
+        pool = self.pool_summary()
+        return [
+            [lk.id, lk.callerid, "o", TRANSPORT, self.topic, lk.connected, f"pid {lk.pid}; {pool}"] for lk in self.links
+        ]
 
     # lifecycle ------------------------------------------------------------------------------------------
 

@@ -85,6 +85,10 @@ def test_topic_info_lists_the_connections_that_use_shared_memory(
     ).stdout
     talker, listener = re.findall(r"^ \* (\S+) \(http", shown, re.MULTILINE)
     if shm is None:
-        assert shown.endswith(f"/)\n\nShared memory: \n * {talker} -> {listener}\n\n\n"), shown
+        # the pool the topic holds, bounded and visible: slots x slot size = total
+        pool = r"\(pid \d+; pool \d+ x \d+\.\d MiB = \d+\.\d MiB[^)]*\)"
+        assert re.search(
+            rf"/\)\n\nShared memory: \n \* {re.escape(talker)} -> {re.escape(listener)} {pool}\n\n\n$", shown
+        ), shown
     else:
         assert "Shared memory" not in shown, shown
