@@ -27,17 +27,15 @@ from typing import Any
 from aiohttp import WSMsgType, web
 
 from mrosd.errors import MrosError
-from mrosd.lograte import RateLimitedLog
 from mrosd.master.cleanup import Probe, probe_get_pid
 from mrosd.master.client import GraphSnapshot
 from mrosd.web import foxglove as fg
 from mrosd.web.hub import PAUSE_BYTES, HoldingSink, ServiceInfo, TopicInfo, WebHub
-from mrosd.web.queue import ByteQueue, ControlQueue, trim_to_budget
+from mrosd.web.queue import ByteQueue, trim_to_budget
 from mrosd.web.rates import RateWindow
+from mrosd.web.session import ClientSession
 
 log = logging.getLogger(__name__)
-#: a client can make these at will (connect, ask, never read): at most a few lines per period
-_ratelog = RateLimitedLog(log)
 
 __all__ = ["FoxgloveSession", "SessionLimits"]
 
@@ -86,32 +84,25 @@ class _ClientChannel:
     publisher: Any
 
 
-class FoxgloveSession:
+class FoxgloveSession(ClientSession):
     """One connected Foxglove client."""
+
+    KIND = "Foxglove client"
 
     CAPABILITIES = ("clientPublish", "parameters", "parametersSubscribe", "services", "connectionGraph")
 
     def __init__(self, hub: WebHub, ws: web.WebSocketResponse, limits: SessionLimits, peer: str = "?") -> None:
+        super().__init__(hub, ws, limits, peer)
         self._queue_type = ByteQueue
-        self.hub = hub
-        self.ws = ws
-        self.limits = limits
-        self.peer = peer
         self.subs: dict[int, _Subscription] = {}
         self._by_topic: dict[str, list[_Subscription]] = {}
         self._channels: dict[int, _ClientChannel] = {}
         self._params: set[str] = set()
         self._graph_state: fg.SystemState | None = None
-        #: (is text, frame) to send ahead of subscription data
-        self._control = ControlQueue(limits.control_bytes)
-        self._wake = asyncio.Event()
         self._rr = 0
-        self._closed = False
-        self._calls: set[asyncio.Task[None]] = set()
         self.sent_messages = 0
         #: the latest /clock time not yet sent (a 1 kHz clock costs the client the rate it reads at)
         self._time_ns: int | None = None
-        self._close_task: asyncio.Task[bool] | None = None
         #: x-mrosd.subscribeStats: the sink holding each measured topic open, and each topic's window
         self._stats_sink = HoldingSink()
         self._stats: dict[str, RateWindow] | None = None
@@ -176,17 +167,6 @@ class FoxgloveSession:
 
     def _send_json(self, data: bytes) -> None:
         self._queue_control(True, data)
-
-    def _queue_control(self, text: bool, data: bytes) -> None:
-        if self._closed:
-            return
-        if not self._control.push(text, data):
-            _ratelog.warning("slow", "web: %s does not read its control messages; disconnecting it", self.peer)
-            self._closed = True
-            self._close_task = asyncio.get_running_loop().create_task(
-                self.ws.close(code=1008, message=b"client too slow")
-            )
-        self._wake.set()
 
     def status(self, level: int, message: str, status_id: str | None = None) -> None:
         self._send_json(fg.status(level, message, status_id))

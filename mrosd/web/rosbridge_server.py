@@ -26,17 +26,15 @@ import msgspec
 from aiohttp import WSMsgType, web
 
 from mrosd.errors import MrosError
-from mrosd.lograte import RateLimitedLog
 from mrosd.master.client import GraphSnapshot
 from mrosd.msg import get_service_class, load_type
 from mrosd.web import rosbridge as rb
 from mrosd.web.foxglove_server import SessionLimits
 from mrosd.web.hub import PAUSE_BYTES, ServiceInfo, TopicInfo, WebHub
-from mrosd.web.queue import ByteQueue, ControlQueue, trim_to_budget
+from mrosd.web.queue import ByteQueue, trim_to_budget
+from mrosd.web.session import ClientSession
 
 log = logging.getLogger(__name__)
-#: a client can make these at will (connect, ask, never read): at most a few lines per period
-_ratelog = RateLimitedLog(log)
 
 __all__ = ["RosbridgeSession"]
 
@@ -65,30 +63,23 @@ class _Sub:
         return max(1, max(self.length.values(), default=1))
 
 
-class RosbridgeSession:
+class RosbridgeSession(ClientSession):
     """One connected rosbridge client."""
+
+    KIND = "rosbridge client"
 
     def __init__(
         self, hub: WebHub, ws: web.WebSocketResponse, limits: SessionLimits, *, token: str = "", peer: str = "?"
     ) -> None:
-        self.hub = hub
-        self.ws = ws
-        self.limits = limits
-        self.peer = peer
+        super().__init__(hub, ws, limits, peer)
         self.authed = not token
         self._token = token
         self.subs: dict[str, _Sub] = {}
         self._published: dict[str, Any] = {}  # topic -> publisher
-        #: (is binary, frame) to send ahead of subscription data
-        self._control = ControlQueue(limits.control_bytes)
-        self._wake = asyncio.Event()
-        self._closed = False
-        self._calls: set[asyncio.Task[None]] = set()
         #: services this client provides (advertise_service), and the calls waiting for its service_response
         self._provided: dict[str, Any] = {}
         self._pending: dict[str, asyncio.Future[tuple[bool, Any]]] = {}
         self._request_ids = itertools.count(1)
-        self._close_task: asyncio.Task[bool] | None = None
 
     # --- hub callbacks ---------------------------------------------------------------------------
 
@@ -126,15 +117,7 @@ class RosbridgeSession:
     # --- sending ---------------------------------------------------------------------------------
 
     def _send(self, data: bytes, binary: bool = False) -> None:
-        if self._closed:
-            return
-        if not self._control.push(binary, data):
-            _ratelog.warning("slow", "web: rosbridge client %s does not read; disconnecting it", self.peer)
-            self._closed = True
-            self._close_task = asyncio.get_running_loop().create_task(
-                self.ws.close(code=1008, message=b"client too slow")
-            )
-        self._wake.set()
+        self._queue_control(binary, data)
 
     def status(self, level: str, message: str, op_id: str | None = None) -> None:
         self._send(rb.op_json("status", level=level, msg=message, id=op_id))

@@ -1,0 +1,59 @@
+"""What a Foxglove and a rosbridge session have in common: the client's socket, the frames queued for it ahead
+of subscription data, the sender's wake-up, and the disconnect of a client that does not read what it asked.
+
+The protocols differ in everything they say; they do not differ in how a client that stops reading is
+bounded, so that is written once, here.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from typing import TYPE_CHECKING, ClassVar
+
+from mrosd.lograte import RateLimitedLog
+from mrosd.web.queue import ControlQueue
+
+if TYPE_CHECKING:
+    from aiohttp import web
+
+    from mrosd.web.foxglove_server import SessionLimits
+    from mrosd.web.hub import WebHub
+
+log = logging.getLogger(__name__)
+#: a client can make these at will (connect, ask, never read): at most a few lines per period
+_ratelog = RateLimitedLog(log)
+
+
+class ClientSession:
+    """The shared state of one WebSocket client's session; the protocol subclasses add theirs."""
+
+    #: how the log names such a client
+    KIND: ClassVar[str] = "client"
+
+    def __init__(self, hub: WebHub, ws: web.WebSocketResponse, limits: SessionLimits, peer: str) -> None:
+        self.hub = hub
+        self.ws = ws
+        self.limits = limits
+        self.peer = peer
+        #: (the protocol's frame flag, frame) to send ahead of subscription data
+        self._control = ControlQueue(limits.control_bytes)
+        self._wake = asyncio.Event()
+        self._closed = False
+        self._calls: set[asyncio.Task[None]] = set()
+        self._close_task: asyncio.Task[bool] | None = None
+
+    def _queue_control(self, flag: bool, data: bytes) -> None:
+        """Queue a frame for the sender; a client past its control budget is not reading what it asked for
+        (replies, statuses): it is disconnected rather than allowed to grow the queue."""
+        if self._closed:
+            return
+        if not self._control.push(flag, data):
+            _ratelog.warning(
+                "slow", "web: %s %s does not read its control messages; disconnecting it", self.KIND, self.peer
+            )
+            self._closed = True
+            self._close_task = asyncio.get_running_loop().create_task(
+                self.ws.close(code=1008, message=b"client too slow")
+            )
+        self._wake.set()
