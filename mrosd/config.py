@@ -299,6 +299,13 @@ def _bool(name: str, value: str) -> bool:
     raise ConfigError(f"environment: {name} must be a boolean (1/0, true/false), got {value!r}")
 
 
+def _int(name: str, value: str) -> int:
+    try:
+        return int(value)
+    except ValueError as exc:
+        raise ConfigError(f"environment: {name} must be an integer, got {value!r}") from exc
+
+
 def apply_environment(cfg: Config, environ: Mapping[str, str]) -> Config:
     """Apply ``ROS_MASTER_URI`` and ``MROSD_*`` overrides to ``cfg`` in place and return it."""
     uri = environ.get("ROS_MASTER_URI")
@@ -316,11 +323,7 @@ def apply_environment(cfg: Config, environ: Mapping[str, str]) -> Config:
         if not valid_host(cfg.master.host):
             raise ConfigError(f"environment: MROSD_MASTER_HOST is not an IP address or host name: {cfg.master.host!r}")
     if "MROSD_MASTER_PORT" in environ:
-        value = environ["MROSD_MASTER_PORT"]
-        try:
-            cfg.master.port = int(value)
-        except ValueError as exc:
-            raise ConfigError(f"environment: MROSD_MASTER_PORT must be an integer, got {value!r}") from exc
+        cfg.master.port = _int("MROSD_MASTER_PORT", environ["MROSD_MASTER_PORT"])
     if "MROSD_MASTER_ALLOW" in environ:
         cfg.master.allow = [n.strip() for n in environ["MROSD_MASTER_ALLOW"].split(",") if n.strip()]
     if environ.get("MROSD_IXM_SOCKET"):
@@ -334,17 +337,9 @@ def apply_environment(cfg: Config, environ: Mapping[str, str]) -> Config:
     if "MROSD_WEB_HOST" in environ:
         cfg.web.host = environ["MROSD_WEB_HOST"]
     if "MROSD_WEB_PORT" in environ:
-        value = environ["MROSD_WEB_PORT"]
-        try:
-            cfg.web.foxglove_port = int(value)
-        except ValueError as exc:
-            raise ConfigError(f"environment: MROSD_WEB_PORT must be an integer, got {value!r}") from exc
+        cfg.web.foxglove_port = _int("MROSD_WEB_PORT", environ["MROSD_WEB_PORT"])
     if "MROSD_WEB_ROSBRIDGE_PORT" in environ:
-        value = environ["MROSD_WEB_ROSBRIDGE_PORT"]
-        try:
-            cfg.web.rosbridge_port = int(value)
-        except ValueError as exc:
-            raise ConfigError(f"environment: MROSD_WEB_ROSBRIDGE_PORT must be an integer, got {value!r}") from exc
+        cfg.web.rosbridge_port = _int("MROSD_WEB_ROSBRIDGE_PORT", environ["MROSD_WEB_ROSBRIDGE_PORT"])
     if "MROSD_WEB_TOKEN" in environ:
         cfg.web.token = environ["MROSD_WEB_TOKEN"]
     if "MROSD_LOG_LEVEL" in environ:
