@@ -218,6 +218,30 @@ ROSLIBPY = importlib.util.find_spec("roslibpy") is not None
 
 
 @pytest.mark.skipif(not ROSLIBPY, reason="roslibpy is not installed: pip install -e '.[dev]'")
+async def exercise_rosbridge_client(
+    client: Any, server: Any, cam: Any, listener: Any, label: str, *, image_timeout: float, publish_first: bool
+) -> None:
+    """The script both rosbridge clients run through mrosd: an 8 MB image in, a publish out, a service call,
+    a parameter read. ``publish_first``: roslib advertises on its first publish, before any subscriber sees it."""
+    await cam.wait_for_subscribers(1, timeout=10)
+    img = Image(height=HEIGHT, width=WIDTH, encoding="rgba8", step=WIDTH * 4, data=PIXELS)
+    await cam.publish(img)
+    got = await client.until("image", timeout=image_timeout)
+    assert (got["len"], got["sha256"]) == (len(PIXELS), hashlib.sha256(PIXELS).hexdigest())
+    if publish_first:
+        await client.send(cmd="publish", data=label)
+    await listener.wait_for_publishers(1, timeout=10)
+    await client.send(cmd="publish", data=label)
+    assert (await listener.next(timeout=10)).data == label
+    async with asyncio.timeout(10):
+        while "/enable" not in server.hub.services:  # noqa: ASYNC110 - the hub probes the type
+            await asyncio.sleep(0.01)
+    await client.send(cmd="call")
+    assert (await client.until("response"))["values"]["success"] is True
+    await client.send(cmd="param")
+    assert (await client.until("param"))["value"] == "mrosd-bot"
+
+
 async def test_roslibpy_subscribes_publishes_calls_and_reads_a_parameter(master: Master) -> None:
     async with (
         WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
@@ -239,21 +263,9 @@ async def test_roslibpy_subscribes_publishes_calls_and_reads_a_parameter(master:
         client = NodeClient(proc)  # the same JSON-lines driver
         try:
             await client.until("subscribed")
-            await cam.wait_for_subscribers(1, timeout=10)
-            img = Image(height=HEIGHT, width=WIDTH, encoding="rgba8", step=WIDTH * 4, data=PIXELS)
-            await cam.publish(img)
-            got = await client.until("image", timeout=30)
-            assert (got["len"], got["sha256"]) == (len(PIXELS), hashlib.sha256(PIXELS).hexdigest())
-            await listener.wait_for_publishers(1, timeout=10)
-            await client.send(cmd="publish", data="from roslibpy")
-            assert (await listener.next(timeout=10)).data == "from roslibpy"
-            async with asyncio.timeout(10):
-                while "/enable" not in server.hub.services:  # noqa: ASYNC110 - the hub probes the type
-                    await asyncio.sleep(0.01)
-            await client.send(cmd="call")
-            assert (await client.until("response"))["values"]["success"] is True
-            await client.send(cmd="param")
-            assert (await client.until("param"))["value"] == "mrosd-bot"
+            await exercise_rosbridge_client(
+                client, server, cam, listener, "from roslibpy", image_timeout=30, publish_first=False
+            )
         finally:
             await client.close()
 
@@ -304,22 +316,9 @@ async def test_roslib_in_headless_chromium_subscribes_publishes_calls_and_reads_
             client = NodeClient(proc)
             try:
                 await client.until("subscribed", timeout=60)
-                await cam.wait_for_subscribers(1, timeout=10)
-                img = Image(height=HEIGHT, width=WIDTH, encoding="rgba8", step=WIDTH * 4, data=PIXELS)
-                await cam.publish(img)
-                got = await client.until("image", timeout=60)
-                assert (got["len"], got["sha256"]) == (len(PIXELS), hashlib.sha256(PIXELS).hexdigest())
-                await client.send(cmd="publish", data="from chromium")
-                await listener.wait_for_publishers(1, timeout=10)
-                await client.send(cmd="publish", data="from chromium")
-                assert (await listener.next(timeout=10)).data == "from chromium"
-                async with asyncio.timeout(10):
-                    while "/enable" not in server.hub.services:  # noqa: ASYNC110 - the hub probes the type
-                        await asyncio.sleep(0.01)
-                await client.send(cmd="call")
-                assert (await client.until("response"))["values"]["success"] is True
-                await client.send(cmd="param")
-                assert (await client.until("param"))["value"] == "mrosd-bot"
+                await exercise_rosbridge_client(
+                    client, server, cam, listener, "from chromium", image_timeout=60, publish_first=True
+                )
                 await client.send(cmd="close")
             finally:
                 await client.close()
