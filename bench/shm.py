@@ -63,19 +63,25 @@ async def _stdin_line() -> bytes:
     return await reader.readline()
 
 
+async def _image_pool_publisher(name: str, master: str, queue_size: int, max_size: int) -> tuple[Any, Any]:
+    """A started node and its sensor_msgs/Image publisher with a pool of ``max_size`` slots (for loans)."""
+    from mrosd import Node
+    from mrosd.msg import get_message_class
+
+    node = Node(name, master_uri=master, argv=[], rosout=False, logger_services=False)
+    await node.start()
+    pub = await node.advertise(
+        TOPIC, get_message_class("sensor_msgs/Image"), queue_size=queue_size, max_message_size=max_size
+    )
+    return node, pub
+
+
 async def _pub(args: argparse.Namespace) -> None:
     body = os.urandom(args.size)
     subs = int(args.subs)
     changed = asyncio.Event()
     if args.transport == "loan":
-        from mrosd import Node
-        from mrosd.msg import get_message_class
-
-        node = Node("bench_pub", master_uri=args.master, argv=[], rosout=False, logger_services=False)
-        await node.start()
-        lpub = await node.advertise(
-            TOPIC, get_message_class("sensor_msgs/Image"), queue_size=args.count + WARMUP, max_message_size=args.size
-        )
+        node, lpub = await _image_pool_publisher("bench_pub", args.master, args.count + WARMUP, args.size)
         _say("ready")
         await lpub.wait_for_subscribers(subs, timeout=30)
         await asyncio.sleep(0.3)
@@ -199,14 +205,7 @@ async def _lat_pub(args: argparse.Namespace) -> None:
     body = bytearray(args.size)
     changed = asyncio.Event()
     if args.mode == "loan":
-        from mrosd import Node
-        from mrosd.msg import get_message_class
-
-        node = Node("bench_lat_pub", master_uri=args.master, argv=[], rosout=False, logger_services=False)
-        await node.start()
-        pub = await node.advertise(
-            TOPIC, get_message_class("sensor_msgs/Image"), queue_size=4, max_message_size=args.size + 4096
-        )
+        node, pub = await _image_pool_publisher("bench_lat_pub", args.master, 4, args.size + 4096)
         _say("addr", "-", "-")
         await pub.wait_for_subscribers(1, timeout=30)
         await asyncio.sleep(0.2)  # the subscriber's side of the attachment completes
