@@ -62,6 +62,12 @@ RECV_BUFFER_SIZE = 64 * 1024
 #: arrive (memory follows bytes received), and the big receive buffer is allocated only after the header.
 HEADER_RECV_SIZE = 4 * 1024
 
+#: Large frames' buffers kept for reuse per decoder: at most this many, and this many bytes unless only one.
+SPARES = 4
+SPARE_BYTES = 64 * 1024 * 1024
+#: sys.getrefcount of a spare that only the decoder holds (see ``_take_spare``)
+_FREE_SPARE_REFS = 3
+
 #: Compact the buffer once this many consumed bytes sit at its front (amortises the memmove).
 _COMPACT_AT = 64 * 1024
 
@@ -110,7 +116,7 @@ class FrameDecoder:
         "_large_size",
         "_pos",
         "_recv",
-        "_spare",
+        "_spares",
         "_then_max",
         "max_size",
         "ok_byte",
@@ -130,10 +136,11 @@ class FrameDecoder:
         self._large_filled = 0
         self._large_size = 0
         self._recv: bytearray | None = None
-        #: The last large frame delivered. Once nothing refers to it any more (the message built on it is
-        #: gone, no transport still writes a view of it), the next large frame is received into it again:
-        #: steady streams of images cost no allocation and no zero-filling per frame.
-        self._spare: FrameBuffer | None = None
+        #: The last large frames delivered, newest last. Once nothing refers to one any more (the message
+        #: built on it is gone, no transport still writes it), the next large frame is received into it
+        #: again: steady streams of images cost no allocation, no zero-filling and no page faults per frame,
+        #: even where the application holds a few frames at a time (a bridge queueing them for its clients).
+        self._spares: list[FrameBuffer] = []
         #: The limit of the frame being decoded. With ``header_max_size`` the first frame (a connection
         #: header) is judged by that limit and every later one by ``max_size``: the switch happens inside
         #: the decoder, between two frames of the same read (as h11 switches from headers to body).
@@ -161,14 +168,11 @@ class FrameDecoder:
         self._large_size = length
         avail = len(first)
         capacity = self._capacity_for(max(avail, 1))
-        # Only this decoder refers to the spare (getrefcount counts its own argument): nobody can see it.
-        if self._spare is not None and sys.getrefcount(self._spare) == 2 and len(self._spare) >= capacity:
-            large = self._spare
-            if len(large) > length:
-                del large[length:]
-        else:
+        large = self._take_spare(capacity)
+        if large is None:
             large = FrameBuffer(capacity)
-        self._spare = None
+        elif len(large) > length:
+            del large[length:]
         large[:avail] = first
         self._large = large
         self._large_filled = avail
@@ -179,8 +183,23 @@ class FrameDecoder:
         self._large = None
         self._large_filled = 0
         self._large_size = 0
-        self._spare = large
+        spares = self._spares
+        spares.append(large)
+        # The newest always stays; older ones while they fit the count and byte bounds.
+        while len(spares) > 1 and (len(spares) > SPARES or sum(map(len, spares)) > SPARE_BYTES):
+            del spares[0]
         return large
+
+    def _take_spare(self, capacity: int) -> FrameBuffer | None:
+        """A spare of at least ``capacity`` bytes that nobody else refers to, taken out of the list."""
+        spares = self._spares
+        for i in range(len(spares) - 1, -1, -1):
+            spare = spares[i]
+            # The list, ``spare`` and getrefcount's argument: any other reference is a holder outside.
+            if len(spare) >= capacity and sys.getrefcount(spare) == _FREE_SPARE_REFS:
+                del spares[i]
+                return spare
+        return None
 
     def feed_frames(self, data: bytes | bytearray | memoryview) -> list[bytes | bytearray]:
         """``feed(data)`` and return every frame now complete (the hot path: one call per socket read).

@@ -16,6 +16,8 @@ from mrosd.wire.framing import (
     GROWTH,
     LARGE_FRAME,
     MAX_FRAME_SIZE,
+    SPARE_BYTES,
+    SPARES,
     FrameBuffer,
     FrameDecoder,
     Response,
@@ -283,6 +285,31 @@ def test_a_delivered_large_frame_never_changes_and_is_reused_only_once_released(
     del view, other
     (again,) = _receive_in_place(dec, encode_frame(third), [LARGE_FRAME])
     assert id(again) == other_id and again == third  # nobody held it: received into it again, no allocation
+
+
+def test_frames_held_a_few_at_a_time_are_received_into_the_same_buffers_again() -> None:
+    """A bridge holds a few frames while its clients read them: the decoder keeps that many to reuse."""
+    dec = FrameDecoder()
+    size = 3 * LARGE_FRAME
+    held = [_receive_in_place(dec, encode_frame(bytes([i]) * size), [LARGE_FRAME])[0] for i in range(SPARES)]
+    ids = {id(b) for b in held}
+    for step in range(3 * SPARES):
+        oldest = held.pop(0)  # released: one of the spares is free again
+        del oldest
+        body = bytes([100 + step]) * size
+        (frame,) = _receive_in_place(dec, encode_frame(body), [LARGE_FRAME])
+        assert id(frame) in ids and frame == body
+        held.append(frame)
+        assert all(b[0] == b[-1] for b in held)  # a frame still held was never written into
+
+
+def test_the_spares_kept_are_bounded_in_bytes() -> None:
+    dec = FrameDecoder()
+    size = SPARE_BYTES // 2 + 1
+    held = [_receive_in_place(dec, encode_frame(bytes(size)), [size])[0] for _ in range(3)]
+    del held
+    kept = dec._spares
+    assert len(kept) == 1 and sum(map(len, kept)) <= max(size, SPARE_BYTES)
 
 
 @settings(deadline=None, max_examples=50)
