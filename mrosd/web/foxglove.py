@@ -44,11 +44,13 @@ __all__ = [
     "Unsubscribe",
     "UnsubscribeConnectionGraph",
     "UnsubscribeParameterUpdates",
+    "binary_frame_head",
     "choose_subprotocol",
     "decode_client_binary",
     "decode_client_text",
     "encode_json",
     "message_data",
+    "message_data_head",
     "message_data_prefix",
     "service_call_response",
     "time_message",
@@ -353,6 +355,33 @@ def message_data_prefix(subscription_id: int, timestamp_ns: int) -> bytes:
 def message_data(subscription_id: int, timestamp_ns: int, payload: bytes | bytearray | memoryview) -> bytes:
     """A whole messageData frame: the prefix and the payload exactly as received from TCPROS."""
     return _MESSAGE_DATA.pack(OP_MESSAGE_DATA, subscription_id, timestamp_ns) + payload
+
+
+_WS_LEN7 = struct.Struct("!BB")
+_WS_LEN16 = struct.Struct("!BBH")
+_WS_LEN64 = struct.Struct("!BBQ")
+#: FIN and the binary opcode: a whole binary message in one frame (RFC 6455 section 5.2)
+_WS_FIN_BINARY = 0x82
+
+
+def binary_frame_head(length: int) -> bytes:
+    """The head of an unmasked (server-to-client) WebSocket frame carrying ``length`` bytes of one binary
+    message: what precedes them on the wire."""
+    if length < 126:
+        return _WS_LEN7.pack(_WS_FIN_BINARY, length)
+    if length < 65536:
+        return _WS_LEN16.pack(_WS_FIN_BINARY, 126, length)
+    return _WS_LEN64.pack(_WS_FIN_BINARY, 127, length)
+
+
+def message_data_head(subscription_id: int, timestamp_ns: int, payload_length: int) -> bytes:
+    """The WebSocket frame head and messageData prefix for a payload of ``payload_length`` bytes.
+
+    Written to the socket before the payload itself, which is then sent from the buffer it was received in:
+    one frame per message costs no copy of the payload, whatever the number of clients."""
+    return binary_frame_head(_MESSAGE_DATA.size + payload_length) + _MESSAGE_DATA.pack(
+        OP_MESSAGE_DATA, subscription_id, timestamp_ns
+    )
 
 
 def time_message(timestamp_ns: int) -> bytes:

@@ -161,8 +161,8 @@ class WebServer:
         ws = web.WebSocketResponse(
             protocols=fg.SUBPROTOCOLS, compress=False, max_msg_size=self.max_frame, heartbeat=30.0
         )
-        await ws.prepare(request)
-        session = FoxgloveSession(self.hub, ws, self.limits, peer=str(request.remote))
+        writer = await ws.prepare(request)
+        session = FoxgloveSession(self.hub, ws, writer, self.limits, peer=str(request.remote))
         self.sessions.add(session)
         try:
             await session.run()
