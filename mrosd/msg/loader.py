@@ -9,12 +9,14 @@ Nested types whose md5 matches a known class reuse that class, so ``msg.header``
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from typing import Any
 
 from mrosd.errors import MsgError, MsgNotFoundError
-from mrosd.msg.codegen import PRELUDE, generate_class, symbol
+from mrosd.msg.codegen import PRELUDE, generate_class, generate_view_decoder, symbol
 from mrosd.msg.md5 import compute_md5, full_text
 from mrosd.msg.parser import parse_definition
+from mrosd.msg.runtime import array_view_decoder, blob_view
 from mrosd.msg.spec import MsgSpec
 from mrosd.msg.typestore import TypeStore, normalize_type_name
 
@@ -64,6 +66,36 @@ def build_class(spec: MsgSpec, store: TypeStore, text: str | None = None) -> typ
         cls.__qualname__ = generated.class_name
         _CLASSES.setdefault(key, cls)  # a same-md5 class with other comments never displaces the first
         return cls
+
+
+_VIEW_DECODERS: dict[type[Any], Callable[[memoryview, type[Any], list[memoryview]], Any]] = {}
+
+
+def view_decoder(cls: type[Any]) -> Callable[[memoryview, type[Any], list[memoryview]], Any]:
+    """``decode(data, leased_cls, views)`` for messages of ``cls`` read in place from memory that does not
+    change while they live (``mrosd.msg.codegen.decode.view_decoder_source``); generated once per class,
+    from the class's own full definition, so it reads exactly the layout ``cls.deserialize`` reads.
+
+    Raises:
+        MsgParseError: the class's definition does not parse (it was built from it, so it does).
+    """
+    got = _VIEW_DECODERS.get(cls)
+    if got is not None:
+        return got
+    specs = parse_definition(cls._type, cls._full_text)
+    store = _DefinitionStore(specs, default_store())
+    generated = generate_view_decoder(specs[cls._type], store.msg_spec)
+    namespace = _namespace()
+    namespace["_blob_view"] = blob_view
+    namespace["_array_view_decoder"] = array_view_decoder
+    for dep in generated.dependencies:
+        namespace[symbol(dep)] = build_class(store.msg_spec(dep), store)
+    code = compile(generated.source, f"<mrosd.msg view {cls._type}>", "exec", dont_inherit=True)
+    exec(code, namespace)
+    got = namespace[generated.class_name]
+    with _LOCK:
+        _VIEW_DECODERS[cls] = got
+    return got  # type: ignore[no-any-return]
 
 
 def get_message_class(name: str, store: TypeStore | None = None) -> type[Any]:

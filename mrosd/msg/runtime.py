@@ -26,9 +26,11 @@ __all__ = [
     "Time",
     "array_decoder",
     "array_encoder",
+    "array_view_decoder",
     "as_bytes",
     "bad_length",
     "blob",
+    "blob_view",
     "is_immutable",
     "serialize_failed",
     "struct_error",
@@ -127,6 +129,31 @@ def blob(b: Any, start: int, end: int) -> bytes | memoryview:
 
 
 _IMMUTABLE = (bytes, FrameBuffer)
+
+
+def blob_view(b: memoryview, start: int, end: int, views: list[memoryview]) -> bytes | memoryview:
+    """A uint8[] payload of memory that does not change while the message lives (a leased slot): a view of
+    it when large (noted in ``views``, which the lease releases), else bytes."""
+    if end - start >= ZERO_COPY_MIN:
+        view = b[start:end]
+        views.append(view)
+        return view
+    return bytes(b[start:end])
+
+
+def array_view_decoder(code: str) -> Callable[[memoryview, int, int, list[memoryview]], Any]:
+    """``array_decoder`` for memory that does not change while the message lives: a large array is a view
+    of it cast to its element type (little-endian hosts; noted in ``views``), a small one an ``array``."""
+    copy = array_decoder(code)
+
+    def decode(b: memoryview, start: int, end: int, views: list[memoryview]) -> Any:
+        if end - start >= ZERO_COPY_MIN and not _SWAP:
+            view = b[start:end].cast(code)  # type: ignore[call-overload]
+            views.append(view)
+            return view
+        return copy(b, start, end)
+
+    return decode
 
 
 def is_immutable(part: Any) -> bool:

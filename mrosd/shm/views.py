@@ -2,30 +2,31 @@
 
 The generated decoders copy what they cannot prove immutable (a view of a mapping is not ``bytes``), and
 should: for them, memory that another process writes is never safe. A leased slot is: the publisher does
-not write it until the lease ends (``mrosd.shm.publisher``). So this is a small decode path of its own,
-separate from the generated one: ``view_spans`` walks the wire format of a message by its type's field
-list and finds its large arrays (``uint8[]``/``char[]`` and numeric arrays of at least ``ZERO_COPY_MIN``
-bytes, at any depth outside arrays of messages); ``decode_view`` hands the generated decoder a copy of the
-message with those arrays cut out (a few hundred bytes for an image), then sets each of them to a read-only
-view of the slot, cast to its element type (``np.frombuffer(msg.data, np.uint8)`` works on it, as on bytes).
+not write it until the lease ends (``mrosd.shm.publisher``). So a leased message is decoded by a variant of
+the generated decoder made for this (``mrosd.msg.loader.view_decoder``, generated once per type at
+subscribe time): the same flattened reads, with its uint8[]/char[] and numeric arrays of at least
+``ZERO_COPY_MIN`` bytes left as read-only views of the slot, cast to their element type
+(``np.frombuffer(msg.data, np.uint8)`` works on them, as on bytes). It replaced a walk of the type's field
+list followed by a decode of a copy with the arrays cut out: a third of the time from a wake-up to the
+callback (docs/shm.md).
 
 The message is of a subclass of the requested type (``leased_class``): the same fields, ``_md5sum`` and
 ``serialize``, plus ``release()`` and ``with msg:``. Its lease (``_shm_lease``) ends when it is released or
 dropped; after that its views are released (reading them raises ``ValueError``) unless something, e.g. a
 numpy array, still exports them (then the lease ends when that goes: ``mrosd.shm.subscriber``).
+``field_offset`` walks a body by the type's field list, for loans that lay a message out in place.
 """
 
 from __future__ import annotations
 
 import functools
 import struct
-import sys
 from typing import Any
 
 from mrosd.errors import LocalProtocolError
-from mrosd.msg.runtime import ZERO_COPY_MIN
+from mrosd.msg.loader import view_decoder
 
-__all__ = ["Span", "decode_view", "field_offset", "leased_class", "prepare", "view_spans"]
+__all__ = ["decode_view", "field_offset", "leased_class", "prepare"]
 
 #: wire size of each fixed-size builtin; ``None`` marks a string
 _SIZES: dict[str, int | None] = {
@@ -46,26 +47,7 @@ _SIZES: dict[str, int | None] = {
     "duration": 8,
     "string": None,
 }
-#: memoryview formats of the arrays that become views (little-endian hosts only for the wider ones)
-_FORMATS = {
-    "uint8": "B",
-    "char": "B",
-    "byte": "b",
-    "int8": "b",
-    "int16": "h",
-    "uint16": "H",
-    "int32": "i",
-    "uint32": "I",
-    "float32": "f",
-    "int64": "q",
-    "uint64": "Q",
-    "float64": "d",
-}
-_LITTLE = sys.byteorder == "little"
 _U32 = struct.Struct("<I")
-
-#: (attribute path from the message, start, end, memoryview format) of one large array in a body
-Span = tuple[tuple[str, ...], int, int, str]
 
 
 class _NotViewable(Exception):
@@ -86,27 +68,18 @@ class _Found(Exception):
         self.at = at
 
 
-def _walk(
-    cls: Any,
-    b: memoryview,
-    at: int,
-    path: tuple[str, ...] | None,
-    *,
-    out: list[Span],
-    resolve: Any,
-    stop: str | None = None,
-) -> int:
+def _walk(cls: Any, b: memoryview, at: int, *, resolve: Any, stop: str | None = None) -> int:
+    """Where a message of ``cls`` starting at ``at`` in ``b`` ends; ``_Found`` at top-level field ``stop``."""
     for name, type_text in zip(cls.__struct_fields__, cls._field_types, strict=False):
-        if stop is not None and path == () and name == stop:
+        if name == stop:
             raise _Found(at)
         base, is_array, fixed = _split(type_text)
-        here = None if path is None else (*path, name)
         if not is_array:
             if base in _SIZES:
                 size = _SIZES[base]
                 at = at + 4 + _U32.unpack_from(b, at)[0] if size is None else at + size
             else:
-                at = _walk(resolve(base), b, at, here, out=out, resolve=resolve)
+                at = _walk(resolve(base), b, at, resolve=resolve)
             continue
         if fixed is None:
             count = _U32.unpack_from(b, at)[0]
@@ -119,17 +92,13 @@ def _walk(
                 for _ in range(count):
                     at += 4 + _U32.unpack_from(b, at)[0]
                 continue
-            end = at + count * size
-            if end > len(b):
+            at += count * size
+            if at > len(b):
                 raise struct.error("array beyond the message")
-            fmt = _FORMATS.get(base)
-            if here is not None and fixed is None and fmt and end - at >= ZERO_COPY_MIN and (size == 1 or _LITTLE):
-                out.append((here, at, end, fmt))
-            at = end
         else:
             sub = resolve(base)
-            for _ in range(count):  # views inside arrays of messages: not taken (decoded by copy)
-                at = _walk(sub, b, at, None, out=out, resolve=resolve)
+            for _ in range(count):
+                at = _walk(sub, b, at, resolve=resolve)
     return at
 
 
@@ -160,6 +129,8 @@ def _resolver(cls: Any) -> Any:
 def prepare(cls: Any) -> None:
     """Resolve ``cls``'s nested types and make its leased class now (subscribe time), so that the first
     message pays for none of it (measured: a few milliseconds of imports and class creation)."""
+    leased_class(cls)
+    view_decoder(cls)
     resolve = _resolver(cls)
     todo, seen = [cls], set()
     while todo:
@@ -172,18 +143,6 @@ def prepare(cls: Any) -> None:
                     todo.append(resolve(base))
                 except _NotViewable:
                     return
-    leased_class(cls)
-
-
-def view_spans(cls: Any, body: memoryview) -> list[Span] | None:
-    """The large arrays of ``body`` (a message of ``cls``) as spans, or None when its layout cannot be
-    walked here (a type not resolvable, a truncated body): the caller then decodes by copy."""
-    out: list[Span] = []
-    try:
-        end = _walk(cls, body, 0, (), out=out, resolve=_resolver(cls))
-    except (_NotViewable, struct.error, AttributeError, ValueError):
-        return None
-    return out if end == len(body) else None
 
 
 def field_offset(cls: Any, body: bytes, name: str) -> int:
@@ -193,7 +152,7 @@ def field_offset(cls: Any, body: bytes, name: str) -> int:
         LocalProtocolError: the type has no such field, or its layout cannot be walked here.
     """
     try:
-        _walk(cls, memoryview(body), 0, (), out=[], resolve=_resolver(cls), stop=name)
+        _walk(cls, memoryview(body), 0, resolve=_resolver(cls), stop=name)
     except _Found as found:
         return found.at
     except (_NotViewable, struct.error, AttributeError, ValueError) as exc:
@@ -229,34 +188,16 @@ def leased_class(cls: Any) -> Any:
     return got
 
 
-def decode_view(cls: Any, body: memoryview, lease: Any) -> tuple[Any, list[memoryview]] | None:
+def decode_view(cls: Any, body: memoryview, lease: Any) -> tuple[Any, list[memoryview]]:
     """A message of ``leased_class(cls)`` decoded from ``body`` (read-only, in a leased slot), its large
-    arrays views of ``body``; and those views (the lease releases them). None: decode by copy instead.
+    arrays views of ``body``; and those views (the lease releases them). No views: the message refers to
+    nothing in the slot, and the caller may end the lease at once.
 
     Raises:
         DeserializationError: the body is not a message of ``cls`` (as ``deserialize`` would).
     """
-    spans = view_spans(cls, body)
-    if not spans:
-        return None
-    pieces: list[bytes] = []
-    at = 0
-    for _path, start, end, _fmt in spans:
-        pieces.append(bytes(body[at : start - 4]))
-        pieces.append(b"\0\0\0\0")  # an empty array where the view goes
-        at = end
-    pieces.append(bytes(body[at:]))
-    msg = cls.deserialize(b"".join(pieces))
-    leased = leased_class(cls)(**{f: getattr(msg, f) for f in cls.__struct_fields__})
     views: list[memoryview] = []
-    for path, start, end, fmt in spans:
-        view = body[start:end]
-        if fmt != "B":
-            view = view.cast(fmt)  # type: ignore[call-overload]
-        views.append(view)
-        target = leased
-        for name in path[:-1]:
-            target = getattr(target, name)
-        setattr(target, path[-1], view)
-    leased._shm_lease = lease
+    leased = view_decoder(cls)(body, leased_class(cls), views)
+    if views:
+        leased._shm_lease = lease
     return leased, views

@@ -26,6 +26,7 @@ import msgspec
 
 from mrosd.errors import HandshakeError, LocalProtocolError, MrosError, XmlRpcError
 from mrosd.lograte import RateLimitedLog
+from mrosd.shm.views import decode_view as _decode_view
 from mrosd.tcpros.protocol import TcprosProtocol
 from mrosd.tcpros.sockopts import enable_keepalive
 from mrosd.wire.handshake import check_publisher_reply
@@ -387,21 +388,18 @@ class Subscriber:
 
     def _deliver_view(self, view: Any, link: PublisherLink) -> None:
         """A leased message in shared memory: decoded with its large arrays as views of the slot (the
-        message holds the lease: ``mrosd.shm.views``); a type without such arrays is copied and released."""
-        from mrosd.shm.views import decode_view, leased_class
-
+        message holds the lease: ``mrosd.shm.views``); one without such arrays refers to nothing in the slot,
+        and its lease ends at once."""
         try:
-            got = decode_view(self.msg_class, view.data, view)
-            if got is None:
-                msg = leased_class(self.msg_class)(**_fields(self.msg_class.deserialize(bytes(view.data))))
-                view.release()
-            else:
-                msg, views = got
-                view.views.extend(views)
+            msg, views = _decode_view(self.msg_class, view.data, view)
         except MrosError as exc:
             view.release()
             log.warning("%s: dropping a message from %s that does not decode: %s", self.topic, link.uri, exc)
             return
+        if views:
+            view.views.extend(views)
+        else:
+            view.release()
         self._hand_over(msg)
 
     def _deliver(self, body: bytes | bytearray, link: PublisherLink) -> None:

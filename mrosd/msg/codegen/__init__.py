@@ -17,7 +17,7 @@ Modules, by concern: ``sizes`` (names, type tables, wire sizes), ``writer`` (the
 (``serialize``/``serialize_parts``), ``decode`` (``deserialize``), ``classes`` (the class and ``PRELUDE``).
 """
 
-from mrosd.msg.codegen.classes import PRELUDE, GeneratedClass, generate_class
+from mrosd.msg.codegen.classes import PRELUDE, GeneratedClass, generate_class, generate_view_decoder
 from mrosd.msg.codegen.decode import MAX_TAIL_STRUCTS
 from mrosd.msg.codegen.sizes import MAX_EMPTY_ITEMS, attribute_name, class_name, fixed_size, min_size, symbol
 
@@ -30,6 +30,7 @@ __all__ = [
     "class_name",
     "fixed_size",
     "generate_class",
+    "generate_view_decoder",
     "min_size",
     "symbol",
 ]

@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass
 
 from mrosd.errors import MsgError
-from mrosd.msg.codegen.decode import deserialize_source
+from mrosd.msg.codegen.decode import deserialize_source, view_decoder_source
 from mrosd.msg.codegen.encode import serialize_source
 from mrosd.msg.codegen.sizes import (
     BYTE_TYPES,
@@ -126,6 +126,17 @@ def generate_class(spec: MsgSpec, md5: str, full_text: str, lookup: Lookup, tag:
     prelude = w.prelude()
     source = "\n".join([*prelude, "", "", *lines]) + "\n"
     return GeneratedClass(spec.full_name, name, source, deps)
+
+
+def generate_view_decoder(spec: MsgSpec, lookup: Lookup) -> GeneratedClass:
+    """Source of ``_decode_view(data, cls, views)`` for ``spec`` (``view_decoder_source``), made at run time
+    for the types a zero-copy subscriber reads; ``class_name`` is the function's name."""
+    w = Writer(type_name=spec.full_name, lookup=lookup)
+    func = "_decode_view"
+    lines = view_decoder_source(spec, w, func)
+    deps = sorted(set(_all_deps(spec, lookup)))
+    source = "\n".join([*w.prelude(), "", "", *lines]) + "\n"
+    return GeneratedClass(spec.full_name, func, source, deps)
 
 
 def _all_deps(spec: MsgSpec, lookup: Lookup) -> list[str]:

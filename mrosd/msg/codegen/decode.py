@@ -28,8 +28,11 @@ class Decoder:
     or the constant 0), so fixed runs need no ``o += k`` statements; ``o`` is only materialized for loops.
     """
 
-    def __init__(self, w: Writer, base: str = "") -> None:
+    def __init__(self, w: Writer, base: str = "", *, views: bool = False) -> None:
         self.w = w
+        #: decoding a read-only view of memory that does not change while the message lives (see
+        #: ``view_decoder_source``): large arrays become views of it, strings are decoded from it
+        self.views = views
         self.run: list[tuple[str, str, int]] = []  #: (format, target local, item count or 0 for a scalar)
         self.base = base
         self.pending = 0
@@ -118,7 +121,10 @@ class Decoder:
                 e = self._span(ln, 1, indent, path)
                 v = w.tmp()
                 self.last_string = (run, ln, self.off(), e, v)
-                w.emit(indent, f"{v} = b[{self.off()}:{e}]{DECODE}")
+                if self.views:  # a memoryview has no .decode(); str() decodes any buffer
+                    w.emit(indent, f"{v} = str(b[{self.off()}:{e}], 'utf-8', 'replace')")
+                else:
+                    w.emit(indent, f"{v} = b[{self.off()}:{e}]{DECODE}")
                 self.rebase(e)
                 return v
             sub = w.lookup(base)
@@ -130,7 +136,10 @@ class Decoder:
             if n is None:
                 ln = self._length(indent)
                 e = self._span(ln, 1, indent, path)
-                w.emit(indent, f"{v} = _blob(b, {self.off()}, {e})")
+                if self.views:
+                    w.emit(indent, f"{v} = _blob_view(b, {self.off()}, {e}, views)")
+                else:
+                    w.emit(indent, f"{v} = _blob(b, {self.off()}, {e})")
                 self.rebase(e)
             else:
                 self.run.append((f"{n}s", v, 0))
@@ -146,6 +155,9 @@ class Decoder:
             e = self._span(ln, size, indent, path)
             if code == "?":
                 w.emit(indent, f"{v} = [x != 0 for x in b[{self.off()}:{e}]]")
+            elif self.views:
+                dec = w.helper(f"_vdec_{code}", f"_array_view_decoder({code!r})")
+                w.emit(indent, f"{v} = {dec}(b, {self.off()}, {e}, views)")
             else:
                 dec = w.helper(f"_dec_{code}", f"_array_decoder({code!r})")
                 w.emit(indent, f"{v} = {dec}(b, {self.off()}, {e})")
@@ -179,7 +191,7 @@ class Decoder:
         ap = w.tmp("ap")
         w.emit(indent, f"{ap} = {v}.append")
         w.emit(indent, f"for _ in range({count}):")
-        inner = Decoder(w, "o")
+        inner = Decoder(w, "o", views=self.views)
         expr = inner.one(Field(name=f.name, type=base, base=base, line=f.line), indent + 1, path + "[]")
         inner.flush(indent + 1)
         inner.materialize(indent + 1)
@@ -278,3 +290,33 @@ def deserialize_source(spec: MsgSpec, w: Writer) -> list[str]:
         out.append("")
         out += variant("_deserialize_lenient", ".decode('utf-8', 'replace')", "Decode, replacing invalid UTF-8.", False)
     return out
+
+
+def view_decoder_source(spec: MsgSpec, w: Writer, func: str) -> list[str]:
+    """A module-level ``func(data, cls, views)``: ``deserialize`` for a read-only memoryview of memory that
+    does not change while the message lives (a leased shared-memory slot).
+
+    The same flattened, bounds-checked reads as ``deserialize``, with three differences: uint8[]/char[] and
+    numeric arrays of at least ``ZERO_COPY_MIN`` bytes are views of ``data`` (each appended to ``views``,
+    which the lease releases), strings are decoded from the view (invalid UTF-8 replaced, as genpy does),
+    and the message is built as ``cls`` (a subclass of the type's class that carries the lease).
+    """
+    dec = Decoder(w, views=True)
+    start = len(w.lines)
+    args = dec.fields(spec, 2, "")
+    dec.flush(2)
+    body = w.lines[start:]
+    del w.lines[start:]
+    end = dec.off()
+    return [
+        f"def {func}(data, cls, views):",
+        "    b = data",
+        "    n = len(b)",
+        "    try:",
+        *(body or ["        pass"]),
+        "    except _struct_error as exc:",
+        f"        raise _truncated_message({spec.full_name!r}, n, exc) from None",
+        f"    if {end} != n:",
+        f"        raise _trailing({spec.full_name!r}, {end}, n)",
+        f"    return cls({', '.join(args)})",
+    ]

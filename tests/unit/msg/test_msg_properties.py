@@ -16,7 +16,9 @@ from hypothesis import strategies as st
 
 from mrosd.errors import DeserializationError, MsgError
 from mrosd.msg import Duration, Time, get_message_class, load_type
+from mrosd.msg.loader import view_decoder
 from mrosd.msg.parser import parse_definition, parse_msg, parse_srv
+from mrosd.msg.runtime import ZERO_COPY_MIN
 from mrosd.msg.spec import PRIMITIVE_FORMATS, Field
 from mrosd.msg.typestore import TypeStore
 
@@ -238,3 +240,55 @@ def test_load_type_raises_only_msg_errors(lines: list[str]) -> None:
     except MsgError:
         return
     assert cls.deserialize(cls().serialize()) == cls()
+
+
+# --- the view decoder (zero-copy subscribers read leased shared memory with it) ---------------------------
+
+
+def _view_decode(cls: Any, body: bytes) -> tuple[Any, list[memoryview]]:
+    views: list[memoryview] = []
+    return view_decoder(cls)(memoryview(body).toreadonly(), cls, views), views
+
+
+@pytest.mark.parametrize("cls", CLASSES, ids=lambda c: c._type)
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_the_view_decoder_reads_what_deserialize_reads(cls: Any, data: st.DataObject) -> None:
+    body = data.draw(message(cls, STORE)).serialize()
+    msg, views = _view_decode(cls, body)
+    assert msg == cls.deserialize(body)
+    assert views == []  # nothing here reaches ZERO_COPY_MIN: copies, as deserialize makes
+    cut = data.draw(st.integers(0, max(0, len(body) - 1)))
+    if cut < len(body):
+        with pytest.raises(DeserializationError):
+            _view_decode(cls, body[:cut])
+    with pytest.raises(DeserializationError):
+        _view_decode(cls, body + data.draw(st.binary(min_size=1, max_size=8)))
+
+
+@pytest.mark.parametrize("cls", CLASSES, ids=lambda c: c._type)
+@settings(max_examples=100, deadline=None)
+@given(junk=st.binary(max_size=300))
+def test_the_view_decoder_on_random_bytes_decodes_as_deserialize_or_raises(cls: Any, junk: bytes) -> None:
+    try:
+        expected = cls.deserialize(junk)
+    except DeserializationError:
+        with pytest.raises(DeserializationError):
+            _view_decode(cls, junk)
+        return
+    assert _view_decode(cls, junk)[0] == expected
+
+
+def test_the_view_decoder_leaves_large_arrays_as_read_only_views_of_the_input() -> None:
+    image = get_message_class("sensor_msgs/Image")
+    payload = bytes(range(256)) * (ZERO_COPY_MIN // 256 + 1)
+    body = image(height=1, width=len(payload), encoding="mono8", step=len(payload), data=payload).serialize()
+    msg, views = _view_decode(image, body)
+    assert views == [msg.data] and msg.data.readonly and bytes(msg.data) == payload and msg.encoding == "mono8"
+    floats = get_message_class("std_msgs/Float32MultiArray")
+    values = array("f", range(ZERO_COPY_MIN // 4))
+    msg, views = _view_decode(floats, floats(data=values).serialize())
+    assert len(views) == 1 and msg.data.format == "f" and list(msg.data) == list(values)
+    small = floats(data=array("f", [1.5, 2.5]))
+    msg, views = _view_decode(floats, small.serialize())
+    assert views == [] and msg == small  # a small array is an array.array, as deserialize makes
