@@ -19,18 +19,15 @@ after publishing: it is not ours to revoke).
 from __future__ import annotations
 
 import contextlib
-import struct
 from typing import Any
 
 from mrosd.errors import LocalProtocolError
 from mrosd.shm.publisher import LOAN_HEAD, LOAN_TAIL, ShmPublisherEndpoint
 from mrosd.shm.segment import RingSegment
-from mrosd.shm.views import field_offset
 from mrosd.wire.framing import frame_prefix
 
 __all__ = ["Loan", "loaned_class", "make_loan", "publish_loan"]
 
-_U32 = struct.Struct("<I")
 _BYTE_ARRAYS = ("uint8[]", "char[]")
 
 
@@ -131,6 +128,20 @@ def make_loan(publisher: Any, template: Any, sizes: dict[str, int]) -> Any:
     return msg
 
 
+def _around(publisher: Any, msg: Any, loan: Loan) -> tuple[bytes, bytes]:
+    """The serialized message before the loaned array (ending with its length) and after it.
+
+    ``serialize_parts`` hands the array back as a piece of its own (the very view lent), with the rest
+    packed around it: no walk of the type's fields is needed to place it (that walk, in Python, was a
+    quarter of the publish call's time after an idle period).
+    """
+    parts = msg.serialize_parts()
+    for i, part in enumerate(parts):
+        if part is loan.view:
+            return b"".join(parts[:i]), b"".join(parts[i + 1 :])
+    raise LocalProtocolError(f"the loaned field {loan.field!r} is not serialized from the loaned view")
+
+
 def publish_loan(publisher: Any, msg: Any) -> None:
     """Publish a loaned message (``Publisher.publish`` calls this; ``header.seq`` is already set).
 
@@ -143,14 +154,7 @@ def publish_loan(publisher: Any, msg: Any) -> None:
     name = loan.field
     if getattr(msg, name) is not loan.view:
         raise LocalProtocolError(f"the loaned field {name!r} was replaced: fill the loaned view instead")
-    setattr(msg, name, b"")
-    try:
-        rest = msg.serialize()  # the message without its array: a few hundred bytes
-    finally:
-        setattr(msg, name, loan.view)
-    at = field_offset(publisher.msg_class, rest, name)
-    head = rest[:at] + _U32.pack(loan.size)
-    tail = rest[at + 4 :]
+    head, tail = _around(publisher, msg, loan)
     endpoint, ring = loan.endpoint, loan.ring
     if (
         endpoint is not None

@@ -339,10 +339,8 @@ class Publisher:
         same-host subscriber: its pages are faulted in once, off the data path."""
         await self._shm_side().prepare()
         from mrosd.shm.loan import loaned_class
-        from mrosd.shm.views import prepare
 
-        prepare(self.msg_class)  # loans lay messages out with the same walk: ready before the first
-        loaned_class(self.msg_class)
+        loaned_class(self.msg_class)  # not on the first loan's path
 
     def _shm_side(self) -> ShmTopicPublisher:
         if self.shm is None:
