@@ -313,14 +313,23 @@ class ShmSubscriberConnection:
     # wake-ups ----------------------------------------------------------------------------------------------
 
     def _on_wake(self) -> None:
-        if self._wake is not None and not drain_socket(self._wake):
-            self._publisher_left()  # its control socket says so too, maybe later
-            return
         self._poke()
-        if self._on_frame is not None:
-            self._drain()
-        else:
+        if self._on_frame is None:
+            if self._wake is not None and not drain_socket(self._wake):
+                self._publisher_left()  # its control socket says so too, maybe later
+                return
             self._event.set()
+            return
+        # The messages first, then the wake-up byte: its recv is not on their path. After an idle period every
+        # code path runs cold, and that recv measured 55-65 us of an 8 MB loan's 310-330 us (300 messages).
+        self._drain()
+        if self._wake is not None and not drain_socket(self._wake):
+            self._publisher_left()
+            return
+        # A message committed between that read of the ring and the recv woke us with a byte just taken.
+        cursor = self._cursor
+        if cursor is not None and (cursor.available() or self._next_rings):
+            self._schedule()
 
     def _schedule(self) -> None:
         if not self._scheduled:
