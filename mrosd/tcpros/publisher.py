@@ -222,8 +222,8 @@ class Publisher:
         if loan is not None:
             from mrosd.shm.loan import publish_loan
 
-            self._poke()
             publish_loan(self, msg)  # filled in place: published without serializing or copying the array
+            self._poke()  # after: the subscribers' wake-up is the first thing that matters
             return
         serialize_parts = getattr(msg, "serialize_parts", None)
         if serialize_parts is None:
