@@ -252,9 +252,13 @@ async def _lat_pub(args: argparse.Namespace) -> None:
 async def _lat_sub(args: argparse.Namespace) -> None:
     lat: list[float] = []
     done = asyncio.Event()
+    #: (process CPU, wall) when the second message arrived: the subscriber's CPU share while messages flow
+    cpu_from: list[float] = []
 
     def on_body(body: Any) -> None:
         lat.append(time.monotonic() - _STAMP.unpack_from(body, 0)[0])
+        if len(lat) == 2:
+            cpu_from[:] = [time.process_time(), time.monotonic()]
         if len(lat) > args.count:
             done.set()
 
@@ -292,7 +296,8 @@ async def _lat_sub(args: argparse.Namespace) -> None:
         await node.subscribe(TOPIC, AnyMsg, lambda raw: on_body(raw.data), queue_size=4)
         await asyncio.wait_for(done.wait(), 120)
         await node.aclose()
-    _say("lat", json.dumps(lat))
+    cpu, wall = time.process_time() - cpu_from[0], time.monotonic() - cpu_from[1]
+    _say("lat", json.dumps({"lat": lat, "cpu": cpu / wall}))
 
 
 def _compile_roscpp(tmp: Path) -> str | None:
@@ -319,7 +324,8 @@ def _cpp(binary: str, master: str, *argv: str) -> subprocess.Popen[bytes]:
     )
 
 
-def _lat_one(mode: str, size: int, count: int, master: str, cpp: str | None = None) -> list[float]:
+def _lat_one(mode: str, size: int, count: int, master: str, cpp: str | None = None) -> tuple[list[float], float]:
+    """One row's latencies (s) and the subscriber's CPU share while they flowed (nan for roscpp's)."""
     common = ["--mode", mode, "--size", str(size), "--count", str(count), "--master", master]
     procs: list[subprocess.Popen[bytes]] = []
     try:
@@ -335,11 +341,12 @@ def _lat_one(mode: str, size: int, count: int, master: str, cpp: str | None = No
             address, token = _line(pub, "addr").split()
             sub = _spawn("--role", "lsub", *common, "--address", address, "--token", token)
         procs.append(sub)
-        lat: list[float] = json.loads(_line(sub, "lat"))
+        got = json.loads(_line(sub, "lat"))
+        lat, cpu = (got, float("nan")) if isinstance(got, list) else (got["lat"], got["cpu"])
         assert pub.stdin is not None
         pub.stdin.write(b"done\n")
         pub.stdin.flush()
-        return lat
+        return lat, cpu
     finally:
         for p in procs:
             try:
@@ -361,17 +368,18 @@ def _latency_rows(args: argparse.Namespace, master: str, sizes: list[int], modes
     if "roscpp" in modes and cpp is None:
         print("roscpp: cannot compile bench/shm_roscpp.cpp (g++ or the roscpp headers missing); skipped")
         modes.remove("roscpp")
-    print(f"{'size':>6} {'mode':>7} {'median us':>10} {'p99 us':>9} {'first us':>9}")
+    print(f"{'size':>6} {'mode':>7} {'median us':>10} {'p99 us':>9} {'first us':>9} {'sub CPU':>8}")
     table: dict[tuple[int, str], tuple[float, float, float]] = {}
     for size in sizes:
         for mode in modes:
-            lat = _lat_one(mode, size, args.count, master, cpp)
+            lat, cpu = _lat_one(mode, size, args.count, master, cpp)
             first, rest = lat[0], sorted(lat[1:])
             med = statistics.median(rest)
             p99 = rest[min(len(rest) - 1, int(len(rest) * 0.99))]
             table[(size, mode)] = (med, p99, first)
             label = f"{size >> 20}M" if size >= 1 << 20 else f"{size >> 10}K"
-            print(f"{label:>6} {mode:>7} {med * 1e6:>10.0f} {p99 * 1e6:>9.0f} {first * 1e6:>9.0f}", flush=True)
+            row = f"{label:>6} {mode:>7} {med * 1e6:>10.0f} {p99 * 1e6:>9.0f} {first * 1e6:>9.0f} {cpu:>8.1%}"
+            print(row, flush=True)
     big, small = max(sizes), min(sizes)
     loan_big, loan_small = table.get((big, "loan")), table.get((small, "loan"))
     if loan_big and loan_small:
