@@ -14,7 +14,9 @@ Usage: ``python -m bench.shm [--rounds 3] [--sizes 1,8] [--subs 1,4] [--transpor
 
 ``--latency``: one-way latency instead, from the publish call to the subscriber's callback (both processes
 read CLOCK_MONOTONIC; the publisher writes its clock into the message's first 8 bytes), median and p99 over
-``--count`` messages 20 ms apart (no queueing), for 1 KB, 64 KB, 1 MB and 8 MB messages (``--lat-sizes``),
+``--count`` messages 20 ms apart (no queueing), for 1 KB, 64 KB, 1 MB, 8 MB and 64 MB messages
+(``--lat-sizes``; messages over 8 MB go ``LAT_GAP_HUGE`` apart, at most ``LAT_COUNT_HUGE`` of them: a copied
+64 MB message takes longer than 20 ms, and queueing is not latency),
 per mode (``--modes``): ``copy`` (today's shared-memory path: serialized into the ring, copied out),
 ``pool`` (the same, with ``max_message_size`` declared: the ring made and faulted in before the subscriber
 attaches), ``loan`` (``mrosd.Node`` publisher loans, ``zero_copy`` subscriber views: nothing copied),
@@ -199,6 +201,12 @@ async def _sub(args: argparse.Namespace) -> None:
 
 _STAMP = struct.Struct("=d")
 LAT_GAP = 0.02
+LAT_GAP_HUGE = 0.25
+LAT_COUNT_HUGE = 20
+
+
+def _lat_gap(size: int) -> float:
+    return LAT_GAP if size <= 8 << 20 else LAT_GAP_HUGE
 
 
 async def _lat_pub(args: argparse.Namespace) -> None:
@@ -241,10 +249,10 @@ async def _lat_pub(args: argparse.Namespace) -> None:
         await pub.wait_for_subscribers(1, timeout=30)
         publish = pub.publish_serialized
         closer = node.aclose
-    for i in range(args.count + 1):  # the first one as the subscriber is attached, then one every LAT_GAP
+    for i in range(args.count + 1):  # the first one as the subscriber is attached, then one every gap
         _STAMP.pack_into(body, 0, time.monotonic())
         publish(body)
-        await asyncio.sleep(0.2 if i == 0 else LAT_GAP)
+        await asyncio.sleep(0.2 if i == 0 else _lat_gap(args.size))
     await _stdin_line()
     await closer()
 
@@ -326,12 +334,14 @@ def _cpp(binary: str, master: str, *argv: str) -> subprocess.Popen[bytes]:
 
 def _lat_one(mode: str, size: int, count: int, master: str, cpp: str | None = None) -> tuple[list[float], float]:
     """One row's latencies (s) and the subscriber's CPU share while they flowed (nan for roscpp's)."""
+    if size > 8 << 20:
+        count = min(count, LAT_COUNT_HUGE)
     common = ["--mode", mode, "--size", str(size), "--count", str(count), "--master", master]
     procs: list[subprocess.Popen[bytes]] = []
     try:
         if mode == "roscpp":
             assert cpp is not None
-            pub = _cpp(cpp, master, "pub", str(size), str(count))
+            pub = _cpp(cpp, master, "pub", str(size), str(count), str(_lat_gap(size)))
             procs.append(pub)
             _line(pub, "addr")
             sub = _cpp(cpp, master, "sub", str(count))
@@ -488,7 +498,9 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--transports", default="shm,tcpros")
     parser.add_argument("--pace-ms", type=float, default=0.0, help="pause between two messages (0: back to back)")
     parser.add_argument("--latency", action="store_true", help="one-way latency per size and mode (see above)")
-    parser.add_argument("--lat-sizes", default="1024,65536,1048576,8388608", help="latency message sizes, bytes")
+    parser.add_argument(
+        "--lat-sizes", default="1024,65536,1048576,8388608,67108864", help="latency message sizes, bytes"
+    )
     parser.add_argument("--modes", default="loan,copy,pool,tcpros,roscpp", help="latency modes")
     parser.add_argument("--mode", help=argparse.SUPPRESS)
     parser.add_argument("--role", choices=["pub", "sub", "lpub", "lsub"], help=argparse.SUPPRESS)

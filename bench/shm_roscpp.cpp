@@ -1,6 +1,6 @@
 // roscpp's side of `python -m bench.shm --latency` (compiled by the bench, never shipped).
-//   pub <size> <count>  advertise /bench_shm (sensor_msgs/Image), wait for a subscriber, publish count + 1 images
-//                       20 ms apart, each stamped (CLOCK_MONOTONIC seconds, a double in data[0..8]) just before
+//   pub <size> <count> [gap]  advertise /bench_shm (sensor_msgs/Image), wait for a subscriber, publish count + 1
+//                       images gap seconds apart (default 0.02), each stamped (CLOCK_MONOTONIC seconds, a double in data[0..8]) just before
 //                       publish(); then wait for a line on stdin
 //   sub <count>         subscribe, print "lat [seconds, ...]" (receive time minus stamp) after count + 1 images
 #include <ros/ros.h>
@@ -36,6 +36,7 @@ int main(int argc, char** argv) {
   if (mode == "pub" && argc > 3) {
     size_t size = std::strtoul(argv[2], nullptr, 10);
     int count = std::atoi(argv[3]);
+    double gap = argc > 4 ? std::atof(argv[4]) : 0.02;
     ros::Publisher pub = nh.advertise<sensor_msgs::Image>("/bench_shm", 4);
     std::printf("addr - -\n");
     std::fflush(stdout);
@@ -48,7 +49,7 @@ int main(int argc, char** argv) {
       double t = mono();
       std::memcpy(img.data.data(), &t, 8);
       pub.publish(img);
-      ros::Duration(0.02).sleep();
+      ros::Duration(gap).sleep();
     }
     char line[16];
     if (!std::fgets(line, sizeof line, stdin)) return 0;
