@@ -120,6 +120,11 @@ class WebConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     topics: list[str] = msgspec.field(default_factory=lambda: ["*"])
     services: list[str] = msgspec.field(default_factory=lambda: ["*"])
     params: list[str] = msgspec.field(default_factory=lambda: ["*"])
+    #: globs of the ``package://`` URIs clients may fetch (Foxglove's ``fetchAsset``); default: meshes,
+    #: textures and URDFs (``mrosd.web.access.DEFAULT_ASSETS``); empty: the ``assets`` capability is not offered
+    assets: list[str] = msgspec.field(default_factory=lambda: list(_default_assets()))
+    #: largest asset served, bytes
+    asset_bytes: Count | None = None
     #: bytes queued per client subscription (drop-oldest beyond)
     queue_bytes: Count | None = None
     #: bytes queued per client over all its subscriptions
@@ -127,6 +132,12 @@ class WebConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     #: bytes queued for all clients together
     total_bytes: Count | None = None
     max_clients: Count | None = None
+
+
+def _default_assets() -> tuple[str, ...]:
+    from mrosd.web.access import DEFAULT_ASSETS  # pure; imported here so config stays light
+
+    return DEFAULT_ASSETS
 
 
 class FleetLimitConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

@@ -12,6 +12,7 @@ import click
 
 from mros_cli.main import master_uri, run
 from mrosd.errors import ConfigError
+from mrosd.web.access import DEFAULT_ASSETS
 
 
 @click.command(name="bridge")
@@ -24,6 +25,12 @@ from mrosd.errors import ConfigError
 @click.option("--topics", multiple=True, default=["*"], show_default=True, help="allowed topic glob (repeatable)")
 @click.option("--services", multiple=True, default=["*"], show_default=True, help="allowed service glob (repeatable)")
 @click.option("--params", multiple=True, default=["*"], show_default=True, help="allowed parameter glob (repeatable)")
+@click.option(
+    "--assets",
+    multiple=True,
+    default=DEFAULT_ASSETS,
+    help="allowed package:// asset URI glob (repeatable; default: meshes, textures, URDFs)",
+)
 @click.option("--name", default="mros_bridge", show_default=True, help="node name in the graph")
 def group(
     *,
@@ -34,6 +41,7 @@ def group(
     topics: tuple[str, ...],
     services: tuple[str, ...],
     params: tuple[str, ...],
+    assets: tuple[str, ...],
     name: str,
 ) -> None:
     """Serve the ROS graph to browsers: Foxglove WebSocket (Foxglove, Lichtblick) and rosbridge v2 (roslib).
@@ -47,7 +55,7 @@ def group(
     from mrosd.web.access import AccessPolicy
     from mrosd.web.server import WebServer
 
-    policy = AccessPolicy(topics=topics, services=services, params=params, token=token)
+    policy = AccessPolicy(topics=topics, services=services, params=params, assets=assets, token=token)
     try:
         policy.check_bind(host)
     except ConfigError as exc:

@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import collections
 import contextlib
 import logging
 import time
 import urllib.parse
 import uuid
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 from aiohttp import WSMsgType, web
 from aiohttp.abc import AbstractStreamWriter
@@ -31,6 +32,7 @@ from mrosd.errors import MrosError
 from mrosd.master.cleanup import Probe, probe_get_pid
 from mrosd.master.client import GraphSnapshot
 from mrosd.web import foxglove as fg
+from mrosd.web.assets import AssetRefused
 from mrosd.web.hub import PAUSE_BYTES, HoldingSink, ServiceInfo, TopicInfo, WebHub
 from mrosd.web.queue import ByteQueue, trim_to_budget
 from mrosd.web.rates import RateWindow
@@ -47,6 +49,9 @@ STATS_PERIOD = 1.0
 STATS_WINDOW = 5.0
 #: Seconds a node's ``getPid`` may take for ``x-mrosd.nodeDetails``.
 NODE_TIMEOUT = 2.0
+#: fetchAsset requests one client may have waiting behind the one being read and sent (Foxglove asks for a
+#: robot's meshes all at once); each beyond is answered at once with an error
+MAX_PENDING_ASSETS = 256
 
 
 #: payloads from this size on are written after their frame head rather than copied behind it
@@ -122,6 +127,10 @@ class FoxgloveSession(ClientSession):
         self._stats: dict[str, RateWindow] | None = None
         self._stats_task: asyncio.Task[None] | None = None
         self._throttle_timer: asyncio.TimerHandle | None = None
+        #: fetchAsset requests not yet served, and the task serving them one at a time (one asset of this
+        #: client in memory at once: a client that asks for 1000 meshes and reads none holds one)
+        self._asset_requests: collections.deque[fg.FetchAsset] = collections.deque()
+        self._asset_task: asyncio.Task[None] | None = None
 
     # --- hub callbacks (never block) -------------------------------------------------------------
 
@@ -274,6 +283,8 @@ class FoxgloveSession(ClientSession):
         """Serve the client until it disconnects; always releases what it held."""
         hub = self.hub
         capabilities = [*self.CAPABILITIES, "time"] if hub.sim_time else list(self.CAPABILITIES)
+        if hub.assets is not None:
+            capabilities.append("assets")
         self._send_json(fg.server_info("mrosd", capabilities, session_id=uuid.uuid4().hex, metadata={"ros": "1"}))
         if hub.sim_time:
             hub.time_listeners.add(self._time)
@@ -301,6 +312,8 @@ class FoxgloveSession(ClientSession):
                 self._throttle_timer.cancel()
             if self._stats_task is not None:
                 tasks.append(self._stats_task)
+            if self._asset_task is not None:
+                tasks.append(self._asset_task)
             tasks += self._calls
             for task in tasks:
                 task.cancel()
@@ -402,7 +415,47 @@ class FoxgloveSession(ClientSession):
             self._calls.add(task)
             task.add_done_callback(self._calls.discard)
         elif isinstance(op, fg.FetchAsset):
-            self.status(fg.STATUS_ERROR, "fetchAsset is not supported (no assets capability)")
+            self._request_asset(op)
+
+    # --- assets ----------------------------------------------------------------------------------
+
+    def _request_asset(self, op: fg.FetchAsset) -> None:
+        if self.hub.assets is None:
+            self.status(fg.STATUS_ERROR, "fetchAsset is not offered (no assets capability: [web] assets is empty)")
+            return
+        if len(self._asset_requests) >= MAX_PENDING_ASSETS:
+            why = f"{op.uri[:200]}: more than {MAX_PENDING_ASSETS} asset requests pending for this client"
+            self._queue_control(False, fg.fetch_asset_error(op.requestId, why))
+            return
+        self._asset_requests.append(op)
+        if self._asset_task is None:
+            self._asset_task = asyncio.get_running_loop().create_task(
+                self._serve_assets(), name=f"foxglove assets {self.peer}"
+            )
+
+    async def _serve_assets(self) -> None:
+        """Read and send this client's requested assets in order, one at a time."""
+        assets = self.hub.assets
+        assert assets is not None
+        try:
+            while self._asset_requests and not self._closed:
+                op = self._asset_requests.popleft()
+                try:
+                    held = await assets.read(op.uri, fg.fetch_asset_head(op.requestId))
+                except AssetRefused as exc:
+                    self._queue_control(False, fg.fetch_asset_error(op.requestId, f"{op.uri[:200]}: {exc}"))
+                    continue
+                try:
+                    # not through the control queue: an asset may be far bigger than its bound. Written as one
+                    # frame, like messageData; aiohttp's drain (and its heartbeat, for a client that stops
+                    # reading) is the flow control, and this client's next asset waits for it
+                    await self.ws.send_bytes(cast(bytes, held.frame))  # aiohttp takes any bytes-like, no copy
+                finally:
+                    held.release()
+        except ConnectionError:
+            pass  # the client left; run() releases the rest
+        finally:
+            self._asset_task = None
 
     # --- mrosd's extensions for its page ----------------------------------------------------------
 

@@ -33,6 +33,7 @@ from mrosd.msg.loader import default_store
 from mrosd.tcpros import Node
 from mrosd.tcpros.subscriber import AnyMsg, RawMessage, Subscriber
 from mrosd.web.access import AccessPolicy
+from mrosd.web.assets import AssetReader
 from mrosd.web.foxglove import SystemState
 from mrosd.web.queue import Ledger
 from mrosd.wire.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header, encode_header
@@ -191,8 +192,11 @@ class WebHub:
         poll_interval: float = 0.5,
         host: str | None = None,
         max_queued_bytes: int = MAX_QUEUED_BYTES,
+        assets: AssetReader | None = None,
     ) -> None:
         self.master_uri = master_uri
+        #: serves fetchAsset for every client (None: the ``assets`` capability is not offered)
+        self.assets = assets
         #: every client queue of every protocol counts its bytes here; beyond max_queued_bytes the fullest
         #: client sheds its oldest messages (per-client budgets alone let N clients hold N budgets)
         self.ledger = Ledger()
@@ -272,6 +276,8 @@ class WebHub:
         for entry in shared.values():
             entry.sinks.clear()
         self._publishers.clear()
+        if self.assets is not None:
+            self.assets.close()
         await self.node.aclose()
 
     # --- the graph -------------------------------------------------------------------------------

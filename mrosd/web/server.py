@@ -15,8 +15,10 @@ from typing import Any
 
 from aiohttp import web
 
+from mrosd.msg.typestore import TypeStore
 from mrosd.web import foxglove as fg
 from mrosd.web.access import AccessPolicy
+from mrosd.web.assets import MAX_ASSET_BYTES, AssetReader
 from mrosd.web.foxglove_server import FoxgloveSession, SessionLimits
 from mrosd.web.hub import WebHub
 from mrosd.web.page import index, page_routes
@@ -50,6 +52,8 @@ class WebServer:
         node_host: str | None = None,
         rosbridge_port: int | None = None,
         max_queued_bytes: int | None = None,
+        asset_store: TypeStore | None = None,
+        asset_bytes: int | None = None,
     ) -> None:
         self.policy = policy or AccessPolicy()
         self.policy.check_bind(host)
@@ -58,7 +62,14 @@ class WebServer:
         self.limits = limits or SessionLimits()
         self.max_clients = max_clients
         self.max_frame = max_frame
-        self.hub = WebHub(master_uri, name=node_name, policy=self.policy, host=node_host)
+        #: fetchAsset: package:// URIs found where the type search finds packages (``asset_store``, default the
+        #: process's own), none at all when the policy's asset allow-list is empty
+        assets = (
+            AssetReader(asset_store, allows=self.policy.allows_asset, max_bytes=asset_bytes or MAX_ASSET_BYTES)
+            if self.policy.assets
+            else None
+        )
+        self.hub = WebHub(master_uri, name=node_name, policy=self.policy, host=node_host, assets=assets)
         if max_queued_bytes is not None:
             self.hub.max_queued_bytes = max_queued_bytes
         self.sessions: set[FoxgloveSession] = set()

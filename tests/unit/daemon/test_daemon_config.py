@@ -63,6 +63,17 @@ def test_a_bad_config_is_an_error_naming_the_key(text: str, needle: str) -> None
     assert "mrosd.toml" in str(info.value)
 
 
+def test_web_assets_default_to_meshes_and_an_empty_list_offers_none() -> None:
+    from mrosd.web.access import DEFAULT_ASSETS
+
+    web = parse_config("").web
+    assert (web.assets, web.asset_bytes) == (list(DEFAULT_ASSETS), None)
+    web = parse_config("[web]\nassets = []\nasset_bytes = 1024\n").web
+    assert (web.assets, web.asset_bytes) == ([], 1024)
+    with pytest.raises(ConfigError, match=r"web\.asset_bytes"):
+        parse_config("[web]\nasset_bytes = 0\n")
+
+
 def test_the_log_directory_is_ros_s_unless_set_or_off() -> None:
     assert parse_config("").log.dir == ""  # the daemon then follows ROS_LOG_DIR, ROS_HOME/log, ~/.ros/log
     assert parse_config('[log]\ndir = "off"\n').log.dir == "off"
