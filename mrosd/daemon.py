@@ -408,9 +408,9 @@ class Daemon:
         if self.rosout is not None:
             parts.append("rosout")
         if self.web is not None:
-            parts.append(f"foxglove {self.web.url}")
+            parts.append(f"foxglove {' '.join(self.web.urls)}")
             if self.web.rosbridge_port is not None:
-                parts.append(f"rosbridge {self.web.rosbridge_url}")
+                parts.append(f"rosbridge {' '.join(self.web.rosbridge_urls)}")
         if self.fleet is not None:
             parts.append(f"fleet {self.cfg.fleet.robot}")
         line = ", ".join(parts)

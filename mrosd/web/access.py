@@ -66,14 +66,15 @@ class AccessPolicy:
         self._params = _compile(params)
         self._assets = _compile(assets)
 
-    def check_bind(self, host: str) -> None:
-        """Refuse to listen off-loopback without a token.
+    def check_bind(self, hosts: str | Sequence[str]) -> None:
+        """Refuse to listen off-loopback without a token, on any one of ``hosts``.
 
         Raises:
-            ConfigError: ``host`` is reachable from the network and no token is set.
+            ConfigError: an address is reachable from the network and no token is set.
         """
-        if not is_loopback(host) and not self.token:
-            raise ConfigError(f"web: binding {host!r} (not loopback) needs a token ([web] token)")
+        for host in [hosts] if isinstance(hosts, str) else hosts:
+            if not is_loopback(host) and not self.token:
+                raise ConfigError(f"web: binding {host!r} (not loopback) needs a token ([web] token)")
 
     def token_ok(self, offered: str | None) -> bool:
         """True when no token is configured or ``offered`` matches it (constant-time compare)."""
