@@ -122,6 +122,9 @@ class FoxgloveSession(ClientSession):
         self.sent_messages = 0
         #: the latest /clock time not yet sent (a 1 kHz clock costs the client the rate it reads at)
         self._time_ns: int | None = None
+        #: serverInfo declared ``time`` (sim time was on as the client connected): it gets /clock's time and
+        #: its messages are stamped with it, as the protocol asks, for as long as sim time stays on
+        self._offered_time = False
         #: x-mrosd.subscribeStats: the sink holding each measured topic open, and each topic's window
         self._stats_sink = HoldingSink()
         self._stats: dict[str, RateWindow] | None = None
@@ -147,6 +150,8 @@ class FoxgloveSession(ClientSession):
 
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         subs = self._by_topic.get(topic, ())
+        if self._offered_time and self.hub.sim_time:
+            receipt_ns = self.hub.clock_ns  # the time source of its time messages, as roscpp's receipt time
         for sub in subs:
             if sub.period_ns:
                 sub.queue.clear()  # throttled: the latest message replaces the one not yet sent
@@ -177,6 +182,23 @@ class FoxgloveSession(ClientSession):
     def _time(self, now_ns: int) -> None:
         self._time_ns = now_ns
         self._wake.set()
+
+    def _sim_time_changed(self, on: bool) -> None:
+        """/use_sim_time changed. The protocol declares capabilities once, in the serverInfo a client gets as it
+        connects (foxglove.websocket.v1 has no update of them, and Foxglove sets up timers per serverInfo): a
+        client offered ``time`` gets time messages again while sim time is on; any other is told to reconnect."""
+        if self._offered_time:
+            if on:
+                self.hub.time_listeners.add(self._time)
+            else:
+                self.hub.time_listeners.discard(self._time)
+        if on and not self._offered_time:
+            why = "/use_sim_time is now true: reconnect to follow /clock"
+        elif not on and self._offered_time:
+            why = "/use_sim_time is now false: no more time messages; reconnect to use wall-clock time"
+        else:
+            return
+        self.status(fg.STATUS_INFO, f"{why} (capabilities are declared in serverInfo, once per connection)", "sim_time")
 
     def _state_changed(self, state: fg.SystemState) -> None:
         if self._graph_state is None:
@@ -282,12 +304,14 @@ class FoxgloveSession(ClientSession):
     async def run(self) -> None:
         """Serve the client until it disconnects; always releases what it held."""
         hub = self.hub
-        capabilities = [*self.CAPABILITIES, "time"] if hub.sim_time else list(self.CAPABILITIES)
+        self._offered_time = hub.sim_time
+        capabilities = [*self.CAPABILITIES, "time"] if self._offered_time else list(self.CAPABILITIES)
         if hub.assets is not None:
             capabilities.append("assets")
         self._send_json(fg.server_info("mrosd", capabilities, session_id=uuid.uuid4().hex, metadata={"ros": "1"}))
-        if hub.sim_time:
+        if self._offered_time:
             hub.time_listeners.add(self._time)
+        hub.sim_time_listeners.add(self._sim_time_changed)
         self._send_json(fg.encode_json("advertise", channels=[_channel(t) for t in hub.topics.values()]))
         if hub.services:
             self._send_json(fg.encode_json("advertiseServices", services=[_service(s) for s in hub.services.values()]))
@@ -325,6 +349,7 @@ class FoxgloveSession(ClientSession):
         hub.listeners.discard(self)
         hub.state_listeners.discard(self._state_changed)
         hub.time_listeners.discard(self._time)
+        hub.sim_time_listeners.discard(self._sim_time_changed)
         for topic in list(self._by_topic):
             await hub.remove_sink(topic, self)
         for topic in list(self._stats or ()):

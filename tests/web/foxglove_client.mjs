@@ -29,6 +29,7 @@ let callId = 0;
 client.on("open", () => out({ event: "open", protocol: ws.protocol }));
 client.on("serverInfo", (info) => out({ event: "serverInfo", capabilities: info.capabilities }));
 client.on("status", (s) => out({ event: "status", level: s.level, message: s.message }));
+client.on("time", (t) => out({ event: "time", timestamp: t.timestamp.toString() }));
 client.on("error", (e) => out({ event: "error", message: String(e) }));
 client.on("close", () => {
   out({ event: "close" });

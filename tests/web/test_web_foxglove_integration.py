@@ -385,3 +385,30 @@ async def test_several_addresses_need_the_token_if_any_is_not_loopback(master: M
     with pytest.raises(ConfigError, match="no address"):
         WebServer(master.uri, host=[], port=0)
     WebServer(master.uri, host=["127.0.0.1", "0.0.0.0"], port=0, policy=AccessPolicy(token="s3cret"))  # not started
+
+
+async def test_the_hubs_own_sim_time_watch_outlives_clients_and_the_params_allow_list(master: Master) -> None:
+    """A client watching /use_sim_time and leaving must not end the hub's watch, and the [web] params
+    allow-list (what clients may see) does not hide the parameter from the hub itself."""
+    from mrosd.web.access import AccessPolicy
+
+    async with (
+        WebServer(master.uri, port=0, node_host="127.0.0.1") as server,
+        WebServer(
+            master.uri, port=0, node_host="127.0.0.1", node_name="narrow", policy=AccessPolicy(params=["/robot/*"])
+        ) as narrow,
+        node("sim", master.uri) as sim,
+        aiohttp.ClientSession() as http,
+    ):
+        client = await connect(http, server)
+        await client.send(op="subscribeParameterUpdates", parameterNames=["/use_sim_time"])
+        await until(lambda: server.hub.sink_count("/clock") == 0 and server.sessions)
+        await client.send(op="unsubscribeParameterUpdates", parameterNames=["/use_sim_time"])
+        await client.ws.close()
+        await until(lambda: not server.sessions)
+        await sim.set_param("/use_sim_time", True)
+        await until(lambda: server.hub.sim_time and narrow.hub.sim_time)
+        assert server.hub.sink_count("/clock") == 1 and narrow.hub.sink_count("/clock") == 1
+        await sim.master.delete_param("/use_sim_time")  # paramUpdate says {}: unset is false
+        await until(lambda: not server.hub.sim_time and not narrow.hub.sim_time)
+        assert server.hub.sink_count("/clock") == 0

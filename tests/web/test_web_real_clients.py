@@ -418,3 +418,52 @@ def test_foxglove_client_fetches_a_robots_mesh_and_urdf_from_the_daemon(procs: A
         assert run.stop()[0] == 0, run.stderr()
     finally:
         run.close()
+
+
+@needs_node
+async def test_sim_time_follows_use_sim_time_as_it_changes(master: Master, client_of: Any) -> None:
+    """/use_sim_time false, then true, then false, while clients are connected; a real /clock publisher.
+
+    Capabilities are declared once per connection: a client that connected under wall time is told to
+    reconnect; one that connects under sim time is offered ``time``, gets /clock's time and its messages
+    stamped with it; when sim time ends the server leaves /clock and that client is told."""
+    Clock = get_message_class("rosgraph_msgs/Clock")
+
+    def clock_at(secs: int, nsecs: int) -> Any:
+        msg = Clock()
+        msg.clock.secs, msg.clock.nsecs = secs, nsecs
+        return msg
+
+    async with (
+        WebServer(master.uri, port=0, node_host="127.0.0.1") as server,
+        node("sim", master.uri) as sim,
+    ):
+        clock = await sim.advertise("/clock", Clock)
+        chatter = await sim.advertise("/chatter", String)
+        wall = await client_of(server)
+        assert "time" not in wall.events[-1]["capabilities"]
+
+        await sim.set_param("/use_sim_time", True)
+        status = await wall.until("status", timeout=10)
+        assert "/use_sim_time is now true: reconnect" in status["message"]
+        simulated = await client_of(server)
+        assert "time" in simulated.events[-1]["capabilities"]
+        await clock.wait_for_subscribers(1, timeout=10)
+        await clock.publish(clock_at(12, 345))
+        assert (await simulated.until("time"))["timestamp"] == "12000000345"
+        await simulated.until("channel", topic="/chatter")
+        await simulated.send(cmd="subscribe", topic="/chatter")
+        await chatter.wait_for_subscribers(1, timeout=10)
+        await chatter.publish(String(data="at sim time"))
+        assert (await simulated.until("message", topic="/chatter"))["timestamp"] == "12000000345"
+
+        await sim.set_param("/use_sim_time", False)
+        status = await simulated.until("status", timeout=10)
+        assert "/use_sim_time is now false" in status["message"]
+        async with asyncio.timeout(10):
+            while clock.get_num_connections():  # noqa: ASYNC110 - the server leaves /clock
+                await asyncio.sleep(0.01)
+        assert not server.hub.time_listeners
+        later = await client_of(server)
+        assert "time" not in later.events[-1]["capabilities"]
+        assert not [e for e in (*wall.events, *later.events) if e["event"] == "time"]
