@@ -108,8 +108,9 @@ class WebConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """
 
     enabled: bool = True
-    #: bind address; anything but loopback needs ``token``
-    host: str = "127.0.0.1"
+    #: bind address, or a list of them (``["127.0.0.1", "::1"]``: both ports on each); any address that is
+    #: not loopback needs ``token``
+    host: str | list[str] = "127.0.0.1"
     #: Foxglove WebSocket port (0: any free port)
     foxglove_port: int = 8765
     #: rosbridge v2 port for roslibjs/roslibpy (0: any free port; -1: not served)
@@ -120,6 +121,11 @@ class WebConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     topics: list[str] = msgspec.field(default_factory=lambda: ["*"])
     services: list[str] = msgspec.field(default_factory=lambda: ["*"])
     params: list[str] = msgspec.field(default_factory=lambda: ["*"])
+    #: globs of the ``package://`` URIs clients may fetch (Foxglove's ``fetchAsset``); default: meshes,
+    #: textures and URDFs (``mrosd.web.access.DEFAULT_ASSETS``); empty: the ``assets`` capability is not offered
+    assets: list[str] = msgspec.field(default_factory=lambda: list(_default_assets()))
+    #: largest asset served, bytes
+    asset_bytes: Count | None = None
     #: bytes queued per client subscription (drop-oldest beyond)
     queue_bytes: Count | None = None
     #: bytes queued per client over all its subscriptions
@@ -127,6 +133,16 @@ class WebConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     #: bytes queued for all clients together
     total_bytes: Count | None = None
     max_clients: Count | None = None
+
+    def hosts(self) -> list[str]:
+        """``host`` as a list, in the order given (the first is the one URLs name)."""
+        return [self.host] if isinstance(self.host, str) else list(self.host)
+
+
+def _default_assets() -> tuple[str, ...]:
+    from mrosd.web.access import DEFAULT_ASSETS  # pure; imported here so config stays light
+
+    return DEFAULT_ASSETS
 
 
 class FleetLimitConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -284,10 +300,16 @@ def _validate_web(web: WebConfig, where: str) -> None:
         raise ConfigError(f"{where}: web.foxglove_port must be 0..65535, got {web.foxglove_port}")
     if not -1 <= web.rosbridge_port <= 65535:
         raise ConfigError(f"{where}: web.rosbridge_port must be 0..65535 (or -1: off), got {web.rosbridge_port}")
-    if not valid_host(web.host):
-        raise ConfigError(f"{where}: web.host is not an IP address or host name: {web.host!r}")
-    if web.enabled and not web.token and not is_loopback(web.host):
-        raise ConfigError(f"{where}: web.host {web.host!r} is not loopback: set web.token (clients must present it)")
+    hosts = web.hosts()
+    if not hosts:
+        raise ConfigError(f"{where}: web.host is an empty list: name at least one address")
+    if len(set(hosts)) != len(hosts):
+        raise ConfigError(f"{where}: web.host names an address twice: {hosts}")
+    for host in hosts:
+        if not valid_host(host):
+            raise ConfigError(f"{where}: web.host is not an IP address or host name: {host!r}")
+        if web.enabled and not web.token and not is_loopback(host):
+            raise ConfigError(f"{where}: web.host {host!r} is not loopback: set web.token (clients must present it)")
 
 
 def _bool(name: str, value: str) -> bool:
@@ -335,7 +357,8 @@ def apply_environment(cfg: Config, environ: Mapping[str, str]) -> Config:
     if "MROSD_WEB" in environ:
         cfg.web.enabled = _bool("MROSD_WEB", environ["MROSD_WEB"])
     if "MROSD_WEB_HOST" in environ:
-        cfg.web.host = environ["MROSD_WEB_HOST"]
+        hosts = [h.strip() for h in environ["MROSD_WEB_HOST"].split(",") if h.strip()]
+        cfg.web.host = hosts[0] if len(hosts) == 1 else hosts  # "127.0.0.1,::1": both
     if "MROSD_WEB_PORT" in environ:
         cfg.web.foxglove_port = _int("MROSD_WEB_PORT", environ["MROSD_WEB_PORT"])
     if "MROSD_WEB_ROSBRIDGE_PORT" in environ:

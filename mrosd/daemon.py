@@ -364,7 +364,9 @@ class Daemon:
         from mrosd.web.server import WebServer
 
         web = self.cfg.web
-        policy = AccessPolicy(topics=web.topics, services=web.services, params=web.params, token=web.token)
+        policy = AccessPolicy(
+            topics=web.topics, services=web.services, params=web.params, assets=web.assets, token=web.token
+        )
         caps = {"queue_bytes": web.queue_bytes, "client_bytes": web.client_bytes}
         limits = SessionLimits(**{k: v for k, v in caps.items() if v is not None})
         rosbridge = web.rosbridge_port if web.rosbridge_port >= 0 else None
@@ -376,6 +378,7 @@ class Daemon:
             limits=limits,
             rosbridge_port=rosbridge,
             max_queued_bytes=web.total_bytes,
+            asset_bytes=web.asset_bytes,
         )
         if web.max_clients is not None:
             server.max_clients = web.max_clients
@@ -405,9 +408,9 @@ class Daemon:
         if self.rosout is not None:
             parts.append("rosout")
         if self.web is not None:
-            parts.append(f"foxglove {self.web.url}")
+            parts.append(f"foxglove {' '.join(self.web.urls)}")
             if self.web.rosbridge_port is not None:
-                parts.append(f"rosbridge {self.web.rosbridge_url}")
+                parts.append(f"rosbridge {' '.join(self.web.rosbridge_urls)}")
         if self.fleet is not None:
             parts.append(f"fleet {self.cfg.fleet.robot}")
         line = ", ".join(parts)

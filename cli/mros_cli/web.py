@@ -44,8 +44,9 @@ def group(config_path: str | None) -> None:
     web = cfg.web
     if not web.enabled:
         raise click.ClickException("the daemon's web part is off ([web] enabled = false): no page is served")
-    click.echo(page_url(web.host, web.foxglove_port, web.token))
-    probe_host = "127.0.0.1" if web.host in ("0.0.0.0", "") else ("::1" if web.host == "::" else web.host)
+    host = web.hosts()[0]  # the daemon's URLs name its first address too
+    click.echo(page_url(host, web.foxglove_port, web.token))
+    probe_host = "127.0.0.1" if host in ("0.0.0.0", "") else ("::1" if host == "::" else host)
     try:
         with socket.create_connection((probe_host, web.foxglove_port), timeout=PROBE_TIMEOUT):
             pass

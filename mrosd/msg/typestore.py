@@ -90,10 +90,17 @@ class TypeStore:
         for pkg, directory in self.includes:
             if pkg == package:
                 dirs.append(directory / kind if (directory / kind).is_dir() else directory)
-        dirs += [p / kind for p in self._rpp_packages().get(package, [])]
-        for pattern in self.system_dirs:
-            dirs += [Path(root) / package / kind for root in sorted(_glob(pattern))]
+        dirs += [p / kind for p in self.package_roots(package)]
         return dirs
+
+    def package_roots(self, package: str) -> list[Path]:
+        """Where ``package`` itself may be, in search order: its directories on ``ROS_PACKAGE_PATH``, then
+        ``<system dir>/<package>`` (which may not exist, or hold no ``package.xml``). Also where the web part
+        resolves ``package://`` asset URIs, so that an asset is found where the package's types are."""
+        roots = list(self._rpp_packages().get(package, []))
+        for pattern in self.system_dirs:
+            roots += [Path(root) / package for root in sorted(_glob(pattern))]
+        return roots
 
     def find(self, name: str, kind: str) -> Path:
         """The file defining ``pkg/Type`` (kind ``msg`` or ``srv``).

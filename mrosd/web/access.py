@@ -1,7 +1,8 @@
 """What browser clients may see and touch: topic, service and parameter allow-lists, the token rule.
 
-Pure data. The globs are shell-style (``fnmatch``) over resolved graph names (``/camera/*``, ``/rosout*``);
-``*`` alone allows everything, an empty list allows nothing. A token is required on any bind address that
+Pure data. The globs are shell-style (``fnmatch``) over resolved graph names (``/camera/*``, ``/rosout*``),
+and over whole URIs for assets (``package://*.stl``); ``*`` alone allows everything, an empty list allows
+nothing (and, for assets, the server does not offer them at all). A token is required on any bind address that
 is not loopback, because a WebSocket reachable from the network lets anyone publish on the robot.
 """
 
@@ -15,7 +16,15 @@ from collections.abc import Sequence
 
 from mrosd.errors import ConfigError
 
-__all__ = ["AccessPolicy", "is_loopback"]
+__all__ = ["DEFAULT_ASSETS", "AccessPolicy", "is_loopback"]
+
+#: Asset URIs served by default: meshes, textures and robot descriptions of ROS packages, the files
+#: foxglove_bridge's default ``asset_uri_allowlist`` names (upper-case suffixes too: CAD exporters write
+#: ``.STL``). ``mrosd.web.assets`` refuses every other scheme and any ``..`` whatever the globs say.
+_ASSET_SUFFIXES = ("dae", "fbx", "glb", "gltf", "jpeg", "jpg", "mtl", "obj", "png", "stl", "tif", "tiff", "urdf")
+DEFAULT_ASSETS: tuple[str, ...] = tuple(
+    f"package://*.{suffix}" for ext in (*_ASSET_SUFFIXES, "webp", "xacro") for suffix in (ext, ext.upper())
+)
 
 
 def is_loopback(host: str) -> bool:
@@ -45,23 +54,27 @@ class AccessPolicy:
         services: Sequence[str] = ("*",),
         params: Sequence[str] = ("*",),
         token: str = "",
+        assets: Sequence[str] = DEFAULT_ASSETS,
     ) -> None:
         self.topics = list(topics)
+        self.assets = list(assets)
         self.services = list(services)
         self.params = list(params)
         self.token = token
         self._topics = _compile(topics)
         self._services = _compile(services)
         self._params = _compile(params)
+        self._assets = _compile(assets)
 
-    def check_bind(self, host: str) -> None:
-        """Refuse to listen off-loopback without a token.
+    def check_bind(self, hosts: str | Sequence[str]) -> None:
+        """Refuse to listen off-loopback without a token, on any one of ``hosts``.
 
         Raises:
-            ConfigError: ``host`` is reachable from the network and no token is set.
+            ConfigError: an address is reachable from the network and no token is set.
         """
-        if not is_loopback(host) and not self.token:
-            raise ConfigError(f"web: binding {host!r} (not loopback) needs a token ([web] token)")
+        for host in [hosts] if isinstance(hosts, str) else hosts:
+            if not is_loopback(host) and not self.token:
+                raise ConfigError(f"web: binding {host!r} (not loopback) needs a token ([web] token)")
 
     def token_ok(self, offered: str | None) -> bool:
         """True when no token is configured or ``offered`` matches it (constant-time compare)."""
@@ -77,3 +90,6 @@ class AccessPolicy:
 
     def allows_param(self, name: str) -> bool:
         return self._params is not None and self._params.fullmatch(name) is not None
+
+    def allows_asset(self, uri: str) -> bool:
+        return self._assets is not None and self._assets.fullmatch(uri) is not None

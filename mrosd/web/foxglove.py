@@ -10,6 +10,7 @@ Binary layouts (little-endian), as the protocol specification defines them:
   server: 1 messageData   op u8, subscriptionId u32, receiptTimestamp u64 (ns), payload
           2 time          op u8, timestamp u64 (ns)
           3 serviceCallResponse  op u8, serviceId u32, callId u32, encodingLength u32, encoding, payload
+          4 fetchAssetResponse   op u8, requestId u32, status u8 (0 ok, 1 error), errorLength u32, error, data
   client: 1 messageData   op u8, channelId u32, payload
           2 serviceCallRequest   op u8, serviceId u32, callId u32, encodingLength u32, encoding, payload
 """
@@ -49,6 +50,8 @@ __all__ = [
     "decode_client_binary",
     "decode_client_text",
     "encode_json",
+    "fetch_asset_error",
+    "fetch_asset_head",
     "message_data",
     "message_data_head",
     "message_data_prefix",
@@ -66,6 +69,9 @@ STATUS_ERROR: Final = 2
 OP_MESSAGE_DATA: Final = 1
 OP_TIME: Final = 2
 OP_SERVICE_CALL_RESPONSE: Final = 3
+OP_FETCH_ASSET_RESPONSE: Final = 4
+FETCH_ASSET_OK: Final = 0
+FETCH_ASSET_ERROR: Final = 1
 CLIENT_OP_MESSAGE_DATA: Final = 1
 CLIENT_OP_SERVICE_CALL_REQUEST: Final = 2
 
@@ -82,6 +88,7 @@ _MESSAGE_DATA = struct.Struct("<BIQ")
 _TIME = struct.Struct("<BQ")
 _CALL = struct.Struct("<BIII")
 _CLIENT_DATA = struct.Struct("<BI")
+_FETCH_ASSET = struct.Struct("<BIBI")
 
 
 class ProtocolRefusal(RemoteProtocolError):
@@ -393,6 +400,17 @@ def service_call_response(
 ) -> bytes:
     enc = encoding.encode()
     return _CALL.pack(OP_SERVICE_CALL_RESPONSE, service_id, call_id, len(enc)) + enc + payload
+
+
+def fetch_asset_head(request_id: int) -> bytes:
+    """What precedes an asset's bytes in a successful fetchAssetResponse (the reader puts the file behind it)."""
+    return _FETCH_ASSET.pack(OP_FETCH_ASSET_RESPONSE, request_id, FETCH_ASSET_OK, 0)
+
+
+def fetch_asset_error(request_id: int, message: str) -> bytes:
+    """A fetchAssetResponse saying why the asset is not sent (no data)."""
+    text = message.encode("utf-8", "replace")
+    return _FETCH_ASSET.pack(OP_FETCH_ASSET_RESPONSE, request_id, FETCH_ASSET_ERROR, len(text)) + text
 
 
 #: ``(publishers, subscribers, services)`` as getSystemState gives them: ``{name: [node, ...]}`` each.

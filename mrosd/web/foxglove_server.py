@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import collections
 import contextlib
 import logging
 import time
 import urllib.parse
 import uuid
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 from aiohttp import WSMsgType, web
 from aiohttp.abc import AbstractStreamWriter
@@ -31,6 +32,7 @@ from mrosd.errors import MrosError
 from mrosd.master.cleanup import Probe, probe_get_pid
 from mrosd.master.client import GraphSnapshot
 from mrosd.web import foxglove as fg
+from mrosd.web.assets import AssetRefused
 from mrosd.web.hub import PAUSE_BYTES, HoldingSink, ServiceInfo, TopicInfo, WebHub
 from mrosd.web.queue import ByteQueue, trim_to_budget
 from mrosd.web.rates import RateWindow
@@ -47,6 +49,9 @@ STATS_PERIOD = 1.0
 STATS_WINDOW = 5.0
 #: Seconds a node's ``getPid`` may take for ``x-mrosd.nodeDetails``.
 NODE_TIMEOUT = 2.0
+#: fetchAsset requests one client may have waiting behind the one being read and sent (Foxglove asks for a
+#: robot's meshes all at once); each beyond is answered at once with an error
+MAX_PENDING_ASSETS = 256
 
 
 #: payloads from this size on are written after their frame head rather than copied behind it
@@ -117,11 +122,18 @@ class FoxgloveSession(ClientSession):
         self.sent_messages = 0
         #: the latest /clock time not yet sent (a 1 kHz clock costs the client the rate it reads at)
         self._time_ns: int | None = None
+        #: serverInfo declared ``time`` (sim time was on as the client connected): it gets /clock's time and
+        #: its messages are stamped with it, as the protocol asks, for as long as sim time stays on
+        self._offered_time = False
         #: x-mrosd.subscribeStats: the sink holding each measured topic open, and each topic's window
         self._stats_sink = HoldingSink()
         self._stats: dict[str, RateWindow] | None = None
         self._stats_task: asyncio.Task[None] | None = None
         self._throttle_timer: asyncio.TimerHandle | None = None
+        #: fetchAsset requests not yet served, and the task serving them one at a time (one asset of this
+        #: client in memory at once: a client that asks for 1000 meshes and reads none holds one)
+        self._asset_requests: collections.deque[fg.FetchAsset] = collections.deque()
+        self._asset_task: asyncio.Task[None] | None = None
 
     # --- hub callbacks (never block) -------------------------------------------------------------
 
@@ -138,6 +150,8 @@ class FoxgloveSession(ClientSession):
 
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         subs = self._by_topic.get(topic, ())
+        if self._offered_time and self.hub.sim_time:
+            receipt_ns = self.hub.clock_ns  # the time source of its time messages, as roscpp's receipt time
         for sub in subs:
             if sub.period_ns:
                 sub.queue.clear()  # throttled: the latest message replaces the one not yet sent
@@ -168,6 +182,23 @@ class FoxgloveSession(ClientSession):
     def _time(self, now_ns: int) -> None:
         self._time_ns = now_ns
         self._wake.set()
+
+    def _sim_time_changed(self, on: bool) -> None:
+        """/use_sim_time changed. The protocol declares capabilities once, in the serverInfo a client gets as it
+        connects (foxglove.websocket.v1 has no update of them, and Foxglove sets up timers per serverInfo): a
+        client offered ``time`` gets time messages again while sim time is on; any other is told to reconnect."""
+        if self._offered_time:
+            if on:
+                self.hub.time_listeners.add(self._time)
+            else:
+                self.hub.time_listeners.discard(self._time)
+        if on and not self._offered_time:
+            why = "/use_sim_time is now true: reconnect to follow /clock"
+        elif not on and self._offered_time:
+            why = "/use_sim_time is now false: no more time messages; reconnect to use wall-clock time"
+        else:
+            return
+        self.status(fg.STATUS_INFO, f"{why} (capabilities are declared in serverInfo, once per connection)", "sim_time")
 
     def _state_changed(self, state: fg.SystemState) -> None:
         if self._graph_state is None:
@@ -273,10 +304,14 @@ class FoxgloveSession(ClientSession):
     async def run(self) -> None:
         """Serve the client until it disconnects; always releases what it held."""
         hub = self.hub
-        capabilities = [*self.CAPABILITIES, "time"] if hub.sim_time else list(self.CAPABILITIES)
+        self._offered_time = hub.sim_time
+        capabilities = [*self.CAPABILITIES, "time"] if self._offered_time else list(self.CAPABILITIES)
+        if hub.assets is not None:
+            capabilities.append("assets")
         self._send_json(fg.server_info("mrosd", capabilities, session_id=uuid.uuid4().hex, metadata={"ros": "1"}))
-        if hub.sim_time:
+        if self._offered_time:
             hub.time_listeners.add(self._time)
+        hub.sim_time_listeners.add(self._sim_time_changed)
         self._send_json(fg.encode_json("advertise", channels=[_channel(t) for t in hub.topics.values()]))
         if hub.services:
             self._send_json(fg.encode_json("advertiseServices", services=[_service(s) for s in hub.services.values()]))
@@ -301,6 +336,8 @@ class FoxgloveSession(ClientSession):
                 self._throttle_timer.cancel()
             if self._stats_task is not None:
                 tasks.append(self._stats_task)
+            if self._asset_task is not None:
+                tasks.append(self._asset_task)
             tasks += self._calls
             for task in tasks:
                 task.cancel()
@@ -312,6 +349,7 @@ class FoxgloveSession(ClientSession):
         hub.listeners.discard(self)
         hub.state_listeners.discard(self._state_changed)
         hub.time_listeners.discard(self._time)
+        hub.sim_time_listeners.discard(self._sim_time_changed)
         for topic in list(self._by_topic):
             await hub.remove_sink(topic, self)
         for topic in list(self._stats or ()):
@@ -402,7 +440,47 @@ class FoxgloveSession(ClientSession):
             self._calls.add(task)
             task.add_done_callback(self._calls.discard)
         elif isinstance(op, fg.FetchAsset):
-            self.status(fg.STATUS_ERROR, "fetchAsset is not supported (no assets capability)")
+            self._request_asset(op)
+
+    # --- assets ----------------------------------------------------------------------------------
+
+    def _request_asset(self, op: fg.FetchAsset) -> None:
+        if self.hub.assets is None:
+            self.status(fg.STATUS_ERROR, "fetchAsset is not offered (no assets capability: [web] assets is empty)")
+            return
+        if len(self._asset_requests) >= MAX_PENDING_ASSETS:
+            why = f"{op.uri[:200]}: more than {MAX_PENDING_ASSETS} asset requests pending for this client"
+            self._queue_control(False, fg.fetch_asset_error(op.requestId, why))
+            return
+        self._asset_requests.append(op)
+        if self._asset_task is None:
+            self._asset_task = asyncio.get_running_loop().create_task(
+                self._serve_assets(), name=f"foxglove assets {self.peer}"
+            )
+
+    async def _serve_assets(self) -> None:
+        """Read and send this client's requested assets in order, one at a time."""
+        assets = self.hub.assets
+        assert assets is not None
+        try:
+            while self._asset_requests and not self._closed:
+                op = self._asset_requests.popleft()
+                try:
+                    held = await assets.read(op.uri, fg.fetch_asset_head(op.requestId))
+                except AssetRefused as exc:
+                    self._queue_control(False, fg.fetch_asset_error(op.requestId, f"{op.uri[:200]}: {exc}"))
+                    continue
+                try:
+                    # not through the control queue: an asset may be far bigger than its bound. Written as one
+                    # frame, like messageData; aiohttp's drain (and its heartbeat, for a client that stops
+                    # reading) is the flow control, and this client's next asset waits for it
+                    await self.ws.send_bytes(cast(bytes, held.frame))  # aiohttp takes any bytes-like, no copy
+                finally:
+                    held.release()
+        except ConnectionError:
+            pass  # the client left; run() releases the rest
+        finally:
+            self._asset_task = None
 
     # --- mrosd's extensions for its page ----------------------------------------------------------
 

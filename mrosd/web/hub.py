@@ -33,6 +33,7 @@ from mrosd.msg.loader import default_store
 from mrosd.tcpros import Node
 from mrosd.tcpros.subscriber import AnyMsg, RawMessage, Subscriber
 from mrosd.web.access import AccessPolicy
+from mrosd.web.assets import AssetReader
 from mrosd.web.foxglove import SystemState
 from mrosd.web.queue import Ledger
 from mrosd.wire.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header, encode_header
@@ -70,8 +71,9 @@ def split_rosrpc(uri: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
-#: Where simulated time comes from, as in rospy and roscpp.
+#: Where simulated time comes from, as in rospy and roscpp, and the parameter that turns it on.
 CLOCK_TOPIC = "/clock"
+SIM_TIME_PARAM = "/use_sim_time"
 
 
 class HoldingSink:
@@ -103,7 +105,7 @@ class _ClockSink(HoldingSink):
             return
         secs = int.from_bytes(body[:4], "little")
         nsecs = int.from_bytes(body[4:], "little")
-        now = secs * 1_000_000_000 + nsecs
+        now = self.hub.clock_ns = secs * 1_000_000_000 + nsecs
         for listener in list(self.hub.time_listeners):
             try:
                 listener(now)
@@ -191,8 +193,11 @@ class WebHub:
         poll_interval: float = 0.5,
         host: str | None = None,
         max_queued_bytes: int = MAX_QUEUED_BYTES,
+        assets: AssetReader | None = None,
     ) -> None:
         self.master_uri = master_uri
+        #: serves fetchAsset for every client (None: the ``assets`` capability is not offered)
+        self.assets = assets
         #: every client queue of every protocol counts its bytes here; beyond max_queued_bytes the fullest
         #: client sheds its oldest messages (per-client budgets alone let N clients hold N budgets)
         self.ledger = Ledger()
@@ -225,10 +230,19 @@ class WebHub:
         self._service_probes: dict[str, asyncio.Task[None]] = {}
         #: services whose probe failed, with the provider it failed for (probed again when it changes)
         self._service_failed: dict[str, str] = {}
-        #: /use_sim_time was true when the hub started: /clock is followed and its time handed out
+        #: /use_sim_time is true (followed through the master's paramUpdate, as it changes): /clock is
+        #: followed and its time handed out
         self.sim_time = False
+        #: the latest /clock time (ns since its epoch); 0 before the first, as ROS time under sim time
+        self.clock_ns = 0
         #: called with /clock's time (ns) for every message on it, while sim_time
         self.time_listeners: set[Callable[[int], None]] = set()
+        #: called with the new sim_time each time it changes
+        self.sim_time_listeners: set[Callable[[bool], None]] = set()
+        self._clock_sink = _ClockSink(self)
+        #: what /use_sim_time last said, and the task bringing sim_time (and the /clock sink) in line with it
+        self._want_sim_time = False
+        self._sim_task: asyncio.Task[None] | None = None
 
     # --- lifecycle -------------------------------------------------------------------------------
 
@@ -240,18 +254,21 @@ class WebHub:
             TimeoutError: the first graph did not arrive within ``timeout`` seconds.
         """
         await self.node.start()
-        try:
-            self.sim_time = bool(await self.node.master.get_param("/use_sim_time"))
-        except MrosError:
-            self.sim_time = False
         loop = asyncio.get_running_loop()
         self._first_graph = loop.create_future()
         self._watch = loop.create_task(self._watch_graph(), name="web graph watch")
         try:
             async with asyncio.timeout(timeout):
                 await asyncio.shield(self._first_graph)
-            if self.sim_time:
-                await self.add_sink(CLOCK_TOPIC, _ClockSink(self), check=False)
+                # its value comes with the subscription: the first clients already see the right capabilities
+                try:
+                    value = await self.watch_param(SIM_TIME_PARAM, self._sim_time_param, check=False)
+                except MrosError as exc:  # every ROS 1 master has subscribeParam; still, never fail the hub for it
+                    log.warning("web: cannot follow %s (%s): wall time", SIM_TIME_PARAM, exc)
+                    value = False
+                self._sim_time_param(SIM_TIME_PARAM, value)
+                assert self._sim_task is not None
+                await asyncio.shield(self._sim_task)
         except BaseException:
             await self.aclose()
             raise
@@ -260,7 +277,13 @@ class WebHub:
         """Stop watching, close every shared subscription and publisher, and the node."""
         tasks = [
             t
-            for t in (self._watch, self._state_task, *self._probing.values(), *self._service_probes.values())
+            for t in (
+                self._watch,
+                self._state_task,
+                self._sim_task,
+                *self._probing.values(),
+                *self._service_probes.values(),
+            )
             if t is not None
         ]
         for task in tasks:
@@ -272,7 +295,39 @@ class WebHub:
         for entry in shared.values():
             entry.sinks.clear()
         self._publishers.clear()
+        if self.assets is not None:
+            self.assets.close()
         await self.node.aclose()
+
+    # --- simulated time --------------------------------------------------------------------------
+
+    def _sim_time_param(self, _key: str, value: Any) -> None:
+        """The master's paramUpdate of /use_sim_time (a callback: the change itself runs in a task, in order)."""
+        self._want_sim_time = bool(value)  # as rospy reads it; {} (the master's "unset") is false
+        if self._sim_task is None or self._sim_task.done():
+            self._sim_task = asyncio.get_running_loop().create_task(self._follow_sim_time(), name="web sim time")
+
+    async def _follow_sim_time(self) -> None:
+        """Follow /clock while /use_sim_time is true, not otherwise; tell the listeners of each change."""
+        while self.sim_time != self._want_sim_time:
+            if self._want_sim_time:
+                try:
+                    await self.add_sink(CLOCK_TOPIC, self._clock_sink, check=False)
+                except MrosError as exc:
+                    log.warning("web: /use_sim_time is true but %s cannot be followed: %s", CLOCK_TOPIC, exc)
+                    return
+                self.sim_time = True
+            else:
+                self.sim_time = False
+                await self.remove_sink(CLOCK_TOPIC, self._clock_sink)
+            log.info(
+                "web: /use_sim_time is %s: %s", self.sim_time, "following /clock" if self.sim_time else "wall time"
+            )
+            for listener in list(self.sim_time_listeners):
+                try:
+                    listener(self.sim_time)
+                except Exception:
+                    log.exception("web: a sim time listener failed")
 
     # --- the graph -------------------------------------------------------------------------------
 
@@ -635,23 +690,29 @@ class WebHub:
 
     # --- parameters ------------------------------------------------------------------------------
 
-    async def watch_param(self, name: str, callback: Callable[[str, Any], None]) -> None:
+    async def watch_param(self, name: str, callback: Callable[[str, Any], None], *, check: bool = True) -> Any:
         """Call ``callback(key, value)`` on every update of ``name`` (one master subscription per name).
+
+        ``check=False`` is the hub's own watch (``/use_sim_time``), not a client's: the allow-list does not
+        apply. Returns the value the master answered the subscription with (``{}``: unset), or None when the
+        name was already watched.
 
         Raises:
             MrosError: not allowed, or the master refused the subscription.
         """
-        if not self.policy.allows_param(name):
+        if check and not self.policy.allows_param(name):
             raise MrosError(f"parameter {name} is not allowed by the [web] params allow-list")
         callbacks = self._params.get(name)
+        value = None
         if callbacks is None:
             callbacks = self._params[name] = set()
             try:
-                await self.node.subscribe_param(name, lambda key, value: self._param_update(name, key, value))
+                value = await self.node.subscribe_param(name, lambda key, value: self._param_update(name, key, value))
             except BaseException:
                 del self._params[name]
                 raise
         callbacks.add(callback)
+        return value
 
     def _param_update(self, name: str, key: str, value: Any) -> None:
         for cb in list(self._params.get(name, ())):

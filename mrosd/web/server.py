@@ -10,13 +10,18 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import logging
+from collections.abc import Sequence
 from typing import Any
 
 from aiohttp import web
 
+from mrosd.errors import ConfigError
+from mrosd.msg.typestore import TypeStore
 from mrosd.web import foxglove as fg
 from mrosd.web.access import AccessPolicy
+from mrosd.web.assets import MAX_ASSET_BYTES, AssetReader
 from mrosd.web.foxglove_server import FoxgloveSession, SessionLimits
 from mrosd.web.hub import WebHub
 from mrosd.web.page import index, page_routes
@@ -33,14 +38,23 @@ CLOSE_TIMEOUT = 1.0
 MAX_CLIENTS = 64
 
 
+#: Times a port chosen by the first address (port 0) is tried on the others before giving up: another
+#: process may hold that number on another address.
+BIND_ATTEMPTS = 5
+
+
 class WebServer:
-    """Serves Foxglove WebSocket on ``host:port`` (port 0: any free port, read ``port`` after start)."""
+    """Serves Foxglove WebSocket on ``host:port`` (port 0: any free port, read ``port`` after start).
+
+    ``host`` may be several addresses (``["127.0.0.1", "::1"]``): each port is served on every one of them, with
+    the same number (port 0: the one the first address got); ``url`` and the log name the first.
+    """
 
     def __init__(
         self,
         master_uri: str,
         *,
-        host: str = "127.0.0.1",
+        host: str | Sequence[str] = "127.0.0.1",
         port: int = 8765,
         policy: AccessPolicy | None = None,
         limits: SessionLimits | None = None,
@@ -50,15 +64,28 @@ class WebServer:
         node_host: str | None = None,
         rosbridge_port: int | None = None,
         max_queued_bytes: int | None = None,
+        asset_store: TypeStore | None = None,
+        asset_bytes: int | None = None,
     ) -> None:
         self.policy = policy or AccessPolicy()
-        self.policy.check_bind(host)
-        self.host = host
+        self.hosts = [host] if isinstance(host, str) else list(dict.fromkeys(host))
+        if not self.hosts:
+            raise ConfigError("web: no address to bind (host is an empty list)")
+        self.policy.check_bind(self.hosts)
+        #: the address URLs name (the first)
+        self.host = self.hosts[0]
         self.port = port
         self.limits = limits or SessionLimits()
         self.max_clients = max_clients
         self.max_frame = max_frame
-        self.hub = WebHub(master_uri, name=node_name, policy=self.policy, host=node_host)
+        #: fetchAsset: package:// URIs found where the type search finds packages (``asset_store``, default the
+        #: process's own), none at all when the policy's asset allow-list is empty
+        assets = (
+            AssetReader(asset_store, allows=self.policy.allows_asset, max_bytes=asset_bytes or MAX_ASSET_BYTES)
+            if self.policy.assets
+            else None
+        )
+        self.hub = WebHub(master_uri, name=node_name, policy=self.policy, host=node_host, assets=assets)
         if max_queued_bytes is not None:
             self.hub.max_queued_bytes = max_queued_bytes
         self.sessions: set[FoxgloveSession] = set()
@@ -70,20 +97,27 @@ class WebServer:
 
     @property
     def url(self) -> str:
-        host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"ws://{host}:{self.port}/"
+        return self.urls[0]
+
+    @property
+    def urls(self) -> list[str]:
+        """The Foxglove WebSocket URL on each bound address."""
+        return [f"ws://{_url_host(h)}:{self.port}/" for h in self.hosts]
 
     @property
     def page_url(self) -> str:
         """The page to open in a browser (served on the Foxglove port; ``?token=`` added when one is set)."""
-        host = f"[{self.host}]" if ":" in self.host else self.host
         query = "?token=..." if self.policy.token else ""
-        return f"http://{host}:{self.port}/{query}"
+        return f"http://{_url_host(self.host)}:{self.port}/{query}"
 
     @property
     def rosbridge_url(self) -> str:
-        host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"ws://{host}:{self.rosbridge_port}/"
+        return self.rosbridge_urls[0]
+
+    @property
+    def rosbridge_urls(self) -> list[str]:
+        """The rosbridge URL on each bound address."""
+        return [f"ws://{_url_host(h)}:{self.rosbridge_port}/" for h in self.hosts]
 
     async def start(self) -> None:
         """Start the hub (graph watch) and listen.
@@ -100,9 +134,10 @@ class WebServer:
         except BaseException:
             await self.aclose()
             raise
-        log.info("web: Foxglove WebSocket on %s, page %s (master %s)", self.url, self.page_url, self.hub.master_uri)
+        urls = " ".join(self.urls)
+        log.info("web: Foxglove WebSocket on %s, page %s (master %s)", urls, self.page_url, self.hub.master_uri)
         if self.rosbridge_port is not None:
-            log.info("web: rosbridge v2 on %s", self.rosbridge_url)
+            log.info("web: rosbridge v2 on %s", " ".join(self.rosbridge_urls))
 
     async def _listen(self, handler: Any, port: int, *, page: bool = False) -> tuple[web.AppRunner, int]:
         app = web.Application()
@@ -111,16 +146,38 @@ class WebServer:
             page_routes(app)
         runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=CLOSE_TIMEOUT)
         await runner.setup()
+        attempts = BIND_ATTEMPTS
+        while True:
+            try:
+                return runner, await self._bind_every_host(runner, port)
+            except OSError as exc:
+                attempts -= 1
+                # port 0: the number the first address got may be taken on another one; choose again
+                if port == 0 and exc.errno == errno.EADDRINUSE and attempts > 0:
+                    continue
+                await runner.cleanup()
+                raise
+            except BaseException:
+                await runner.cleanup()
+                raise
+
+    async def _bind_every_host(self, runner: web.AppRunner, port: int) -> int:
+        """Listen on ``port`` on every address (0: the first address's free port on the others too); on a
+        failure none stays listening."""
+        sites: list[web.TCPSite] = []
         try:
-            site = web.TCPSite(runner, self.host, port, reuse_address=True)
-            await site.start()
+            for host in self.hosts:
+                site = web.TCPSite(runner, host, port, reuse_address=True)
+                await site.start()
+                sites.append(site)
+                server: Any = site._server
+                if port == 0 and server is not None and server.sockets:
+                    port = int(server.sockets[0].getsockname()[1])
         except BaseException:
-            await runner.cleanup()
+            for site in sites:
+                await site.stop()
             raise
-        server: Any = site._server
-        if server is not None and server.sockets:
-            port = int(server.sockets[0].getsockname()[1])
-        return runner, port
+        return port
 
     async def _rosbridge(self, request: web.Request) -> web.StreamResponse:
         from mrosd.web.rosbridge_server import RosbridgeSession
@@ -193,3 +250,7 @@ class WebServer:
 
     async def __aexit__(self, *exc_info: object) -> None:
         await self.aclose()
+
+
+def _url_host(host: str) -> str:
+    return f"[{host}]" if ":" in host else host

@@ -7,6 +7,7 @@
 //   {"cmd":"publish","channel":N,"hex":"..."}
 //   {"cmd":"getParameters","names":[...],"id":"x"}          -> {"event":"parameterValues",...}
 //   {"cmd":"callService","service":"/s","hex":"..."}        -> {"event":"serviceResponse","hex"} or serviceCallFailure
+//   {"cmd":"fetchAsset","uri":"package://p/f","id":N}        -> {"event":"fetchAssetResponse","requestId","status","error","len","sha256"}
 //   {"cmd":"pause"} / {"cmd":"close"}
 import { createHash } from "node:crypto";
 import { createInterface } from "node:readline";
@@ -28,6 +29,7 @@ let callId = 0;
 client.on("open", () => out({ event: "open", protocol: ws.protocol }));
 client.on("serverInfo", (info) => out({ event: "serverInfo", capabilities: info.capabilities }));
 client.on("status", (s) => out({ event: "status", level: s.level, message: s.message }));
+client.on("time", (t) => out({ event: "time", timestamp: t.timestamp.toString() }));
 client.on("error", (e) => out({ event: "error", message: String(e) }));
 client.on("close", () => {
   out({ event: "close" });
@@ -61,6 +63,17 @@ client.on("serviceCallResponse", (r) =>
   out({ event: "serviceResponse", callId: r.callId, encoding: r.encoding, hex: Buffer.from(r.data.buffer, r.data.byteOffset, r.data.byteLength).toString("hex") }),
 );
 client.on("serviceCallFailure", (f) => out({ event: "serviceCallFailure", message: f.message }));
+client.on("fetchAssetResponse", (r) => {
+  const bytes = r.data ? new Uint8Array(r.data.buffer, r.data.byteOffset, r.data.byteLength) : new Uint8Array(0);
+  out({
+    event: "fetchAssetResponse",
+    requestId: r.requestId,
+    status: r.status,
+    error: r.error ?? "",
+    len: bytes.length,
+    sha256: createHash("sha256").update(bytes).digest("hex"),
+  });
+});
 
 const rl = createInterface({ input: process.stdin });
 rl.on("line", (line) => {
@@ -83,6 +96,8 @@ rl.on("line", (line) => {
       const s = services.get(c.service);
       if (!s) return out({ event: "noService", name: c.service });
       client.sendServiceCallRequest({ serviceId: s.id, callId: ++callId, encoding: "ros1", data: new Uint8Array(Buffer.from(c.hex, "hex")) });
+    } else if (c.cmd === "fetchAsset") {
+      client.fetchAsset(c.uri, c.id);
     } else if (c.cmd === "pause") {
       ws._socket.pause(); // stop reading: the server must bound what it holds for us
       out({ event: "paused" });

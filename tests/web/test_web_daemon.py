@@ -65,6 +65,27 @@ def test_a_taken_web_port_leaves_the_daemon_degraded_not_dead(procs: Processes, 
             run.close()
 
 
+def test_the_daemon_serves_every_address_of_mrosd_web_host(procs: Processes, tmp_path: Path) -> None:
+    with socket.socket(socket.AF_INET6) as probe:
+        try:
+            probe.bind(("::1", 0))
+        except OSError:
+            pytest.skip("this machine has no IPv6 loopback (::1 cannot be bound)")
+    run = DaemonRun(procs, tmp_path, env=daemon_env(tmp_path, MROSD_WEB_HOST="127.0.0.1,::1"))
+    try:
+        status = run.ready()
+        match = re.search(r"foxglove (ws://\S+/) (ws://\S+/), rosbridge (ws://\S+/) (ws://\S+/)", status)
+        assert match, status
+        v4, v6 = match.group(1), match.group(2)
+        assert v4.startswith("ws://127.0.0.1:") and v6 == v4.replace("127.0.0.1", "[::1]"), status
+        assert match.group(4).startswith("ws://[::1]:"), status
+        for url in (v4, v6):
+            assert asyncio.run(server_info(url))["op"] == "serverInfo"
+        assert run.stop()[0] == 0, run.stderr()
+    finally:
+        run.close()
+
+
 def test_web_off_loopback_needs_a_token() -> None:
     with pytest.raises(ConfigError, match=r"web\.token"):
         parse_config('[web]\nhost = "0.0.0.0"\n', "mrosd.toml")

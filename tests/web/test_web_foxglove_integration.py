@@ -90,7 +90,11 @@ async def server(master: Master) -> AsyncIterator[WebServer]:
 
 
 async def connect(session: aiohttp.ClientSession, server: WebServer, protocol: str = "foxglove.websocket.v1") -> Client:
-    ws = await session.ws_connect(server.url, protocols=[protocol], max_msg_size=0)
+    return await connect_url(session, server.url, protocol)
+
+
+async def connect_url(session: aiohttp.ClientSession, url: str, protocol: str = "foxglove.websocket.v1") -> Client:
+    ws = await session.ws_connect(url, protocols=[protocol], max_msg_size=0)
     assert ws.protocol == protocol
     return Client(ws)
 
@@ -340,3 +344,71 @@ async def test_a_type_on_no_search_path_is_read_from_its_publishers_header(serve
         msg = custom(voltage=12.5, cell="A")
         await pub.publish(msg)
         assert (await client.until_binary())[13:] == msg.serialize()
+
+
+def ipv6_loopback() -> bool:
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET6, socket.SOCK_STREAM) as s:
+            s.bind(("::1", 0))
+        return True
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not ipv6_loopback(), reason="this machine has no IPv6 loopback (::1 cannot be bound)")
+async def test_both_ports_are_served_on_each_of_several_addresses(master: Master) -> None:
+    async with (
+        WebServer(master.uri, host=["127.0.0.1", "::1"], port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
+        aiohttp.ClientSession() as http,
+    ):
+        assert server.urls == [f"ws://127.0.0.1:{server.port}/", f"ws://[::1]:{server.port}/"]
+        for url in server.urls:
+            client = await connect_url(http, url)
+            assert (await client.until_json("serverInfo"))["name"] == "mrosd"
+        for url in server.rosbridge_urls:
+            async with http.ws_connect(url) as ws:
+                await ws.send_str(json.dumps({"op": "call_service", "service": "/rosapi/get_time", "id": "t"}))
+                reply = json.loads((await ws.receive(timeout=10)).data)
+                assert (reply["op"], reply["result"]) == ("service_response", True)
+        async with http.get(f"http://[::1]:{server.port}/") as page:
+            assert page.status == 200
+
+
+async def test_several_addresses_need_the_token_if_any_is_not_loopback(master: Master) -> None:
+    from mrosd.errors import ConfigError
+    from mrosd.web.access import AccessPolicy
+
+    with pytest.raises(ConfigError, match=r"binding '0\.0\.0\.0' \(not loopback\) needs a token"):
+        WebServer(master.uri, host=["127.0.0.1", "0.0.0.0"], port=0)
+    with pytest.raises(ConfigError, match="no address"):
+        WebServer(master.uri, host=[], port=0)
+    WebServer(master.uri, host=["127.0.0.1", "0.0.0.0"], port=0, policy=AccessPolicy(token="s3cret"))  # not started
+
+
+async def test_the_hubs_own_sim_time_watch_outlives_clients_and_the_params_allow_list(master: Master) -> None:
+    """A client watching /use_sim_time and leaving must not end the hub's watch, and the [web] params
+    allow-list (what clients may see) does not hide the parameter from the hub itself."""
+    from mrosd.web.access import AccessPolicy
+
+    async with (
+        WebServer(master.uri, port=0, node_host="127.0.0.1") as server,
+        WebServer(
+            master.uri, port=0, node_host="127.0.0.1", node_name="narrow", policy=AccessPolicy(params=["/robot/*"])
+        ) as narrow,
+        node("sim", master.uri) as sim,
+        aiohttp.ClientSession() as http,
+    ):
+        client = await connect(http, server)
+        await client.send(op="subscribeParameterUpdates", parameterNames=["/use_sim_time"])
+        await until(lambda: server.hub.sink_count("/clock") == 0 and server.sessions)
+        await client.send(op="unsubscribeParameterUpdates", parameterNames=["/use_sim_time"])
+        await client.ws.close()
+        await until(lambda: not server.sessions)
+        await sim.set_param("/use_sim_time", True)
+        await until(lambda: server.hub.sim_time and narrow.hub.sim_time)
+        assert server.hub.sink_count("/clock") == 1 and narrow.hub.sink_count("/clock") == 1
+        await sim.master.delete_param("/use_sim_time")  # paramUpdate says {}: unset is false
+        await until(lambda: not server.hub.sim_time and not narrow.hub.sim_time)
+        assert server.hub.sink_count("/clock") == 0

@@ -92,8 +92,9 @@ class NodeClient:
         await self.proc.stdin.drain()
 
     async def until(self, event: str, timeout: float = 20.0, **match: Any) -> dict[str, Any]:
-        """The next event ``event`` with fields ``match``; channels and services also from the past."""
-        if event in ("channel", "service"):
+        """The next event ``event`` with fields ``match``; channels, services and asset responses (which come
+        in any order) also from the past."""
+        if event in ("channel", "service", "fetchAssetResponse"):
             for ev in self.events:
                 if ev["event"] == event and all(ev.get(k) == v for k, v in match.items()):
                     return ev
@@ -356,3 +357,113 @@ async def test_a_foxglove_client_that_never_reads_costs_a_bound_and_the_other_ke
         assert received == 60
         paused = next(s for s in server.sessions if any(q.queue.dropped for q in s.subs.values()))
         assert sum(q.queue.size for q in paused.subs.values()) <= limits.client_bytes + 1_000_100
+
+
+URDF = """<robot name="r"><link name="base"><visual><geometry>
+<mesh filename="package://robot_description/meshes/base.STL"/></geometry></visual></link></robot>
+"""
+
+
+def robot_description(ws: Path) -> tuple[bytes, bytes]:
+    """A package in ``ws`` as a robot's description is shipped: package.xml, a URDF and its binary mesh."""
+    pkg = ws / "robot_description"
+    (pkg / "meshes").mkdir(parents=True)
+    (pkg / "urdf").mkdir()
+    (pkg / "package.xml").write_text("<package><name>robot_description</name></package>\n")
+    (pkg / "config.yaml").write_text("secret: 1\n")
+    mesh = os.urandom(3 * 1024 * 1024)
+    (pkg / "meshes" / "base.STL").write_bytes(mesh)
+    (pkg / "urdf" / "robot.urdf").write_text(URDF)
+    return mesh, URDF.encode()
+
+
+@needs_node
+def test_foxglove_client_fetches_a_robots_mesh_and_urdf_from_the_daemon(procs: Any, tmp_path: Path) -> None:
+    """The daemon as shipped (default ``[web] assets``) finds the package on ROS_PACKAGE_PATH; what the
+    @foxglove/ws-protocol client receives is the files' bytes; what the allow-list leaves out is an error."""
+    import re
+
+    from tests.integration.daemon.daemonproc import DaemonRun, daemon_env
+
+    mesh, urdf = robot_description(tmp_path / "ws")
+    run = DaemonRun(procs, tmp_path, env=daemon_env(tmp_path, ROS_PACKAGE_PATH=str(tmp_path / "ws")))
+
+    async def fetch(url: str) -> None:
+        client = await NodeClient.start(url)
+        try:
+            info = await client.until("serverInfo")
+            assert "assets" in info["capabilities"]
+            asks = {
+                1: "package://robot_description/meshes/base.STL",
+                2: "package://robot_description/urdf/robot.urdf",
+                3: "package://robot_description/config.yaml",
+                4: "package://robot_description/../../etc/passwd.png",
+            }
+            for rid, uri in asks.items():
+                await client.send(cmd="fetchAsset", uri=uri, id=rid)
+            got = {rid: await client.until("fetchAssetResponse", requestId=rid) for rid in asks}
+            for rid, data in ((1, mesh), (2, urdf)):
+                assert (got[rid]["status"], got[rid]["len"]) == (0, len(data)), got[rid]
+                assert got[rid]["sha256"] == hashlib.sha256(data).hexdigest()
+            assert got[3]["status"] == 1 and "allow-list" in got[3]["error"]
+            assert got[4]["status"] == 1 and "'..'" in got[4]["error"]
+        finally:
+            await client.close()
+
+    try:
+        status = run.ready()
+        match = re.search(r"foxglove (ws://\S+/)", status)
+        assert match, status
+        asyncio.run(fetch(match.group(1)))
+        assert run.stop()[0] == 0, run.stderr()
+    finally:
+        run.close()
+
+
+@needs_node
+async def test_sim_time_follows_use_sim_time_as_it_changes(master: Master, client_of: Any) -> None:
+    """/use_sim_time false, then true, then false, while clients are connected; a real /clock publisher.
+
+    Capabilities are declared once per connection: a client that connected under wall time is told to
+    reconnect; one that connects under sim time is offered ``time``, gets /clock's time and its messages
+    stamped with it; when sim time ends the server leaves /clock and that client is told."""
+    Clock = get_message_class("rosgraph_msgs/Clock")
+
+    def clock_at(secs: int, nsecs: int) -> Any:
+        msg = Clock()
+        msg.clock.secs, msg.clock.nsecs = secs, nsecs
+        return msg
+
+    async with (
+        WebServer(master.uri, port=0, node_host="127.0.0.1") as server,
+        node("sim", master.uri) as sim,
+    ):
+        clock = await sim.advertise("/clock", Clock)
+        chatter = await sim.advertise("/chatter", String)
+        wall = await client_of(server)
+        assert "time" not in wall.events[-1]["capabilities"]
+
+        await sim.set_param("/use_sim_time", True)
+        status = await wall.until("status", timeout=10)
+        assert "/use_sim_time is now true: reconnect" in status["message"]
+        simulated = await client_of(server)
+        assert "time" in simulated.events[-1]["capabilities"]
+        await clock.wait_for_subscribers(1, timeout=10)
+        await clock.publish(clock_at(12, 345))
+        assert (await simulated.until("time"))["timestamp"] == "12000000345"
+        await simulated.until("channel", topic="/chatter")
+        await simulated.send(cmd="subscribe", topic="/chatter")
+        await chatter.wait_for_subscribers(1, timeout=10)
+        await chatter.publish(String(data="at sim time"))
+        assert (await simulated.until("message", topic="/chatter"))["timestamp"] == "12000000345"
+
+        await sim.set_param("/use_sim_time", False)
+        status = await simulated.until("status", timeout=10)
+        assert "/use_sim_time is now false" in status["message"]
+        async with asyncio.timeout(10):
+            while clock.get_num_connections():  # noqa: ASYNC110 - the server leaves /clock
+                await asyncio.sleep(0.01)
+        assert not server.hub.time_listeners
+        later = await client_of(server)
+        assert "time" not in later.events[-1]["capabilities"]
+        assert not [e for e in (*wall.events, *later.events) if e["event"] == "time"]

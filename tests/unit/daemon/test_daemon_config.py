@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import os
 from pathlib import Path
 
 import pytest
@@ -61,6 +62,56 @@ def test_a_bad_config_is_an_error_naming_the_key(text: str, needle: str) -> None
         parse_config(text, "mrosd.toml")
     assert needle in str(info.value)
     assert "mrosd.toml" in str(info.value)
+
+
+def test_web_assets_default_to_meshes_and_an_empty_list_offers_none() -> None:
+    from mrosd.web.access import DEFAULT_ASSETS
+
+    web = parse_config("").web
+    assert (web.assets, web.asset_bytes) == (list(DEFAULT_ASSETS), None)
+    web = parse_config("[web]\nassets = []\nasset_bytes = 1024\n").web
+    assert (web.assets, web.asset_bytes) == ([], 1024)
+    with pytest.raises(ConfigError, match=r"web\.asset_bytes"):
+        parse_config("[web]\nasset_bytes = 0\n")
+
+
+def test_web_host_is_one_address_or_a_list_and_any_off_loopback_needs_the_token() -> None:
+    assert parse_config("").web.hosts() == ["127.0.0.1"]
+    web = parse_config('[web]\nhost = ["127.0.0.1", "::1"]\n').web
+    assert (web.host, web.hosts()) == (["127.0.0.1", "::1"], ["127.0.0.1", "::1"])
+    # the rule and its wording as for one address, naming the one that is not loopback
+    with pytest.raises(ConfigError, match=r"web\.host '192\.0\.2\.1' is not loopback: set web\.token"):
+        parse_config('[web]\nhost = ["127.0.0.1", "192.0.2.1"]\n', "mrosd.toml")
+    web = parse_config('[web]\nhost = ["127.0.0.1", "192.0.2.1"]\ntoken = "s3cret"\n').web
+    assert web.hosts() == ["127.0.0.1", "192.0.2.1"]
+    for text, needle in [("[]", "empty list"), ('["::1", "::1"]', "twice"), ('["::1", "999.1.1.1"]', "999.1.1.1")]:
+        with pytest.raises(ConfigError, match=needle):
+            parse_config(f"[web]\nhost = {text}\n")
+
+
+def test_mrosd_web_host_is_a_comma_separated_list() -> None:
+    assert load_config(None, {"MROSD_WEB_HOST": "::1"}).web.host == "::1"
+    assert load_config(None, {"MROSD_WEB_HOST": "127.0.0.1, ::1"}).web.hosts() == ["127.0.0.1", "::1"]
+    with pytest.raises(ConfigError, match=r"web\.host '0\.0\.0\.0' is not loopback"):
+        load_config(None, {"MROSD_WEB_HOST": "127.0.0.1,0.0.0.0"})
+    cfg = load_config(None, {"MROSD_WEB_HOST": "127.0.0.1,0.0.0.0", "MROSD_WEB_TOKEN": "s3cret"})
+    assert cfg.web.hosts() == ["127.0.0.1", "0.0.0.0"]
+
+
+def test_mrosd_check_prints_the_list_and_refuses_it_without_token(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from mrosd.daemon import main
+
+    for key in [k for k in os.environ if k.startswith(("MROSD_", "ROS_"))]:
+        monkeypatch.delenv(key)
+    config = tmp_path / "mrosd.toml"
+    config.write_text('[web]\nhost = ["127.0.0.1", "::1"]\n')
+    assert main(["--config", str(config), "--check-config"]) == 0
+    assert '"host": [\n      "127.0.0.1",\n      "::1"\n    ]' in capsys.readouterr().out
+    config.write_text('[web]\nhost = ["127.0.0.1", "0.0.0.0"]\n')
+    assert main(["--config", str(config), "--check-config"]) == 2
+    assert "web.host '0.0.0.0' is not loopback: set web.token" in capsys.readouterr().err
 
 
 def test_the_log_directory_is_ros_s_unless_set_or_off() -> None:
