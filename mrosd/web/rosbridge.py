@@ -8,6 +8,10 @@ their defaults, as rosbridge fills them) and is refused with a reason when a val
 
 from __future__ import annotations
 
+import base64
+import math
+import struct
+import zlib
 from typing import Annotated, Any
 
 import msgspec
@@ -32,6 +36,8 @@ __all__ = [
     "encode_message",
     "message_from_json",
     "op_json",
+    "png_image",
+    "png_op",
 ]
 
 Name = Annotated[str, msgspec.Meta(max_length=4096)]
@@ -191,6 +197,55 @@ def fragments(text: str, fragment_size: int, message_id: str) -> list[bytes]:
     size = max(1, fragment_size)
     parts = [text[i : i + size] for i in range(0, len(text), size)]
     return [op_json("fragment", id=message_id, data=part, num=i, total=len(parts)) for i, part in enumerate(parts)]
+
+
+#: zlib level of ``png`` ops: Pillow's default, which rosbridge_server's PNGs get. On a 640x480 camera image
+#: (noise) level 6 took 39 ms and level 1 34 ms, both leaving the op the size of the JSON it replaces (zlib
+#: wins back what base64 added, and base64 adds it again); text and numbers shrink several times. The session
+#: compresses off the event loop, so the level costs a thread's CPU, not other clients' latency.
+PNG_LEVEL = 6
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _png_chunk(kind: bytes, data: bytes) -> tuple[bytes, bytes, bytes, bytes]:
+    """A PNG chunk as its four parts (length, type, data, CRC), joined once with the whole file."""
+    return struct.pack(">I", len(data)), kind, data, struct.pack(">I", zlib.crc32(data, zlib.crc32(kind)))
+
+
+def png_image(text: bytes | bytearray | memoryview, level: int = PNG_LEVEL) -> bytes:
+    """``text`` as the 8-bit RGB PNG that rosbridge_server makes of it (and roslibjs reads back as text).
+
+    The layout is rosbridge's, so that any client decoding rosbridge's PNGs reads ours: three bytes a pixel,
+    ``width = floor(sqrt(n / 3))``, as many rows as it takes, the last row padded with ``\n`` (whitespace
+    that JSON.parse ignores). Written with zlib and struct (one IDAT, filter type 0 on every row: text gains
+    nothing from PNG's pixel predictors), so no imaging library is needed. Few C-level copies and no loop
+    over bytes in Python: the session runs this in a thread, where what holds the GIL holds up the event loop.
+    """
+    n = len(text)
+    width = max(1, math.isqrt(n // 3))
+    stride = width * 3
+    height = max(1, -(-n // stride))
+    view = memoryview(text)
+    rows: list[bytes | memoryview] = [b""]  # so that the join puts a filter byte before the first row too
+    rows += [view[y : y + stride] for y in range(0, (height - 1) * stride, stride)]
+    last = view[(height - 1) * stride :]
+    rows.append(bytes(last) + b"\n" * (stride - len(last)))
+    scanlines = b"\0".join(rows)  # each row after its filter byte, 0 (none)
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)  # 8-bit RGB, deflate, no interlace
+    return b"".join(
+        (
+            _PNG_SIGNATURE,
+            *_png_chunk(b"IHDR", header),
+            *_png_chunk(b"IDAT", zlib.compress(scanlines, level)),
+            *_png_chunk(b"IEND", b""),
+        )
+    )
+
+
+def png_op(text: bytes | bytearray | memoryview, level: int = PNG_LEVEL) -> bytes:
+    """rosbridge's ``{"op": "png", "data": <base64 PNG of text>}`` (``compression: png``): ``text`` is the whole
+    JSON op it replaces, which the client gets back by decoding the image."""
+    return b"".join((b'{"op":"png","data":"', base64.b64encode(png_image(text, level)), b'"}'))
 
 
 def publish_cbor(topic: str, msg: Any) -> bytes:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import concurrent.futures
 import itertools
 import json
 import logging
@@ -48,7 +49,8 @@ class _Sub:
     throttle: dict[str | None, int] = field(default_factory=dict)
     length: dict[str | None, int] = field(default_factory=dict)
     last_sent: float = 0.0
-    #: "none" (JSON text), "cbor" (the message as CBOR), "cbor-raw" (the TCPROS body untouched, in CBOR)
+    #: "none" (JSON text), "cbor" (the message as CBOR), "cbor-raw" (the TCPROS body untouched, in CBOR),
+    #: "png" (the JSON text as a PNG image in a ``png`` op)
     compression: str = "none"
     #: JSON messages longer than this go as rosbridge ``fragment`` ops (None: whole)
     fragment_size: int | None = None
@@ -122,7 +124,7 @@ class RosbridgeSession(ClientSession):
     def status(self, level: str, message: str, op_id: str | None = None) -> None:
         self._send(rb.op_json("status", level=level, msg=message, id=op_id))
 
-    def _next_message(self) -> tuple[bool, bytes] | None:
+    async def _next_message(self) -> tuple[bool, bytes] | None:
         now = time.monotonic()
         for sub in list(self.subs.values()):
             if not len(sub.queue):
@@ -146,6 +148,8 @@ class RosbridgeSession(ClientSession):
             if sub.compression == "cbor":
                 return True, rb.publish_cbor(sub.topic, msg)
             data = rb.publish_json(sub.topic, msg)
+            if sub.compression == "png":
+                data = await _png_op(data)
             if sub.fragment_size and len(data) > sub.fragment_size:
                 pieces = rb.fragments(
                     data.decode(), sub.fragment_size, f"publish:{sub.topic}:{next(self._request_ids)}"
@@ -165,7 +169,7 @@ class RosbridgeSession(ClientSession):
                 if self._control:
                     binary, data = self._control.pop()
                 else:
-                    frame = self._next_message()
+                    frame = await self._next_message()
                     if frame is None:
                         break
                     binary, data = frame
@@ -276,7 +280,7 @@ class RosbridgeSession(ClientSession):
 
     async def _subscribe(self, op: rb.Subscribe) -> None:
         compression = op.compression or "none"
-        if compression not in ("none", "cbor", "cbor-raw"):
+        if compression not in ("none", "cbor", "cbor-raw", "png"):
             self.status("warning", f"subscribe {op.topic}: compression {compression!r} not served; sending JSON")
             compression = "none"
         sub = self.subs.get(op.topic)
@@ -486,6 +490,27 @@ class RosbridgeSession(ClientSession):
             await master.delete_param(name)
             return {}
         raise MrosError(f"/rosapi/{method} is not served by mrosd")
+
+
+#: A ``png`` op of a JSON text up to this long is encoded on the event loop (at most about 0.2 ms); a longer one
+#: in ``_png_pool``, off the loop (zlib lets go of the GIL while it compresses): a 640x480 camera image takes
+#: 30-40 ms to compress, which would otherwise stop every other client for that long.
+PNG_INLINE_BYTES = 16 * 1024
+#: Threads that compress ``png`` ops for every rosbridge client of the process. Each session waits for its own
+#: message, so at most one per client is in flight; two threads keep a crowd of png clients from using more
+#: than two cores, and from holding up the loop's default executor (name lookups).
+PNG_THREADS = 2
+_png_pool: concurrent.futures.ThreadPoolExecutor | None = None
+
+
+async def _png_op(text: bytes) -> bytes:
+    """rosbridge's ``png`` op of ``text``, compressed off the event loop when it is long."""
+    global _png_pool
+    if len(text) <= PNG_INLINE_BYTES:
+        return rb.png_op(text)
+    if _png_pool is None:
+        _png_pool = concurrent.futures.ThreadPoolExecutor(PNG_THREADS, thread_name_prefix="mrosd-png")
+    return await asyncio.get_running_loop().run_in_executor(_png_pool, rb.png_op, text)
 
 
 def _op_name(op: rb.Op) -> str:
