@@ -5,7 +5,9 @@ to be sent (a message dropped by the client's queue or its ``throttle_rate`` is 
 ``subscribe`` ops for one topic merge as rosbridge merges them: one stream, the smallest throttle_rate,
 the largest queue_length, and it ends with the last ``unsubscribe``. Each subscription's queue is bounded in
 messages (``queue_length``, at least 1) and in bytes (the session limits), drop-oldest. Answers go only to
-what the client asked: ``service_response`` to a ``call_service``, ``status`` to a refused op.
+what the client asked: ``service_response`` to a ``call_service``, ``status`` to a refused op. A long ``png``
+op is compressed in a small thread pool, off the loop; a client's ``fragment`` ops are joined by the session's
+``Defragmenter`` (bounded per client and, with the server's ledger, for all clients) and handled as one op.
 
 The ``/rosapi/*`` services that roslibjs, roslibpy and Lichtblick call are answered here from the master
 (``rosapi/get_param`` and other relative names resolve to them, as rosbridge's own rosapi node is found).
@@ -32,7 +34,7 @@ from mrosd.msg import get_service_class, load_type
 from mrosd.web import rosbridge as rb
 from mrosd.web.foxglove_server import SessionLimits
 from mrosd.web.hub import PAUSE_BYTES, ServiceInfo, TopicInfo, WebHub
-from mrosd.web.queue import ByteQueue, trim_to_budget
+from mrosd.web.queue import ByteQueue, Ledger, trim_to_budget
 from mrosd.web.session import ClientSession
 
 log = logging.getLogger(__name__)
@@ -71,9 +73,26 @@ class RosbridgeSession(ClientSession):
     KIND = "rosbridge client"
 
     def __init__(
-        self, hub: WebHub, ws: web.WebSocketResponse, limits: SessionLimits, *, token: str = "", peer: str = "?"
+        self,
+        hub: WebHub,
+        ws: web.WebSocketResponse,
+        limits: SessionLimits,
+        *,
+        token: str = "",
+        peer: str = "?",
+        fragments: tuple[Ledger, int] | None = None,
     ) -> None:
         super().__init__(hub, ws, limits, peer)
+        shared, shared_max = fragments if fragments is not None else (Ledger(), None)
+        #: the client's fragment ops not yet joined (``fragments``: the server's ledger of them and its bound)
+        self.fragments = rb.Defragmenter(
+            max_bytes=limits.fragment_bytes,
+            max_messages=limits.max_fragmented,
+            timeout=limits.fragment_timeout,
+            shared=shared,
+            shared_max=shared_max,
+        )
+        self._fragment_timer: asyncio.TimerHandle | None = None
         self.authed = not token
         self._token = token
         self.subs: dict[str, _Sub] = {}
@@ -206,6 +225,10 @@ class RosbridgeSession(ClientSession):
 
     async def _release(self) -> None:
         self.hub.listeners.discard(self)
+        self.fragments.clear()
+        if self._fragment_timer is not None:
+            self._fragment_timer.cancel()
+            self._fragment_timer = None
         for topic, sub in list(self.subs.items()):
             sub.queue.clear()  # gives its bytes back to the hub's ledger
             await self.hub.remove_sink(topic, self)
@@ -221,19 +244,69 @@ class RosbridgeSession(ClientSession):
             await service.aclose()
         self._provided.clear()
 
-    async def _on_text(self, text: str) -> None:
+    async def _on_text(self, text: str | bytes) -> None:
         try:
             op = rb.decode_op(text)
         except rb.RosbridgeRefusal as exc:
             self.status("error", str(exc))
             return
         if not self.authed and not isinstance(op, rb.Auth):
-            self.status("error", f"{type(op).__name__.lower()}: authenticate first (op auth with the token)", op.id)
+            self.status("error", f"{_op_name(op)}: authenticate first (op auth with the token)", _status_id(op))
             return
+        if isinstance(op, rb.Fragment):
+            await self._on_fragment(op)
+            return
+        await self._handle(op)
+
+    async def _handle(self, op: rb.Op) -> None:
         try:
             await self._dispatch(op)
         except (MrosError, rb.RosbridgeRefusal) as exc:
-            self.status("error", f"{_op_name(op)}: {exc}", op.id)
+            self.status("error", f"{_op_name(op)}: {exc}", _status_id(op))
+
+    # --- fragment ops ------------------------------------------------------------------------------
+
+    async def _on_fragment(self, piece: rb.Fragment) -> None:
+        """Keep a piece; the op it completes is handled as if it came whole, but for another fragment op (a
+        message cut twice is refused: what a client holds stays within one budget)."""
+        try:
+            whole = self.fragments.feed(piece, time.monotonic())
+        except rb.RosbridgeRefusal as exc:
+            self.status("error", str(exc), _status_id(piece))
+            return
+        finally:
+            if len(self.fragments) and self._fragment_timer is None:
+                self._arm_fragment_timer()
+        if whole is None:
+            return
+        try:
+            op = rb.decode_op(whole)
+        except rb.RosbridgeRefusal as exc:
+            self.status("error", f"fragment {piece.id!r}: the joined op: {exc}", _status_id(piece))
+            return
+        if isinstance(op, rb.Fragment):
+            self.status("error", f"fragment {piece.id!r}: the joined op is a fragment again", _status_id(piece))
+            return
+        await self._handle(op)
+
+    def _arm_fragment_timer(self) -> None:
+        deadline = self.fragments.deadline()
+        if deadline is None or self._closed:
+            return
+        delay = max(0.0, deadline - time.monotonic())
+        self._fragment_timer = asyncio.get_running_loop().call_later(delay, self._expire_fragments)
+
+    def _expire_fragments(self) -> None:
+        """Fragmented messages without a new piece for ``fragment_timeout`` are dropped, each with a status."""
+        self._fragment_timer = None
+        for key, received, total in self.fragments.expire(time.monotonic()):
+            self.status(
+                "error",
+                f"fragment {key!r}: {received} of {total} parts, then none for {self.limits.fragment_timeout:g} s; "
+                f"message dropped",
+                str(key),
+            )
+        self._arm_fragment_timer()
 
     async def _dispatch(self, op: rb.Op) -> None:
         if isinstance(op, rb.Auth):
@@ -515,6 +588,11 @@ async def _png_op(text: bytes) -> bytes:
 
 def _op_name(op: rb.Op) -> str:
     return str(type(op).__struct_config__.tag)
+
+
+def _status_id(op: rb.Op) -> str | None:
+    """The id a status about ``op`` names (a fragment's id may be a number)."""
+    return None if op.id is None else str(op.id)
 
 
 def _args(args: Any) -> dict[str, Any]:

@@ -20,6 +20,7 @@ from mrosd.web.access import AccessPolicy
 from mrosd.web.foxglove_server import FoxgloveSession, SessionLimits
 from mrosd.web.hub import WebHub
 from mrosd.web.page import index, page_routes
+from mrosd.web.queue import Ledger
 
 log = logging.getLogger(__name__)
 
@@ -31,6 +32,8 @@ MAX_CLIENT_FRAME = 64 * 1024 * 1024
 CLOSE_TIMEOUT = 1.0
 #: Most WebSocket clients at once.
 MAX_CLIENTS = 64
+#: Bytes of unfinished fragmented messages (rosbridge ``fragment`` ops) held for all clients together.
+MAX_FRAGMENT_BYTES = 256 * 1024 * 1024
 
 
 class WebServer:
@@ -50,6 +53,7 @@ class WebServer:
         node_host: str | None = None,
         rosbridge_port: int | None = None,
         max_queued_bytes: int | None = None,
+        max_fragment_bytes: int = MAX_FRAGMENT_BYTES,
     ) -> None:
         self.policy = policy or AccessPolicy()
         self.policy.check_bind(host)
@@ -65,6 +69,9 @@ class WebServer:
         #: rosbridge v2 port (None: not served); read after start when 0 was asked
         self.rosbridge_port = rosbridge_port
         self.rosbridge_sessions: set[Any] = set()
+        #: bytes every rosbridge client holds in unfinished fragmented messages, bounded by max_fragment_bytes
+        self.rosbridge_fragments = Ledger()
+        self.max_fragment_bytes = max_fragment_bytes
         self._runner: web.AppRunner | None = None
         self._rosbridge_runner: web.AppRunner | None = None
 
@@ -131,7 +138,14 @@ class WebServer:
         await ws.prepare(request)
         # The token may come in the URL; else the client sends the auth op first.
         token = "" if self.policy.token_ok(self._token(request)) else self.policy.token
-        session = RosbridgeSession(self.hub, ws, self.limits, token=token, peer=str(request.remote))
+        session = RosbridgeSession(
+            self.hub,
+            ws,
+            self.limits,
+            token=token,
+            peer=str(request.remote),
+            fragments=(self.rosbridge_fragments, self.max_fragment_bytes),
+        )
         self.rosbridge_sessions.add(session)
         try:
             await session.run()
