@@ -14,6 +14,7 @@ import base64
 import math
 import struct
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Annotated, Any
 
@@ -44,6 +45,7 @@ __all__ = [
     "op_json",
     "png_image",
     "png_op",
+    "png_op_pieces",
 ]
 
 Name = Annotated[str, msgspec.Meta(max_length=4096)]
@@ -227,9 +229,37 @@ PNG_LEVEL = 6
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
-def _png_chunk(kind: bytes, data: bytes) -> tuple[bytes, bytes, bytes, bytes]:
-    """A PNG chunk as its four parts (length, type, data, CRC), joined once with the whole file."""
-    return struct.pack(">I", len(data)), kind, data, struct.pack(">I", zlib.crc32(data, zlib.crc32(kind)))
+#: Text compressed per step of the PNG encoder: each step's zlib call lets go of the GIL, and what a step does
+#: holding it (joining its rows, base64 of its output) takes about 0.1 ms, so the event loop's thread is never
+#: kept waiting long by an encode running in another thread.
+PNG_STEP = 64 * 1024
+
+
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(data, zlib.crc32(kind)))
+
+
+def _png_parts(text: bytes | bytearray | memoryview, level: int) -> Iterator[bytes]:
+    """The PNG file of ``png_image`` in pieces: the head, then one IDAT chunk per step that zlib gave output
+    for (PNG decoders join consecutive IDATs), then the last IDAT and IEND."""
+    n = len(text)
+    width = max(1, math.isqrt(n // 3))
+    stride = width * 3
+    height = max(1, -(-n // stride))
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)  # 8-bit RGB, deflate, no interlace
+    yield _PNG_SIGNATURE + _png_chunk(b"IHDR", header)
+    view = memoryview(text)
+    deflate = zlib.compressobj(level)
+    rows_per_step = max(1, PNG_STEP // stride)
+    for first in range(0, height, rows_per_step):
+        rows: list[bytes | memoryview] = [b""]  # so that the join puts a filter byte before the first row too
+        for y in range(first, min(height, first + rows_per_step)):
+            row = view[y * stride : (y + 1) * stride]
+            rows.append(row if len(row) == stride else bytes(row) + b"\n" * (stride - len(row)))
+        out = deflate.compress(b"\0".join(rows))  # each row after its filter byte, 0 (none)
+        if out:
+            yield _png_chunk(b"IDAT", out)
+    yield _png_chunk(b"IDAT", deflate.flush()) + _png_chunk(b"IEND", b"")
 
 
 def png_image(text: bytes | bytearray | memoryview, level: int = PNG_LEVEL) -> bytes:
@@ -237,35 +267,32 @@ def png_image(text: bytes | bytearray | memoryview, level: int = PNG_LEVEL) -> b
 
     The layout is rosbridge's, so that any client decoding rosbridge's PNGs reads ours: three bytes a pixel,
     ``width = floor(sqrt(n / 3))``, as many rows as it takes, the last row padded with ``\n`` (whitespace
-    that JSON.parse ignores). Written with zlib and struct (one IDAT, filter type 0 on every row: text gains
-    nothing from PNG's pixel predictors), so no imaging library is needed. Few C-level copies and no loop
-    over bytes in Python: the session runs this in a thread, where what holds the GIL holds up the event loop.
+    that JSON.parse ignores). Written with zlib and struct (filter type 0 on every row: text gains nothing
+    from PNG's pixel predictors), so no imaging library is needed.
     """
-    n = len(text)
-    width = max(1, math.isqrt(n // 3))
-    stride = width * 3
-    height = max(1, -(-n // stride))
-    view = memoryview(text)
-    rows: list[bytes | memoryview] = [b""]  # so that the join puts a filter byte before the first row too
-    rows += [view[y : y + stride] for y in range(0, (height - 1) * stride, stride)]
-    last = view[(height - 1) * stride :]
-    rows.append(bytes(last) + b"\n" * (stride - len(last)))
-    scanlines = b"\0".join(rows)  # each row after its filter byte, 0 (none)
-    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)  # 8-bit RGB, deflate, no interlace
-    return b"".join(
-        (
-            _PNG_SIGNATURE,
-            *_png_chunk(b"IHDR", header),
-            *_png_chunk(b"IDAT", zlib.compress(scanlines, level)),
-            *_png_chunk(b"IEND", b""),
-        )
-    )
+    return b"".join(_png_parts(text, level))
+
+
+def png_op_pieces(text: bytes | bytearray | memoryview, level: int = PNG_LEVEL) -> Iterator[bytes]:
+    """rosbridge's ``{"op": "png", "data": <base64 PNG of text>}`` (``compression: png``) in pieces, each made
+    by a step of ``PNG_STEP`` bytes of text; ``text`` is the whole JSON op it replaces, which the client gets
+    back by decoding the image."""
+    yield b'{"op":"png","data":"'
+    carry = b""
+    for part in _png_parts(text, level):
+        data = carry + part
+        cut = len(data) - len(data) % 3  # base64 of whole 3-byte groups: the pieces join into one base64 text
+        if cut:
+            yield base64.b64encode(data[:cut])
+        carry = data[cut:]
+    if carry:
+        yield base64.b64encode(carry)
+    yield b'"}'
 
 
 def png_op(text: bytes | bytearray | memoryview, level: int = PNG_LEVEL) -> bytes:
-    """rosbridge's ``{"op": "png", "data": <base64 PNG of text>}`` (``compression: png``): ``text`` is the whole
-    JSON op it replaces, which the client gets back by decoding the image."""
-    return b"".join((b'{"op":"png","data":"', base64.b64encode(png_image(text, level)), b'"}'))
+    """The whole ``png`` op of ``text`` (``png_op_pieces`` joined)."""
+    return b"".join(png_op_pieces(text, level))
 
 
 #: What a held fragment costs beyond its data (its bytes object, its key and its slot in the message's dict),

@@ -78,13 +78,16 @@ def test_png_holds_the_text_in_rosbridges_layout(text: bytes) -> None:
 
 
 def test_png_op_is_the_publish_op_as_an_image() -> None:
-    img = Image(height=480, width=640, encoding="rgb8", step=1920, data=bytes(range(256)) * 3600)
+    img = Image(height=480, width=640, encoding="rgb8", step=1920, data=random.Random(3).randbytes(921600))
     text = rb.publish_json("/camera", img)
     op = json.loads(rb.png_op(text))
     assert list(op) == ["op", "data"]
     assert op["op"] == "png"
     _, pixels = png_text(base64.b64decode(op["data"]))
     assert json.loads(pixels) == json.loads(text)
+    # made in steps (one IDAT each), whose base64 pieces join into the base64 of the whole file
+    assert len(list(rb.png_op_pieces(text))) > 10
+    assert op["data"].encode() == base64.b64encode(rb.png_image(text))
 
 
 @given(st.text(max_size=200))
