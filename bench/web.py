@@ -8,9 +8,13 @@ sensor_msgs/Image, 1 MB PointCloud2) and in the same run:
 - ``ws x1``: one WebSocket client (aiohttp) subscribed through the bridge;
 - ``ceiling``: the same client reading one prebuilt messageData frame that a trivial aiohttp server resends
   in a loop: what this client can read at all on this machine, with no ROS behind it;
-- ``ws x4``: four clients at once, with the publisher's own rate measured alongside (does it slow?).
+- ``ws x4``: four clients at once, with the publisher's own rate measured alongside (does it slow?);
+- ``rb json``, ``rb cbor``, ``rb cbor-raw`` (640x480 and 1 MB images): one rosbridge client (aiohttp) on the
+  bridge's rosbridge port with that ``compression`` (``none`` is JSON text with base64 data).
 
-Printed per row: messages/s and MB/s reaching each client, the bridge's CPU seconds per forwarded MB (from
+Printed first: the time rosbridge's JSON of a 640x480 image takes, and the ``png`` op of that JSON (which
+the bridge compresses in a thread) with the event loop's longest stall meanwhile. Printed per row:
+messages/s and MB/s (of ROS message bytes) reaching each client, the bridge's CPU seconds per forwarded MB (from
 /proc), and the publisher's rate. Then the stalled-client test: one client subscribes to a 1 MB image
 topic published at 30 Hz and never reads for ``--stall`` seconds (60 by default) while another keeps
 reading; the bridge's RSS growth and the live client's rate are printed.
@@ -30,6 +34,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +43,11 @@ MB = 1e6
 #: What the publisher offers in the throughput rows (bytes/s): above what any consumer here can take, so the
 #: rows measure the consumer's path, without a publisher that busy-loops on a 2-core machine.
 OFFERED_BYTES_PER_S = 1.5e9
+
+#: rosbridge compressions measured per payload (the label's "json" is compression "none")
+ROSBRIDGE_ROWS = {"rb json": "none", "rb cbor": "cbor", "rb cbor-raw": "cbor-raw"}
+#: payloads that get rosbridge rows (rosbridge clients are browsers: camera images, not 8 MB frames)
+ROSBRIDGE_PAYLOADS = ("image 640x480 rgb8", "image 1 MB")
 
 #: (name, type, payload bytes)
 PAYLOADS = [
@@ -172,6 +182,31 @@ async def role_ws_sub(args: argparse.Namespace) -> None:
         os._exit(0)  # measured; a close handshake with a server that keeps sending is not part of it
 
 
+async def role_rb_sub(args: argparse.Namespace) -> None:
+    """A rosbridge client subscribed with ``--compression``; counts publish ops as ROS message bytes."""
+    import aiohttp
+
+    body = len(make_message(args.type, args.size).serialize())
+    stats = {"msgs": 0, "bytes": 0, "first": 0.0}
+    async with aiohttp.ClientSession() as http, http.ws_connect(args.url, max_msg_size=0) as ws:
+        op = {"op": "subscribe", "topic": args.topic, "type": args.type, "compression": args.compression}
+        await ws.send_str(json.dumps(op))
+
+        async def read() -> None:
+            async for msg in ws:
+                if msg.type == aiohttp.WSMsgType.TEXT and not msg.data.startswith('{"op":"publish"'):
+                    continue  # a status
+                if not stats["first"]:
+                    stats["first"] = time.monotonic()
+                stats["msgs"] += 1
+                stats["bytes"] += body
+
+        reader = asyncio.create_task(read())
+        await _measure(stats, args.seconds)
+        reader.cancel()
+        os._exit(0)  # as role_ws_sub
+
+
 async def role_ceiling_server(args: argparse.Namespace) -> None:
     """Resend one prebuilt messageData frame as fast as the client takes it."""
     from aiohttp import web
@@ -282,7 +317,9 @@ def measure_phase(
 
 
 def encode_times() -> None:
-    """rosbridge's JSON of a 640x480 RGB image (decode + JSON with base64 data), against rosbridge_suite#367."""
+    """rosbridge's JSON of a 640x480 RGB image (decode + JSON with base64 data), against rosbridge_suite#367;
+    then the png op of that JSON, as the bridge makes it (off the loop), and the loop's longest stall."""
+    import random
     import statistics
 
     from mrosd.msg import get_message_class
@@ -300,6 +337,67 @@ def encode_times() -> None:
         f"max {max(times) * 1e3:.2f} ms ({len(text) / 1e6:.2f} MB of text; rosbridge_suite#367 measured 269 ms)",
         flush=True,
     )
+    # Noise, as a camera's pixels are: the bench's byte pattern would compress to nothing in no time.
+    noise = cls(height=480, width=640, encoding="rgb8", step=1920, data=random.Random(0).randbytes(640 * 480 * 3))
+    noise_body = noise.serialize()
+    png_ms, size, late = asyncio.run(_png_times(cls, noise_body))
+    print(
+        f"rosbridge png op of that JSON (camera noise, {size / 1e6:.2f} MB op): median {png_ms:.1f} ms in the bridge's "
+        "png threads; a 1 ms timer on the event loop late by (99th percentile / worst, ms): "
+        + ", ".join(f"{name} {p99:.1f} / {worst:.1f}" for name, (p99, worst) in late.items()),
+        flush=True,
+    )
+
+
+async def _png_times(cls: Any, body: bytes) -> tuple[float, int, dict[str, tuple[float, float]]]:
+    """The bridge's png op of ``body``'s JSON: median time over 20, the op's size, and how late a 1 ms timer
+    on the loop fires while they run, beside the same timer idle and beside 20 JSON encodes on the loop."""
+    import statistics
+
+    from mrosd.web import rosbridge as rb
+    from mrosd.web.rosbridge_server import png_op_off_loop
+
+    text = rb.publish_json("/camera/image", cls.deserialize(body))
+    times: list[float] = []
+    size = 0
+
+    async def idle() -> None:
+        await asyncio.sleep(0.8)
+
+    async def json_path() -> None:
+        for _ in range(20):
+            rb.publish_json("/camera/image", cls.deserialize(body))
+            await asyncio.sleep(0.04)
+
+    async def png() -> None:
+        nonlocal size
+        for _ in range(20):
+            t0 = time.perf_counter()
+            size = len(await png_op_off_loop(text))
+            times.append(time.perf_counter() - t0)
+
+    late = {name: await _timer_lateness(work) for name, work in (("idle", idle), ("json", json_path), ("png", png))}
+    return statistics.median(times) * 1e3, size, late
+
+
+async def _timer_lateness(work: Callable[[], Awaitable[None]]) -> tuple[float, float]:
+    """How late (ms) a 1 ms timer on the event loop fires while ``work`` runs: 99th percentile and worst (on a
+    shared machine the worst is often another process's doing, hence both, and the idle loop beside them)."""
+    late: list[float] = []
+    stop = asyncio.Event()
+
+    async def timer() -> None:
+        while not stop.is_set():
+            t0 = time.perf_counter()
+            await asyncio.sleep(0.001)
+            late.append((time.perf_counter() - t0 - 0.001) * 1e3)
+
+    ticking = asyncio.create_task(timer())
+    await work()
+    stop.set()
+    await ticking
+    late.sort()
+    return late[int(len(late) * 0.99)], late[-1]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -313,13 +411,17 @@ def run(args: argparse.Namespace) -> int:
     try:
         bench.start("-m", "mrosd.master", "--port", str(port), stdout=subprocess.DEVNULL)
         _wait_port(port)
-        ws_port = free_port()
+        ws_port, rb_port = free_port(), free_port()
         bridge = bench.start(
-            "-m", "mros_cli.main", "--master-uri", master, "bridge", "--port", str(ws_port), stdout=subprocess.DEVNULL
+            *("-m", "mros_cli.main", "--master-uri", master, "bridge"),
+            *("--port", str(ws_port), "--rosbridge-port", str(rb_port)),
+            stdout=subprocess.DEVNULL,
         )
         _wait_port(ws_port)
+        _wait_port(rb_port)
         url = f"ws://127.0.0.1:{ws_port}/"
-        head = f"{'payload':22} {'consumer':9} {'msg/s':>8} {'MB/s':>8} {'vs tcpros':>9}"
+        rb_url = f"ws://127.0.0.1:{rb_port}/"
+        head = f"{'payload':22} {'consumer':11} {'msg/s':>8} {'MB/s':>8} {'vs tcpros':>9}"
         print(f"{head} {'bridge CPU s/MB':>15} {'pub msg/s':>9}")
         payloads = PAYLOADS[1:3] if args.quick else PAYLOADS
         for name, msg_type, size in payloads:
@@ -393,6 +495,12 @@ def run(args: argparse.Namespace) -> int:
                 ],
                 True,
             )
+            for label, compression in ROSBRIDGE_ROWS.items() if name in ROSBRIDGE_PAYLOADS else ():
+                rb_sub = bench.role(
+                    *("rb-sub", "--url", rb_url, "--topic", topic, "--type", msg_type, "--size", str(size)),
+                    *("--compression", compression, "--seconds", str(args.seconds)),
+                )
+                measure_phase(bench, args, bridge, counter, rows, label, [rb_sub], True)
             ref_mb = rate(ref)[1]
             for label, (results, cpu, pub_rate) in rows.items():
                 for i, r in enumerate(results):
@@ -400,7 +508,8 @@ def run(args: argparse.Namespace) -> int:
                     tag = label if len(results) == 1 else f"{label}#{i + 1}"
                     ratio = mbs / ref_mb if ref_mb else float("nan")
                     print(
-                        f"{name:22} {tag:9} {msgs:8.1f} {mbs:8.1f} {ratio:9.2f} {cpu:15.4f} {pub_rate:9.1f}", flush=True
+                        f"{name:22} {tag:11} {msgs:8.1f} {mbs:8.1f} {ratio:9.2f} {cpu:15.4f} {pub_rate:9.1f}",
+                        flush=True,
                     )
             bench.stop(pub)
         stall(bench, args, master, url, bridge, tmp)
@@ -481,11 +590,13 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--port", type=int, default=0)
     parser.add_argument("--raw", action="store_true")
     parser.add_argument("--stalled", action="store_true", help="(ws-sub) subscribe, then never read")
+    parser.add_argument("--compression", default="none", help="(rb-sub) rosbridge compression")
     args = parser.parse_args(argv)
     roles = {
         "pub": role_pub,
         "tcpros-sub": role_tcpros_sub,
         "ws-sub": role_ws_sub,
+        "rb-sub": role_rb_sub,
         "ceiling-server": role_ceiling_server,
     }
     if args.role:

@@ -74,6 +74,11 @@ class SessionLimits:
     #: service calls in flight per client, and how long each may take
     max_calls: int = 16
     call_timeout: float = 10.0
+    #: rosbridge ``fragment`` ops: bytes of one client's unfinished fragmented messages (as much as one whole
+    #: client frame may carry), how many at once, and how long one may go without a new piece
+    fragment_bytes: int = 64 * 1024 * 1024
+    max_fragmented: int = 16
+    fragment_timeout: float = 30.0
 
 
 @dataclass(slots=True)

@@ -25,6 +25,7 @@ from mrosd.web.assets import MAX_ASSET_BYTES, AssetReader
 from mrosd.web.foxglove_server import FoxgloveSession, SessionLimits
 from mrosd.web.hub import WebHub
 from mrosd.web.page import index, page_routes
+from mrosd.web.queue import Ledger
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +37,8 @@ MAX_CLIENT_FRAME = 64 * 1024 * 1024
 CLOSE_TIMEOUT = 1.0
 #: Most WebSocket clients at once.
 MAX_CLIENTS = 64
+#: Bytes of unfinished fragmented messages (rosbridge ``fragment`` ops) held for all clients together.
+MAX_FRAGMENT_BYTES = 256 * 1024 * 1024
 
 
 #: Times a port chosen by the first address (port 0) is tried on the others before giving up: another
@@ -66,6 +69,7 @@ class WebServer:
         max_queued_bytes: int | None = None,
         asset_store: TypeStore | None = None,
         asset_bytes: int | None = None,
+        max_fragment_bytes: int = MAX_FRAGMENT_BYTES,
     ) -> None:
         self.policy = policy or AccessPolicy()
         self.hosts = [host] if isinstance(host, str) else list(dict.fromkeys(host))
@@ -92,6 +96,9 @@ class WebServer:
         #: rosbridge v2 port (None: not served); read after start when 0 was asked
         self.rosbridge_port = rosbridge_port
         self.rosbridge_sessions: set[Any] = set()
+        #: bytes every rosbridge client holds in unfinished fragmented messages, bounded by max_fragment_bytes
+        self.rosbridge_fragments = Ledger()
+        self.max_fragment_bytes = max_fragment_bytes
         self._runner: web.AppRunner | None = None
         self._rosbridge_runner: web.AppRunner | None = None
 
@@ -188,7 +195,14 @@ class WebServer:
         await ws.prepare(request)
         # The token may come in the URL; else the client sends the auth op first.
         token = "" if self.policy.token_ok(self._token(request)) else self.policy.token
-        session = RosbridgeSession(self.hub, ws, self.limits, token=token, peer=str(request.remote))
+        session = RosbridgeSession(
+            self.hub,
+            ws,
+            self.limits,
+            token=token,
+            peer=str(request.remote),
+            fragments=(self.rosbridge_fragments, self.max_fragment_bytes),
+        )
         self.rosbridge_sessions.add(session)
         try:
             await session.run()

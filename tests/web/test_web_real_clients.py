@@ -9,10 +9,12 @@ messageData payload the node client got). The npm packages come from tests/web/p
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import importlib.util
 import json
 import os
+import random
 import shutil
 import subprocess
 import sys
@@ -274,13 +276,17 @@ async def test_roslibpy_subscribes_publishes_calls_and_reads_a_parameter(master:
 CHROMIUM = Path(os.environ.get("CHROMIUM", "/usr/bin/chromium"))
 HAVE_BROWSER_PACKAGES = all((HERE / "node_modules" / p).is_dir() for p in ("roslib", "playwright-core"))
 
-
-@pytest.mark.skipif(
+needs_chromium = pytest.mark.skipif(
     NODE is None or not HAVE_BROWSER_PACKAGES or not CHROMIUM.exists(),
     reason="node, chromium or the npm packages are missing: scripts/install-system-deps.sh "
     "(nodejs, chromium, then `npm ci --prefix tests/web`)",
 )
-async def test_roslib_in_headless_chromium_subscribes_publishes_calls_and_reads_a_parameter(master: Master) -> None:
+
+
+@contextlib.asynccontextmanager
+async def roslib_in_chromium(server: WebServer) -> AsyncIterator[NodeClient]:
+    """tests/web/roslib_page.html (the real roslib) in headless Chromium, connected to ``server``'s rosbridge
+    port; the page is served here, with roslib and its dependencies from tests/web/node_modules."""
     from aiohttp import web
 
     async def page(_request: web.Request) -> web.FileResponse:
@@ -291,40 +297,69 @@ async def test_roslib_in_headless_chromium_subscribes_publishes_calls_and_reads_
     app.router.add_static("/node_modules/", HERE / "node_modules")
     runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=1.0)
     await runner.setup()
-    site = web.TCPSite(runner, "127.0.0.1", 0)
-    await site.start()
-    page_port = site._server.sockets[0].getsockname()[1]  # type: ignore[union-attr]
     try:
-        async with (
-            WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-            node("robot", master.uri) as robot,
-        ):
-            await robot.set_param("/robot/name", "mrosd-bot")
-            await robot.advertise_service("/enable", SetBool, lambda r: SetBool._response_class(success=r.data))
-            cam = await robot.advertise("/image", Image)
-            listener = await robot.subscribe("/from_browser", String)
-            assert NODE is not None
-            proc = await asyncio.create_subprocess_exec(
-                NODE,
-                str(HERE / "roslib_browser.mjs"),
-                f"http://127.0.0.1:{page_port}/",
-                server.rosbridge_url,
-                cwd=HERE,
-                stdin=subprocess.PIPE,
-                stdout=subprocess.PIPE,
-                limit=1 << 20,
-            )
-            client = NodeClient(proc)
-            try:
-                await client.until("subscribed", timeout=60)
-                await exercise_rosbridge_client(
-                    client, server, cam, listener, "from chromium", image_timeout=60, publish_first=True
-                )
-                await client.send(cmd="close")
-            finally:
-                await client.close()
+        site = web.TCPSite(runner, "127.0.0.1", 0)
+        await site.start()
+        page_port = site._server.sockets[0].getsockname()[1]  # type: ignore[union-attr]
+        assert NODE is not None
+        proc = await asyncio.create_subprocess_exec(
+            NODE,
+            str(HERE / "roslib_browser.mjs"),
+            f"http://127.0.0.1:{page_port}/",
+            server.rosbridge_url,
+            cwd=HERE,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            limit=1 << 20,
+        )
+        client = NodeClient(proc)
+        try:
+            await client.until("subscribed", timeout=60)
+            yield client
+            await client.send(cmd="close")
+        finally:
+            await client.close()
     finally:
         await runner.cleanup()
+
+
+@needs_chromium
+async def test_roslib_in_headless_chromium_subscribes_publishes_calls_and_reads_a_parameter(master: Master) -> None:
+    async with (
+        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
+        node("robot", master.uri) as robot,
+    ):
+        await robot.set_param("/robot/name", "mrosd-bot")
+        await robot.advertise_service("/enable", SetBool, lambda r: SetBool._response_class(success=r.data))
+        cam = await robot.advertise("/image", Image)
+        listener = await robot.subscribe("/from_browser", String)
+        async with roslib_in_chromium(server) as client:
+            await exercise_rosbridge_client(
+                client, server, cam, listener, "from chromium", image_timeout=60, publish_first=True
+            )
+
+
+@needs_chromium
+async def test_roslib_in_headless_chromium_reads_png_compression_whole_and_in_fragments(master: Master) -> None:
+    """roslib decodes ``png`` ops itself (fast-png in roslib 2.x) and joins ``fragment`` ops: a camera image
+    through both must reach its callback byte-identical."""
+    pixels = random.Random(22).randbytes(640 * 480 * 3)  # noise, as a camera's: the PNG stays about 1.6 MB
+    img = Image(height=480, width=640, encoding="rgb8", step=1920, data=pixels)
+    async with (
+        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
+        node("camera", master.uri) as camera,
+        roslib_in_chromium(server) as client,
+    ):
+        for topic, fragment_size in (("/png_image", 0), ("/png_image_cut", 100_000)):
+            cam = await camera.advertise(topic, Image)
+            await client.send(cmd="subscribe_png", topic=topic, fragment_size=fragment_size)
+            await client.until("subscribed_png", topic=topic)
+            await cam.wait_for_subscribers(1, timeout=10)
+            await cam.publish(img)
+            got = await client.until("png_image", topic=topic, timeout=60)
+            assert (got["len"], got["sha256"], got["width"]) == (len(pixels), hashlib.sha256(pixels).hexdigest(), 640)
+            (session,) = server.rosbridge_sessions
+            assert session.subs[topic].compression == "png"  # what roslib read were png ops, not JSON
 
 
 @needs_node

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import io
 import json
 import math
+import random
 from collections.abc import AsyncIterator
 from typing import Any
 
@@ -44,11 +46,48 @@ def test_client_messages_take_defaults_and_refuse_wrong_types() -> None:
 
 @pytest.mark.parametrize(
     ("text", "why"),
-    [("[]", "not a JSON object"), ('{"op":"nuke"}', "unknown op"), ('{"op":"fragment"}', "not served")],
+    [
+        ("[]", "not a JSON object"),
+        ('{"op":"nuke"}', "unknown op"),
+        ('{"op":"fragment"}', "malformed fragment"),
+        ('{"op":"fragment","id":"a","num":0,"total":1e9,"data":""}', "got `float`"),
+        ('{"op":"png","data":"iVBORw0KGgo="}', "rosbridge_server does not accept it either"),
+    ],
 )
 def test_bad_ops_are_refused_with_a_reason(text: str, why: str) -> None:
     with pytest.raises(rb.RosbridgeRefusal, match=why):
         rb.decode_op(text)
+
+
+def png_text(png: bytes) -> tuple[tuple[int, int], bytes]:
+    """A PNG read back by a real decoder (Pillow): its size and its RGB bytes."""
+    pil = pytest.importorskip("PIL.Image", reason="Pillow (a matplotlib dependency of the dev extra) is missing")
+    image = pil.open(io.BytesIO(png), formats=["PNG"])
+    assert image.mode == "RGB"
+    return image.size, image.tobytes()
+
+
+@given(st.binary(max_size=5000))
+def test_png_holds_the_text_in_rosbridges_layout(text: bytes) -> None:
+    (width, height), pixels = png_text(rb.png_image(text))
+    if len(text) >= 3:  # rosbridge's own formula (it fails on shorter texts; a publish op never is)
+        assert (width, height) == (math.floor(math.sqrt(len(text) / 3.0)), math.ceil(len(text) / 3.0 / width))
+    assert pixels[: len(text)] == text
+    assert set(pixels[len(text) :]) <= {ord("\n")}  # padding JSON.parse ignores
+    assert len(pixels) - len(text) < 3 * width or not text  # only the last row is padded
+
+
+def test_png_op_is_the_publish_op_as_an_image() -> None:
+    img = Image(height=480, width=640, encoding="rgb8", step=1920, data=random.Random(3).randbytes(921600))
+    text = rb.publish_json("/camera", img)
+    op = json.loads(rb.png_op(text))
+    assert list(op) == ["op", "data"]
+    assert op["op"] == "png"
+    _, pixels = png_text(base64.b64decode(op["data"]))
+    assert json.loads(pixels) == json.loads(text)
+    # made in steps (one IDAT each), whose base64 pieces join into the base64 of the whole file
+    assert len(list(rb.png_op_pieces(text))) > 10
+    assert op["data"].encode() == base64.b64encode(rb.png_image(text))
 
 
 @given(st.text(max_size=200))
@@ -57,6 +96,84 @@ def test_any_text_decodes_or_is_refused(text: str) -> None:
         rb.decode_op(text)
     except rb.RosbridgeRefusal:
         pass
+
+
+def defragmenter(**bounds: Any) -> rb.Defragmenter:
+    return rb.Defragmenter(**{"max_bytes": 1 << 30, "max_messages": 16, "timeout": 30.0, **bounds})
+
+
+def fragment_op(message_id: str | int, num: int, total: int, data: str) -> rb.Fragment:
+    return rb.Fragment(id=message_id, num=num, total=total, data=data)
+
+
+@given(
+    st.text(min_size=1, max_size=300),
+    st.data(),
+)
+def test_any_cut_of_an_op_in_any_order_joins_back(text: str, data: st.DataObject) -> None:
+    cuts = sorted(data.draw(st.sets(st.integers(1, len(text) - 1), max_size=30)) if len(text) > 1 else [])
+    parts = [text[a:b] for a, b in zip([0, *cuts], [*cuts, len(text)], strict=True)]
+    pieces = [fragment_op("m", num, len(parts), part) for num, part in enumerate(parts)]
+    order = data.draw(st.permutations(pieces))
+    joiner = defragmenter()
+    results = []
+    for i, piece in enumerate(order):
+        if i and i < len(order) - 1:  # a part already sent, sent again: refused, the message kept
+            twice = data.draw(st.sampled_from(order[:i]))
+            with pytest.raises(rb.RosbridgeRefusal, match="twice"):
+                joiner.feed(twice, 0.0)
+        results.append(joiner.feed(piece, 0.0))
+    assert [r for r in results if r is not None] == [text.encode()]
+    assert (len(joiner), joiner.size, joiner.shared.size) == (0, 0, 0)
+
+
+@given(
+    st.lists(
+        st.tuples(st.sampled_from(["a", "b", "c", 7]), st.integers(0, 40), st.integers(1, 40), st.text(max_size=60)),
+        max_size=80,
+    ),
+    st.integers(200, 3000),
+    st.integers(300, 5000),
+)
+def test_what_a_client_holds_stays_within_every_bound(
+    ops: list[tuple[str | int, int, int, str]], max_bytes: int, shared_max: int
+) -> None:
+    from mrosd.web.queue import Ledger
+
+    shared = Ledger()
+    clients = [defragmenter(max_bytes=max_bytes, max_messages=2, shared=shared, shared_max=shared_max) for _ in "xy"]
+    for i, (key, num, total, data) in enumerate(ops):
+        joiner = clients[i % 2]
+        try:
+            joiner.feed(fragment_op(key, num, total, data), float(i))
+        except rb.RosbridgeRefusal:
+            pass
+        assert joiner.size <= max_bytes
+        assert len(joiner) <= 2
+        assert shared.size == sum(c.size for c in clients) <= shared_max
+        joiner.expire(float(i) - 10.0 + joiner.timeout)  # what has not moved for 10 turns goes
+    for joiner in clients:
+        joiner.clear()
+    assert shared.size == 0
+
+
+def test_fragments_refused_with_a_reason() -> None:
+    joiner = defragmenter(max_messages=1)
+    with pytest.raises(rb.RosbridgeRefusal, match="not below total"):
+        joiner.feed(fragment_op("a", 2, 2, "x"), 0.0)
+    assert joiner.feed(fragment_op("a", 0, 1, '{"op"'), 0.0) == b'{"op"'  # one part: nothing held
+    assert joiner.feed(fragment_op("a", 0, 3, "x"), 0.0) is None
+    with pytest.raises(rb.RosbridgeRefusal, match="at most 1 fragmented"):
+        joiner.feed(fragment_op("b", 0, 3, "x"), 0.0)
+    with pytest.raises(rb.RosbridgeRefusal, match="total 4, was 3"):
+        joiner.feed(fragment_op("a", 1, 4, "x"), 0.0)
+    assert len(joiner) == 0
+    assert joiner.feed(fragment_op("a", 0, 3, "x"), 1.0) is None
+    assert joiner.deadline() == 31.0
+    assert joiner.expire(30.9) == []
+    assert joiner.expire(31.0) == [("a", 1, 3)]
+    with pytest.raises(rb.RosbridgeRefusal, match="without an id"):
+        joiner.feed(rb.Fragment(num=0, total=2, data="x"), 0.0)
 
 
 def node(name: str, master: str) -> mrosd.Node:
@@ -242,6 +359,91 @@ async def test_fragment_size_splits_a_message_into_fragment_ops(master: Master) 
         await ws.close()
 
 
+async def test_png_compression_sends_the_publish_op_as_a_png_whole_or_in_fragments(master: Master) -> None:
+    async with (
+        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
+        node("camera", master.uri) as camera,
+        aiohttp.ClientSession() as http,
+    ):
+        cam = await camera.advertise("/image", Image)
+        whole = await http.ws_connect(server.rosbridge_url)
+        cut = await http.ws_connect(server.rosbridge_url)
+        await whole.send_str(json.dumps({"op": "subscribe", "topic": "/image", "compression": "png"}))
+        sub = {"op": "subscribe", "topic": "/image", "compression": "png", "fragment_size": 50_000}
+        await cut.send_str(json.dumps(sub))
+        async with asyncio.timeout(10):
+            while server.hub.sink_count("/image") < 2:  # noqa: ASYNC110 - the sessions subscribe in the server
+                await asyncio.sleep(0.01)
+        await cam.wait_for_subscribers(1, timeout=10)
+        # 640x480 rgb8 of noise (a camera's, not a pattern zlib shrinks to nothing): compressed off the loop,
+        # then cut into 25 fragments
+        pixels = random.Random(22).randbytes(640 * 480 * 3)
+        img = Image(height=480, width=640, encoding="rgb8", step=1920, data=pixels)
+        await cam.publish(img)
+        want = json.loads(rb.publish_json("/image", img))
+
+        png = await receive(whole, "png")
+        assert json.loads(png_text(base64.b64decode(png["data"]))[1]) == want
+        first = await receive(cut, "fragment")
+        parts = [first]
+        while len(parts) < first["total"]:
+            parts.append(await receive(cut, "fragment"))
+        assert first["total"] > 1
+        assert [p["num"] for p in parts] == list(range(first["total"]))
+        png = json.loads("".join(p["data"] for p in parts))
+        assert png["op"] == "png"
+        assert json.loads(png_text(base64.b64decode(png["data"]))[1]) == want
+        await whole.close()
+        await cut.close()
+
+
+async def test_a_client_sends_ops_cut_into_fragments(master: Master) -> None:
+    """No real client sends fragment ops (roslib and roslibpy only read them): the documented wire ops from a
+    raw client, pieces out of order, a 1 MB image published and a service called through them."""
+    async with (
+        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
+        node("robot", master.uri) as robot,
+        aiohttp.ClientSession() as http,
+    ):
+        listener = await robot.subscribe("/image", Image)
+        await robot.advertise_service("/enable", SetBool, lambda r: SetBool._response_class(success=r.data))
+        ws = await http.ws_connect(server.rosbridge_url)
+
+        async def send_cut(op: dict[str, Any], message_id: str | int, size: int) -> None:
+            text = json.dumps(op)
+            parts = [text[i : i + size] for i in range(0, len(text), size)]
+            order = list(range(len(parts)))
+            random.Random(5).shuffle(order)
+            for num in order:
+                piece = {"op": "fragment", "id": message_id, "num": num, "total": len(parts), "data": parts[num]}
+                await ws.send_str(json.dumps(piece))
+
+        await send_cut({"op": "advertise", "topic": "/image", "type": "sensor_msgs/Image"}, "adv", 10)
+        await listener.wait_for_publishers(1, timeout=10)
+        pixels = random.Random(1).randbytes(1024 * 1024)
+        msg = {
+            "height": 512,
+            "width": 512,
+            "encoding": "rgba8",
+            "step": 2048,
+            "data": base64.b64encode(pixels).decode(),
+        }
+        await send_cut({"op": "publish", "topic": "/image", "msg": msg}, 1, 64 * 1024)
+        got = await listener.next(timeout=10)
+        assert (got.width, bytes(got.data)) == (512, pixels)
+
+        async with asyncio.timeout(10):
+            while "/enable" not in server.hub.services:  # noqa: ASYNC110 - the hub probes the service's type
+                await asyncio.sleep(0.01)
+        call = {"op": "call_service", "service": "/enable", "args": {"data": True}, "id": "c1"}
+        await send_cut(call, "call", 16)
+        reply = await receive(ws, "service_response", id="c1")
+        assert reply["values"]["success"] is True
+        (session,) = server.rosbridge_sessions
+        assert (len(session.fragments), session.fragments.size, server.rosbridge_fragments.size) == (0, 0, 0)
+        await ws.close()
+
+
 async def test_rosbridge_token_by_auth_op_or_url(master: Master) -> None:
     from mrosd.web.access import AccessPolicy
 
@@ -255,6 +457,9 @@ async def test_rosbridge_token_by_auth_op_or_url(master: Master) -> None:
         topics = {"op": "call_service", "service": "/rosapi/topics", "id": "t"}
         await ws.send_str(json.dumps(topics))
         assert "authenticate first" in (await receive(ws, "status", id="t"))["msg"]
+        await ws.send_str(json.dumps({"op": "fragment", "id": "f", "num": 0, "total": 2, "data": "x" * 1000}))
+        assert "authenticate first" in (await receive(ws, "status", id="f"))["msg"]
+        assert server.rosbridge_fragments.size == 0  # nothing is held for a client before it authenticates
         await ws.send_str(json.dumps({"op": "auth", "mac": "wrong", "id": "a"}))
         assert "wrong token" in (await receive(ws, "status", id="a"))["msg"]
         await ws.send_str(json.dumps({"op": "auth", "mac": "s3cret"}))
