@@ -4,14 +4,29 @@ from __future__ import annotations
 
 import asyncio
 import os
+import time
 from pathlib import Path
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mrosd import spin
-from mrosd.spin import DEFAULT_SPIN_US, AdaptiveSpin, LoopSpinner, cpu_pressure, default_max_ns, loop_spinner
+from mrosd.spin import (
+    AFTER_NS,
+    DEFAULT_SPIN_US,
+    DUTY,
+    LEAD_NS,
+    MAX_PERIOD_NS,
+    MIN_PERIOD_NS,
+    STEADY,
+    AdaptiveSpin,
+    Anticipation,
+    LoopSpinner,
+    cpu_pressure,
+    default_max_ns,
+    loop_spinner,
+)
 
 MAX = 200_000
 
@@ -145,3 +160,71 @@ def test_cpu_pressure_reads_some_avg10_or_says_unknown(tmp_path: Path, monkeypat
     assert cpu_pressure() == 12.34
     monkeypatch.setattr(spin, "_PRESSURE_FILE", str(tmp_path / "missing"))
     assert cpu_pressure() is None
+
+
+# --- anticipation of periodic events ------------------------------------------------------------------------
+
+MS = 1_000_000
+
+
+def feed(rhythm: Anticipation, times: list[int]) -> list[tuple[int, int] | None]:
+    return [rhythm.arrived(t) for t in times]
+
+
+def test_a_steady_period_gets_a_window_around_the_next_event_after_a_few_intervals() -> None:
+    rhythm = Anticipation()
+    windows = feed(rhythm, [i * 20 * MS for i in range(1, 10)])
+    assert windows[: STEADY + 1] == [None] * (STEADY + 1)
+    start, end = windows[-1]  # type: ignore[misc]
+    expected = 10 * 20 * MS
+    assert start == expected - LEAD_NS and end == expected + AFTER_NS
+    assert end - start <= 20 * MS * DUTY
+
+
+@settings(max_examples=200)
+@given(st.lists(st.integers(1, 3 * 10**9), min_size=1, max_size=40))
+def test_a_window_is_always_ahead_of_the_event_and_within_the_duty(gaps: list[int]) -> None:
+    rhythm, now = Anticipation(), 1
+    for gap in gaps:
+        now += gap
+        window = rhythm.arrived(now)
+        if window is not None:
+            start, end = window
+            assert now < start < end
+            assert end - start <= rhythm.period_ns * DUTY
+            assert MIN_PERIOD_NS <= rhythm.period_ns <= MAX_PERIOD_NS
+
+
+def test_a_lost_message_or_a_new_rate_restarts_the_count() -> None:
+    rhythm = Anticipation()
+    times = [i * 20 * MS for i in range(1, 9)]
+    assert feed(rhythm, times)[-1] is not None
+    assert rhythm.arrived(times[-1] + 40 * MS) is None  # one message lost: twice the period
+    assert feed(rhythm, [times[-1] + 40 * MS + i * 20 * MS for i in range(1, STEADY + 1)])[-1] is None
+    assert rhythm.arrived(times[-1] + 40 * MS + (STEADY + 1) * 20 * MS) is not None
+
+
+def test_periods_too_short_too_long_or_too_irregular_get_no_window() -> None:
+    for period in (MIN_PERIOD_NS // 2, 2 * MAX_PERIOD_NS):
+        assert set(feed(Anticipation(), [i * period for i in range(1, 12)])) == {None}
+    # 10 ms +- 1 ms: a window would have to cover more than a tenth of the period
+    jittery = [i * 10 * MS + (MS if i % 2 else -MS) for i in range(1, 30)]
+    assert set(feed(Anticipation(), jittery)) == {None}
+
+
+async def test_an_anticipated_window_spins_the_loop_through_it_then_stops() -> None:
+    loop = asyncio.get_running_loop()
+    spinner = LoopSpinner(loop, max_ns=200_000, pressure=no_pressure)
+    now = time.monotonic_ns()
+    timer = spinner.anticipate((now + 5 * MS, now + 25 * MS))
+    assert timer is not None and spinner.anticipated == 0
+    await asyncio.sleep(0.015)
+    assert spinner.anticipated == 1 and spinner._task is not None  # inside the window: spinning
+    async with asyncio.timeout(2):
+        while spinner._task is not None:  # noqa: ASYNC110 - the spin task ends itself at the window's end
+            await asyncio.sleep(0.005)
+    assert time.monotonic_ns() >= now + 25 * MS
+
+
+async def test_no_window_opens_when_spinning_is_off() -> None:
+    assert LoopSpinner(asyncio.get_running_loop(), max_ns=0, pressure=no_pressure).anticipate((1, 2)) is None

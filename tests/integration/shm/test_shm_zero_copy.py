@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import asyncio
 import os
+from pathlib import Path
 from typing import Any
 
 import pytest
 
 import mrosd
+from mrosd import spin
 from mrosd.errors import LocalProtocolError
 from mrosd.master import Master
 from mrosd.msg import get_message_class
@@ -145,3 +147,28 @@ async def test_a_frame_handed_to_a_worker_thread_is_released_there() -> None:
                 del msg
                 assert not link.leases()
             assert sub.stats()[1][0][3] == 0  # nothing dropped: every lease came back in time
+
+
+async def test_a_zero_copy_subscriber_spins_through_the_window_of_a_periodic_publishers_next_message(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pressure = tmp_path / "cpu"  # an idle machine, whatever the one running the test is doing
+    pressure.write_text("some avg10=0.00 avg60=0.00 avg300=0.00 total=0\n")
+    monkeypatch.setattr(spin, "_PRESSURE_FILE", str(pressure))
+    async with Master(host="127.0.0.1", port=0) as master, node("camera", master.uri) as a:
+        pub = await a.advertise("/image", Image, queue_size=2, max_message_size=FRAME + 4096)
+        async with node("viewer", master.uri) as b:
+            sub = await b.subscribe("/image", Image, zero_copy=True)
+            await sub.wait_for_publishers(1, timeout=10)
+            await pub.wait_for_subscribers(1, timeout=10)
+            spinner = spin.loop_spinner()
+            assert spinner.anticipated == 0
+            for i in range(spin.STEADY + 8):  # 20 Hz: a window of at most 5 ms around each next frame
+                msg = pub.loan(data=FRAME)
+                msg.data[:4] = bytes([i]) * 4
+                await pub.publish(msg)
+                got = await sub.next(timeout=5)
+                with got:
+                    assert bytes(got.data[:4]) == bytes([i]) * 4
+                await asyncio.sleep(0.05)
+            assert spinner.anticipated >= 3  # windows opened once the rhythm was steady
