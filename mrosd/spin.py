@@ -220,8 +220,9 @@ class LoopSpinner:
         #: Spins started and events that arrived while spinning (for tests and statistics).
         self.spins = 0
         self.hits = 0
-        #: Anticipation windows opened (``anticipate``).
+        #: Anticipation windows opened (``anticipate``), and the probes of the open ones: (end, probe)
         self.anticipated = 0
+        self._probes: list[tuple[int, Callable[[], bool]]] = []
 
     def poke(self) -> None:
         """Note an I/O event now: extend the spin, or adapt and start one."""
@@ -242,23 +243,46 @@ class LoopSpinner:
                 self._task = self._loop.create_task(self._spin())
         self._until = now + policy.window_ns
 
-    def anticipate(self, window: tuple[int, int]) -> asyncio.TimerHandle | None:
+    def anticipate(
+        self, window: tuple[int, int], probe: Callable[[], bool] | None = None
+    ) -> asyncio.TimerHandle | None:
         """Spin through ``window`` (monotonic ns, from ``Anticipation.arrived``): a timer opens it. Returns
         the timer, for the caller to cancel when the source's next event comes first or it closes; None
-        when spinning is off or the CPUs are contended."""
+        when spinning is off or the CPUs are contended.
+
+        ``probe``, called at each spin step inside the window until it returns True, may see the event
+        itself before its wake-up does (a shared-memory subscriber reads the ring's head: the message is
+        there before the publisher's ``send`` returns, and before the loop would dispatch the wake-up).
+        """
         if not self.policy.max_ns or self._contended or self._loop.is_closed():
             return None
         start, end = window
-        return self._loop.call_later(max(0, start - _now()) / 1e9, self._open, end)
+        return self._loop.call_later(max(0, start - _now()) / 1e9, self._open, end, probe)
 
-    def _open(self, end_ns: int) -> None:
+    def _open(self, end_ns: int, probe: Callable[[], bool] | None = None) -> None:
         if self._contended:
             return
         self.anticipated += 1
         self._until = max(self._until, end_ns)
+        if probe is not None:
+            self._probes.append((end_ns, probe))
         if self._task is None and not self._loop.is_closed():
             self.spins += 1
             self._task = self._loop.create_task(self._spin())
+
+    def _run_probes(self, now: int) -> None:
+        probes = self._probes
+        for i in range(len(probes) - 1, -1, -1):
+            end, probe = probes[i]
+            if now >= end:
+                del probes[i]
+                continue
+            try:
+                done = probe()
+            except Exception:  # a probe is the caller's: its failure ends it, not the spin
+                done = True
+            if done:
+                del probes[i]
 
     async def _spin(self) -> None:
         try:
@@ -266,6 +290,8 @@ class LoopSpinner:
             while last < self._until:
                 await asyncio.sleep(0)
                 now = _now()
+                if self._probes:
+                    self._run_probes(now)
                 if now - last < _IDLE_STEP_NS:
                     # the loop had nothing else to run: let a peer that waits for this CPU have it now
                     os.sched_yield()
@@ -273,6 +299,7 @@ class LoopSpinner:
         finally:
             self._task = None
             self._until = min(self._until, _now())
+            self._probes.clear()
 
 
 _spinners: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, LoopSpinner] = weakref.WeakKeyDictionary()

@@ -228,3 +228,28 @@ async def test_an_anticipated_window_spins_the_loop_through_it_then_stops() -> N
 
 async def test_no_window_opens_when_spinning_is_off() -> None:
     assert LoopSpinner(asyncio.get_running_loop(), max_ns=0, pressure=no_pressure).anticipate((1, 2)) is None
+
+
+async def test_a_probe_runs_at_each_spin_step_of_its_window_until_it_says_done() -> None:
+    spinner = LoopSpinner(asyncio.get_running_loop(), max_ns=200_000, pressure=no_pressure)
+    calls: list[int] = []
+
+    def probe() -> bool:
+        calls.append(time.monotonic_ns())
+        return len(calls) == 3
+
+    def broken() -> bool:
+        raise RuntimeError("the caller's bug")
+
+    now = time.monotonic_ns()
+    spinner.anticipate((now + 2 * MS, now + 30 * MS), probe)
+    spinner.anticipate((now + 2 * MS, now + 30 * MS), broken)
+    async with asyncio.timeout(2):
+        while len(calls) < 3:  # noqa: ASYNC110 - called by the spin task
+            await asyncio.sleep(0.001)
+    assert min(calls) >= now + 2 * MS  # not before the window opened
+    await asyncio.sleep(0.005)
+    assert len(calls) == 3 and spinner._task is not None  # done: not called again, though the window lasts
+    async with asyncio.timeout(2):
+        while spinner._task is not None:  # noqa: ASYNC110 - ends itself at the window's end
+            await asyncio.sleep(0.005)
