@@ -451,6 +451,17 @@ class WebHub:
             self.services[name] = info
             self._notify_services([info], [])
 
+    async def probe_service_type(self, name: str) -> str:
+        """The type of service ``name`` asked now (lookupService, then a probe), for a call that comes before
+        the graph watch has seen the service: rosbridge looks a service's type up at call time too.
+
+        Raises:
+            MrosError: the master does not know it, or its server refused the probe.
+            OSError, TimeoutError: its server could not be reached in time.
+        """
+        async with self._probe_slots:
+            return await self._service_type(name)
+
     async def _service_type(self, name: str) -> str:
         uri = await self.node.master.lookup_service(name)
         host, port = split_rosrpc(uri)

@@ -465,12 +465,15 @@ class RosbridgeSession(ClientSession):
         self._call_done(op, True, values)
 
     async def _call_ros(self, name: str, op: rb.CallService) -> Any:
-        info = self.hub.services.get(name)
-        srv_type = op.type or (info.type if info is not None else "")
-        if not srv_type:
-            raise MrosError(f"service {name} is not offered (unknown, not allowed, or its type is unknown)")
         if not self.hub.policy.allows_service(name):
             raise MrosError(f"service {name} is not allowed by the [web] services allow-list")
+        info = self.hub.services.get(name)
+        srv_type = op.type or (info.type if info is not None else "")
+        if not srv_type:  # registered since the graph watch last looked (or never probed): ask it now
+            try:
+                srv_type = await self.hub.probe_service_type(name)
+            except (MrosError, OSError, TimeoutError) as exc:
+                raise MrosError(f"service {name} is not offered: {exc or type(exc).__name__}") from None
         srv_class = get_service_class(srv_type)
         args = op.args
         if isinstance(args, list):

@@ -14,7 +14,7 @@ from pathlib import Path
 import aiohttp
 import pytest
 
-from mrosd.msg import get_message_class
+from mrosd.msg import get_message_class, get_service_class
 from tests.rosenv import Processes, needs_ros, ros_env
 
 String = get_message_class("std_msgs/String")
@@ -90,3 +90,28 @@ async def _check(url: str) -> None:
                 elif data[0] == 3:
                     assert data[13:17] == b"ros1"
                     got_response = b"fired" in data[17:]
+
+
+@pytest.mark.interop
+@needs_ros
+async def test_a_rosbridge_call_right_after_a_service_registers_finds_it_as_rosbridge_does(rosmaster: str) -> None:
+    """Against rosmaster the bridge polls the graph (0.5 s): a call that comes first looks the type up then."""
+    import mrosd
+    from mrosd.web.server import WebServer
+
+    set_bool = get_service_class("std_srvs/SetBool")
+    async with (
+        WebServer(rosmaster, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
+        mrosd.Node("robot", master_uri=rosmaster, argv=[], host="127.0.0.1") as robot,
+        aiohttp.ClientSession() as http,
+        http.ws_connect(server.rosbridge_url) as ws,
+    ):
+        await robot.advertise_service("/enable", set_bool, lambda r: set_bool._response_class(success=r.data))
+        assert "/enable" not in server.hub.services  # the next poll has not come yet
+        call = {"op": "call_service", "service": "/enable", "args": {"data": True}, "id": "c1"}
+        await ws.send_str(json.dumps(call))
+        async with asyncio.timeout(10):
+            while (reply := json.loads((await ws.receive()).data))["op"] != "service_response":
+                pass
+        assert reply["result"] is True, reply
+        assert reply["values"]["success"] is True
