@@ -339,6 +339,13 @@ class ShmPublisherEndpoint:
         m, _ = ring.layout.begin(slot)
         ring.layout.commit(m, length, start)
         self._wake(length, 1)
+        if self.links:
+            # Where the scheduler put this publisher on the CPU of a subscriber spinning for the message (a
+            # zero-copy subscriber's anticipation window, mrosd.spin), that subscriber reads it now, not once
+            # this publisher next blocks: on 2 CPUs that was one loaned message in two, at 345-388 us against
+            # 204-246 apart. Elsewhere this returns at once. Measured (bench shm --latency, loan 8 MB, 4 A/B
+            # pairs): medians 112-128 us against 108-202 us without.
+            os.sched_yield()
         return True
 
     def pin(self, slot: int, still: Callable[[], bool]) -> None:
