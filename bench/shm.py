@@ -390,14 +390,15 @@ def _latency_rows(args: argparse.Namespace, master: str, sizes: list[int], modes
             label = f"{size >> 20}M" if size >= 1 << 20 else f"{size >> 10}K"
             row = f"{label:>6} {mode:>7} {med * 1e6:>10.0f} {p99 * 1e6:>9.0f} {first * 1e6:>9.0f} {cpu:>8.1%}"
             print(row, flush=True)
-    big, small = max(sizes), min(sizes)
-    loan_big, loan_small = table.get((big, "loan")), table.get((small, "loan"))
-    if loan_big and loan_small:
-        print(f"loan: median at {big} bytes = {loan_big[0] / loan_small[0]:.2f}x that at {small} bytes")
-        for mode in modes:
-            other = table.get((big, mode))
-            if other and mode != "loan":
-                print(f"{mode} / loan median at {big} bytes: {other[0] / loan_big[0]:.1f}x")
+    small = min(sizes)
+    for big in sorted({s for s in sizes if s == 8 << 20} | {max(sizes)}):  # 8 MB: the bar
+        loan_big, loan_small = table.get((big, "loan")), table.get((small, "loan"))
+        if loan_big and loan_small and big != small:
+            print(f"loan: median at {big} bytes = {loan_big[0] / loan_small[0]:.2f}x that at {small} bytes")
+            for mode in modes:
+                other = table.get((big, mode))
+                if other and mode != "loan":
+                    print(f"{mode} / loan median at {big} bytes: {other[0] / loan_big[0]:.1f}x")
     return 0
 
 
