@@ -346,10 +346,14 @@ class ShmSubscriberConnection:
         Zero-copy subscribers only: they asked for the lowest latency, and pay for it with at most
         ``mrosd.spin.DUTY`` of a CPU per periodic publisher (measured 4-5 % of one at 50 Hz); after an idle
         period the halted CPU's wake-up was 110-130 us of a loaned message's 250-310 (docs/shm.md)."""
-        window = self._rhythm.arrived(time.monotonic_ns())
         if self._window is not None:
             self._window.cancel()
-        self._window = None if window is None else self._anticipate(window, self._probe)
+            self._window = None
+        if self._ended:  # the message just read was the last (its callback may have closed us)
+            return
+        window = self._rhythm.arrived(time.monotonic_ns())
+        if window is not None:
+            self._window = self._anticipate(window, self._probe)
 
     def _probe(self) -> bool:
         """Inside a spin window: is the next message in the ring already? Then read it now (its wake-up byte,

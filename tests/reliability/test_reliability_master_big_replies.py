@@ -119,7 +119,9 @@ def check(master: MasterProcess, grown: float, prober: Prober, reply_mib: float,
         f"{len(prober.times)} getPid probes, slowest {slowest:.0f} ms, failures {len(prober.failures)}"
     )
     assert not prober.failures, prober.failures[:3]
-    assert slowest < 100, f"getPid took {slowest:.0f} ms"
+    # Alone the slowest probe takes 10-40 ms; beside the rest of the suite on 2 cores it took 206 ms once. The
+    # failure this guards against, a loop held by encoding or sending the replies, timed getPid out (seconds).
+    assert slowest < 500, f"getPid took {slowest:.0f} ms"
     assert grown < 2 * reply_mib + 32, f"peak RSS grew {grown:.0f} MiB"
 
 
