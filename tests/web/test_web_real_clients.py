@@ -220,7 +220,21 @@ async def test_foxglove_client_gets_rospys_8mb_image_byte_identical(
 ROSLIBPY = importlib.util.find_spec("roslibpy") is not None
 
 
-@pytest.mark.skipif(not ROSLIBPY, reason="roslibpy is not installed: pip install -e '.[dev]'")
+@contextlib.asynccontextmanager
+async def rosbridge_robot(master: Master, listen: str) -> AsyncIterator[tuple[WebServer, Any, Any]]:
+    """What both rosbridge clients talk to: a bridge, and a robot node with a parameter, a service, an image
+    publisher and a subscriber of ``listen``; yields (bridge, image publisher, subscriber)."""
+    async with (
+        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
+        node("robot", master.uri) as robot,
+    ):
+        await robot.set_param("/robot/name", "mrosd-bot")
+        await robot.advertise_service("/enable", SetBool, lambda r: SetBool._response_class(success=r.data))
+        cam = await robot.advertise("/image", Image)
+        listener = await robot.subscribe(listen, String)
+        yield server, cam, listener
+
+
 async def exercise_rosbridge_client(
     client: Any, server: Any, cam: Any, listener: Any, label: str, *, image_timeout: float, publish_first: bool
 ) -> None:
@@ -245,15 +259,9 @@ async def exercise_rosbridge_client(
     assert (await client.until("param"))["value"] == "mrosd-bot"
 
 
+@pytest.mark.skipif(not ROSLIBPY, reason="roslibpy is not installed: pip install -e '.[dev]'")
 async def test_roslibpy_subscribes_publishes_calls_and_reads_a_parameter(master: Master) -> None:
-    async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("robot", master.uri) as robot,
-    ):
-        await robot.set_param("/robot/name", "mrosd-bot")
-        await robot.advertise_service("/enable", SetBool, lambda r: SetBool._response_class(success=r.data))
-        cam = await robot.advertise("/image", Image)
-        listener = await robot.subscribe("/from_roslibpy", String)
+    async with rosbridge_robot(master, "/from_roslibpy") as (server, cam, listener):
         proc = await asyncio.create_subprocess_exec(
             sys.executable,
             str(HERE / "roslibpy_client.py"),
@@ -326,17 +334,12 @@ async def roslib_in_chromium(server: WebServer) -> AsyncIterator[NodeClient]:
 @needs_chromium
 async def test_roslib_in_headless_chromium_subscribes_publishes_calls_and_reads_a_parameter(master: Master) -> None:
     async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("robot", master.uri) as robot,
+        rosbridge_robot(master, "/from_browser") as (server, cam, listener),
+        roslib_in_chromium(server) as client,
     ):
-        await robot.set_param("/robot/name", "mrosd-bot")
-        await robot.advertise_service("/enable", SetBool, lambda r: SetBool._response_class(success=r.data))
-        cam = await robot.advertise("/image", Image)
-        listener = await robot.subscribe("/from_browser", String)
-        async with roslib_in_chromium(server) as client:
-            await exercise_rosbridge_client(
-                client, server, cam, listener, "from chromium", image_timeout=60, publish_first=True
-            )
+        await exercise_rosbridge_client(
+            client, server, cam, listener, "from chromium", image_timeout=60, publish_first=True
+        )
 
 
 @needs_chromium
