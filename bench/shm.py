@@ -358,12 +358,7 @@ def _lat_one(mode: str, size: int, count: int, master: str, cpp: str | None = No
         pub.stdin.flush()
         return lat, cpu
     finally:
-        for p in procs:
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        _reap(procs)
 
 
 def _latency(args: argparse.Namespace, master: str) -> int:
@@ -458,12 +453,17 @@ def _one(transport: str, size_mb: int, subs: int, master: str, pace_ms: float = 
             "dropped": float(sum(r["dropped"] for r in results)),
         }
     finally:
-        for p in procs:
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        _reap(procs)
+
+
+def _reap(procs: list[subprocess.Popen[bytes]]) -> None:
+    """Wait for each process (they end on their own once told "done"); kill one that does not."""
+    for p in procs:
+        try:
+            p.wait(10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
 
 
 def _free_port() -> int:

@@ -258,6 +258,18 @@ class Bench:
     def role(self, role: str, *argv: str) -> subprocess.Popen[bytes]:
         return self.start("-m", "bench.web", "--role", role, *argv)
 
+    def publisher(
+        self, master: str, topic: str, msg_type: str, size: int, rate: float, counter: Path
+    ) -> subprocess.Popen[bytes]:
+        """A ``pub`` role process publishing ``size``-byte messages at ``rate``, once it says it is up."""
+        pub = self.role(
+            "pub", "--master", master, "--topic", topic, "--type", msg_type, "--size", str(size),
+            "--rate", str(rate), "--counter", str(counter),
+        )  # fmt: skip
+        assert pub.stdout is not None
+        pub.stdout.readline()
+        return pub
+
     def stop(self, proc: subprocess.Popen[bytes]) -> None:
         if proc.poll() is None:
             proc.terminate()
@@ -428,23 +440,7 @@ def run(args: argparse.Namespace) -> int:
             topic = "/bench_" + re.sub(r"\W+", "_", name)
             counter = tmp / f"{topic[1:]}.count"
             offered = min(500.0, OFFERED_BYTES_PER_S / size)  # more than any consumer here takes
-            pub = bench.role(
-                "pub",
-                "--master",
-                master,
-                "--topic",
-                topic,
-                "--type",
-                msg_type,
-                "--size",
-                str(size),
-                "--counter",
-                str(counter),
-                "--rate",
-                str(offered),
-            )
-            assert pub.stdout is not None
-            pub.stdout.readline()
+            pub = bench.publisher(master, topic, msg_type, size, offered, counter)
             rows: dict[str, Any] = {}
 
             ref = measure_phase(
@@ -523,23 +519,7 @@ def stall(
 ) -> None:
     topic = "/bench_stall"
     counter = tmp / "stall.count"
-    pub = bench.role(
-        "pub",
-        "--master",
-        master,
-        "--topic",
-        topic,
-        "--type",
-        "sensor_msgs/Image",
-        "--size",
-        str(1024 * 1024),
-        "--rate",
-        "30",
-        "--counter",
-        str(counter),
-    )
-    assert pub.stdout is not None
-    pub.stdout.readline()
+    pub = bench.publisher(master, topic, "sensor_msgs/Image", 1024 * 1024, 30.0, counter)
     time.sleep(1.0)
     rss0 = proc_rss(bridge.pid)
     stalled = bench.role("ws-sub", "--url", url, "--topic", topic, "--stalled", "--seconds", str(args.stall))

@@ -145,14 +145,6 @@ class FoxgloveSession(ClientSession):
     def backlog(self, topic: str) -> int:
         return sum(s.queue.size for s in self._by_topic.get(topic, ()))
 
-    def queued(self) -> int:
-        return sum(s.queue.size for s in self.subs.values())
-
-    def shed_oldest(self) -> None:
-        fullest = max(self.subs.values(), key=lambda s: s.queue.size, default=None)
-        if fullest is not None and len(fullest.queue):
-            fullest.queue.drop_oldest()
-
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         subs = self._by_topic.get(topic, ())
         if self._offered_time and self.hub.sim_time:

@@ -112,14 +112,6 @@ class RosbridgeSession(ClientSession):
         sub = self.subs.get(topic)
         return 0 if sub is None else sub.queue.size
 
-    def queued(self) -> int:
-        return sum(s.queue.size for s in self.subs.values())
-
-    def shed_oldest(self) -> None:
-        fullest = max(self.subs.values(), key=lambda s: s.queue.size, default=None)
-        if fullest is not None and len(fullest.queue):
-            fullest.queue.drop_oldest()
-
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         sub = self.subs.get(topic)
         if sub is None:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from mrosd.lograte import RateLimitedLog
 from mrosd.web.queue import ControlQueue
@@ -30,6 +30,8 @@ class ClientSession:
 
     #: how the log names such a client
     KIND: ClassVar[str] = "client"
+    #: the client's subscriptions (set by each protocol's session), each with its byte-bounded ``queue``
+    subs: dict[Any, Any]
 
     def __init__(self, hub: WebHub, ws: web.WebSocketResponse, limits: SessionLimits, peer: str) -> None:
         self.hub = hub
@@ -42,6 +44,18 @@ class ClientSession:
         self._closed = False
         self._calls: set[asyncio.Task[None]] = set()
         self._close_task: asyncio.Task[bool] | None = None
+
+    # --- what the hub asks of every client (never blocks) ------------------------------------------
+
+    def queued(self) -> int:
+        """Bytes queued for this client over all its subscriptions."""
+        return sum(s.queue.size for s in self.subs.values())
+
+    def shed_oldest(self) -> None:
+        """Drop the oldest message of the fullest subscription (the hub is over its total budget)."""
+        fullest = max(self.subs.values(), key=lambda s: s.queue.size, default=None)
+        if fullest is not None and len(fullest.queue):
+            fullest.queue.drop_oldest()
 
     def _queue_control(self, flag: bool, data: bytes) -> None:
         """Queue a frame for the sender; a client past its control budget is not reading what it asked for
