@@ -3,7 +3,7 @@
 Re-exports only; see docs/messages.md for the API and the ROS -> Python type mapping.
 """
 
-from mrosd.msg.loader import ServiceClass, get_message_class, get_service_class, load_type
+from mrosd.msg.loader import ServiceClass, get_message_class, get_service_class, load_type, load_type_async
 from mrosd.msg.time import Duration, Time
 from mrosd.msg.typestore import TypeStore
 
@@ -15,4 +15,5 @@ __all__ = [
     "get_message_class",
     "get_service_class",
     "load_type",
+    "load_type_async",
 ]

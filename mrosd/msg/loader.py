@@ -8,6 +8,7 @@ Nested types whose md5 matches a known class reuse that class, so ``msg.header``
 
 from __future__ import annotations
 
+import asyncio
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -192,3 +193,17 @@ def load_type(name: str, definition: str, store: TypeStore | None = None) -> typ
             _DEFINITIONS.clear()
         _DEFINITIONS[key] = cls
     return cls
+
+
+async def load_type_async(name: str, definition: str, store: TypeStore | None = None) -> type[Any]:
+    """``load_type`` for code on an event loop: a peer's definition is parsed and compiled in a worker thread,
+    so a costly one never stalls the loop (the daemon's loop is the master's).
+
+    Raises:
+        MsgParseError: as ``load_type``.
+        MsgNotFoundError: as ``load_type``.
+    """
+    cls = _DEFINITIONS.get((normalize_type_name(name), definition))
+    if cls is not None:
+        return cls
+    return await asyncio.to_thread(load_type, name, definition, store)
