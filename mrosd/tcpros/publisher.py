@@ -29,7 +29,7 @@ from mrosd.wire.header import ConnectionHeader, encode_header
 
 if TYPE_CHECKING:
     from mrosd.shm.topic import ShmTopicPublisher
-    from mrosd.tcpros.node import Node
+    from mrosd.tcpros.owner import EndpointOwner
 
 log = logging.getLogger(__name__)
 
@@ -154,7 +154,7 @@ class Publisher:
 
     def __init__(
         self,
-        node: Node,
+        node: EndpointOwner,
         topic: str,
         msg_class: Any,
         *,
