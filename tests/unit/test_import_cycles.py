@@ -68,10 +68,10 @@ def _circles(graph: dict[str, set[str]]) -> list[frozenset[str]]:
     on_stack: set[str] = set()
     stack: list[str] = []
     found: list[frozenset[str]] = []
-    for root in graph:
+    for root, succs in graph.items():
         if root in index:
             continue
-        work: list[tuple[str, Iterator[str]]] = [(root, iter(sorted(graph[root])))]
+        work: list[tuple[str, Iterator[str]]] = [(root, iter(sorted(succs)))]
         index[root] = low[root] = len(index)
         stack.append(root)
         on_stack.add(root)
