@@ -217,7 +217,11 @@ class ShmPublisherEndpoint:
         self.topic = topic
         self.queue_size = queue_size
         self.latch = latch
-        self.handshake = handshake or (lambda header: ConnectionHeader(callerid="", latching="1" if latch else "0"))
+        #: messages up to this number were published unlatched: never a new subscriber's first (``set_latch``)
+        self._unlatched_upto = 0
+        self.handshake = handshake or (
+            lambda header: ConnectionHeader(callerid="", latching="1" if self.latch else "0")
+        )
         self.on_change = on_change or (lambda: None)
         self.trusted = trusted_uids() if trusted is None else trusted
         self.max_ring_bytes = max_ring_bytes
@@ -269,6 +273,12 @@ class ShmPublisherEndpoint:
     def answer(self) -> list[Any]:
         """requestTopic's protocol parameters that send a subscriber here."""
         return publisher_answer(self.address, self.token)
+
+    def set_latch(self, latch: bool) -> None:
+        """Latch from now on, or stop: only a message published while latched is a new subscriber's first."""
+        if latch and not self.latch:
+            self._unlatched_upto = (self.ring.layout.head if self.ring is not None else 0) + len(self.backlog)
+        self.latch = latch
 
     # publishing ------------------------------------------------------------------------------------------
 
@@ -599,7 +609,7 @@ class ShmPublisherEndpoint:
             return
         ring = self._ring_for(0)
         head = ring.layout.head
-        first = head if self.latch and head > 0 else head + 1
+        first = head if self.latch and head > self._unlatched_upto else head + 1
         try:
             link = ShmSubscriberLink(self, channel, callerid=header.callerid or "?", pid=pid, first=first)
         except OSError as exc:

@@ -143,6 +143,11 @@ class ShmTopicPublisher:
             ep.publish(memoryview(pub.latched)[4:])
         return ep
 
+    def set_latch(self, latch: bool) -> None:
+        """The publisher's ``latch`` changed: the endpoint, if made, latches from now on (or stops)."""
+        if self.endpoint is not None:
+            self.endpoint.set_latch(latch)
+
     def publish(self, body: bytes | bytearray | memoryview) -> None:
         """Every message the publisher sends (serialized, no length prefix)."""
         if self.endpoint is not None:

@@ -171,7 +171,7 @@ class Publisher:
         self.type: str = msg_class._type
         self.md5sum: str = msg_class._md5sum
         self.message_definition: str = msg_class._full_text
-        self.latch = latch
+        self._latch = latch
         self.queue_size = queue_size
         #: declared largest serialized message: the shared-memory pool is made for it up front
         self.max_message_size = max_message_size
@@ -186,6 +186,21 @@ class Publisher:
         self._poke = loop_spinner().poke
         #: the shared-memory side, made at the first requestTopic that offers it (mrosd.shm.topic)
         self.shm: ShmTopicPublisher | None = None
+
+    @property
+    def latch(self) -> bool:
+        """Whether a new subscriber gets the last message first; may be set at any time."""
+        return self._latch
+
+    @latch.setter
+    def latch(self, latch: bool) -> None:
+        # Every transport takes the change: TCPROS reads it at each connection, the shared-memory side (made at
+        # the first same-host subscriber) is told. Unlatched, the message kept so far is no one's first message.
+        self._latch = latch
+        if not latch:
+            self.latched = None
+        if self.shm is not None:
+            self.shm.set_latch(latch)
 
     # --- publishing ------------------------------------------------------------------------------
 
@@ -233,7 +248,7 @@ class Publisher:
         # into a FrameBuffer, or given as bytes, is never copied), the rest is packed as usual.
         parts = serialize_parts()
         size = sum(map(len, parts))
-        if size <= LARGE_FRAME or self.latch:
+        if size <= LARGE_FRAME or self._latch:
             self.publish_serialized(b"".join(parts))
             return
         if self.closed:
@@ -277,13 +292,13 @@ class Publisher:
         if self.shm is not None:
             self.shm.publish(body)
         prefix = frame_prefix(len(body))
-        if len(body) > LARGE_FRAME and not self.latch:
+        if len(body) > LARGE_FRAME and not self._latch:
             # Large bodies are not concatenated with their prefix: both go to the socket in one vectored write.
             for link in self.links:
                 link.send_parts((prefix, body), len(body) + 4)
             return
         frame = prefix + body
-        if self.latch:
+        if self._latch:
             self.latched = frame
         for link in self.links:
             link.send(frame)
