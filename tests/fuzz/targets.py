@@ -452,7 +452,8 @@ fast_path_bodies = st.one_of(xmlrpc_bodies, mutated(_fast_shaped, (*XML_TOKENS, 
 
 def check_xmlrpc_fast_path(body: bytes) -> None:
     """The fast path defers or returns exactly what the full decoder returns; decode_call refuses as it does."""
-    from mrosd.xmlrpc import _checked_call, _loads, fast_decode_call
+    from mrosd.xmlrpc.codec import _checked_call, _loads
+    from mrosd.xmlrpc.fastpath import fast_decode_call
 
     try:
         full: tuple[str, tuple[Any, ...]] | None = _checked_call(_loads(body))

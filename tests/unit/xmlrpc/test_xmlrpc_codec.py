@@ -91,7 +91,7 @@ def test_fast_response_encoding_is_byte_identical_to_the_stdlib(value: Any) -> N
 
 def full(body: bytes) -> tuple[str, tuple[Any, ...]] | None:
     """The full decoder alone (no fast path): what it returns, or None when it refuses."""
-    from mrosd.xmlrpc import _checked_call, _loads
+    from mrosd.xmlrpc.codec import _checked_call, _loads
 
     try:
         return _checked_call(_loads(body))
