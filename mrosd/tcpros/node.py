@@ -1,9 +1,10 @@
 """Node: a ROS 1 node living in the caller's event loop.
 
 The node owns its identity (resolved name, remappings), the master connection (thin typed calls over the
-shared XML-RPC client), the slave API server, the TCPROS listener that serves publishers and services,
-and the watchdog that notices a restarted master and registers everything again. It never owns the loop:
-``async with Node(...)`` starts it and ``aclose()`` unregisters and closes everything it opened.
+shared XML-RPC client), the slave API server, its inbound TCPROS connections (``mrosd.tcpros.inbound``:
+the listener that serves publishers and services), and the watchdog that notices a restarted master and
+registers everything again. It never owns the loop: ``async with Node(...)`` starts it and ``aclose()``
+unregisters and closes everything it opened. It must not know the wire: its endpoints and connections do.
 """
 
 from __future__ import annotations
@@ -19,27 +20,20 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from mrosd.errors import LocalProtocolError, MasterError, MasterUnreachableError, MrosError
-from mrosd.lograte import RateLimitedLog
 from mrosd.master.client import MasterClient
 from mrosd.msg import get_message_class
 from mrosd.names import NodeNames, parse_argv
 from mrosd.tcpros.admission import AdmissionLimits
-from mrosd.tcpros.listener import AdmittedConnection, TcprosListener
-from mrosd.tcpros.publisher import DEFAULT_QUEUE_SIZE, Publisher, PublisherProtocol
+from mrosd.tcpros.inbound import InboundConnections
+from mrosd.tcpros.publisher import DEFAULT_QUEUE_SIZE, Publisher
 from mrosd.tcpros.rosout import QUEUE_SIZE as ROSOUT_QUEUE_SIZE
 from mrosd.tcpros.rosout import ROSOUT_LOGGER, RosoutHandler, logger_service_handlers, node_logger
-from mrosd.tcpros.service import Service, ServiceProtocol, ServiceProxy
+from mrosd.tcpros.service import Service, ServiceProxy
 from mrosd.tcpros.slave import SlaveApi
-from mrosd.tcpros.sockopts import enable_keepalive
 from mrosd.tcpros.subscriber import Subscriber
-from mrosd.wire.framing import MAX_FRAME_SIZE, FrameDecoder
-from mrosd.wire.handshake import error_header
-from mrosd.wire.header import ConnectionHeader, encode_header
 from mrosd.xmlrpc import XmlRpcClient, XmlRpcServer
 
 log = logging.getLogger(__name__)
-#: Refusals a peer can provoke at will (a wrong topic, a bad header): reported, not echoed per connection.
-refusals = RateLimitedLog(log, period=10.0, burst=5)
 
 DEFAULT_MASTER_URI = "http://localhost:11311/"
 ROSOUT_TOPIC = "/rosout"
@@ -75,84 +69,6 @@ def _default_host() -> str:
     except OSError:
         return "127.0.0.1"
     return name
-
-
-class InboundProtocol(ServiceProtocol, PublisherProtocol, AdmittedConnection):
-    """A connection accepted by the node's TCPROS server, routed by its header to a publisher or service.
-
-    Until its header is complete it is only a candidate: the node's listener (``TcprosListener``) may shed
-    it (too many waiting, over the header byte budget, past the header deadline, out of descriptors), and
-    it reports how many header bytes it holds so that memory follows what peers send.
-    """
-
-    def __init__(self, node: Node) -> None:
-        super().__init__()
-        self.node = node
-        self.decoder = FrameDecoder(MAX_FRAME_SIZE, header_max_size=node.admission_limits.max_header_size)
-        self._shed_reason = ""
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        super().connection_made(transport)
-        # Tracked until it ends, whatever becomes of it: a peer that never sends a header (or one accepted
-        # while the node closes) belongs to no publisher or service, and the node must still close it.
-        self.node._inbound.add(self)
-        if self._shed_reason:  # shed between accept and now
-            self.transport.abort()  # type: ignore[union-attr]
-            return
-        sock = transport.get_extra_info("socket")
-        if sock is not None:
-            try:
-                enable_keepalive(sock)
-            except OSError as exc:
-                log.debug("%s: no TCP keepalive on %s: %s", self.node.name, self.peer, exc)
-
-    def shed(self, reason: str) -> None:
-        """The listener drops this connection (it still owes its header): close it without a word."""
-        self._shed_reason = reason
-        if self.transport is not None:
-            self.transport.abort()
-
-    def buffer_updated(self, nbytes: int) -> None:
-        super().buffer_updated(nbytes)
-        if self.header is None and self.transport is not None and not self.transport.is_closing():
-            listener = self.node._listener
-            if listener is not None:
-                listener.header_bytes(self, self.decoder.buffered)
-
-    def _refuse(self, reason: str) -> None:
-        # While the node closes, a peer that connected to an endpoint just closed (rosout dialling a
-        # short-lived node's /rosout) is expected: it gets the error header, the user no warning.
-        if self.node.closing:
-            log.debug("%s: refusing TCPROS connection from %s: %s", self.node.name, self.peer, reason)
-        else:
-            refusals.warning("refuse", "%s: refusing TCPROS connection from %s: %s", self.node.name, self.peer, reason)
-        self.write(encode_header(error_header(reason)))
-        self.close()
-
-    def header_received(self, header: ConnectionHeader) -> None:
-        if self.node._listener is not None:
-            self.node._listener.header_done(self)
-        if header.service is not None:
-            service = self.node.services.get(header.service)
-            if service is None:
-                self._refuse(f"no service [{header.service}] on node [{self.node.name}]")
-            else:
-                service.accept(self, header)
-        elif header.topic is not None:
-            pub = self.node.publishers.get(header.topic)
-            if pub is None:
-                self._refuse(f"no topic with name [{header.topic}] on node [{self.node.name}]")
-            else:
-                pub.accept(self, header)
-        else:
-            self._refuse("connection header has neither 'topic' nor 'service'")
-
-    def connection_closed(self, exc: BaseException | None) -> None:
-        self.node._inbound.discard(self)
-        if self.node._listener is not None:
-            self.node._listener.closed(self)
-        ServiceProtocol.connection_closed(self, exc)
-        PublisherProtocol.connection_closed(self, exc)
 
 
 class Node:
@@ -220,9 +136,8 @@ class Node:
         self.uri = ""
         self.tcpros_port = 0
         self.admission_limits = admission or AdmissionLimits()
-        self._listener: TcprosListener | None = None
-        #: every accepted TCPROS connection still open (closed by aclose(): asyncio's Server.close() does not)
-        self._inbound: set[InboundProtocol] = set()
+        #: the TCPROS listener and every connection it accepted still open (closed by aclose())
+        self._inbound = InboundConnections(self, self.admission_limits)
         self._slave: XmlRpcServer | None = None
         self._watchdog: asyncio.Task[None] | None = None
         self._started = False
@@ -244,8 +159,7 @@ class Node:
         """
         loop = asyncio.get_running_loop()
         try:
-            self._listener = TcprosListener(lambda: InboundProtocol(self), self.admission_limits, self.name)
-            self.tcpros_port = self._listener.start(self._bind_host, 0, backlog=1024)
+            self.tcpros_port = self._inbound.start(self._bind_host, backlog=1024)
             self._slave = XmlRpcServer(
                 SlaveApi(self).methods(), host=self._bind_host, port=0, name=f"slave {self.name}"
             )
@@ -303,17 +217,7 @@ class Node:
         await self._close_servers()
 
     async def _close_servers(self) -> None:
-        if self._listener is not None:
-            await self._listener.aclose()  # the connections it accepted last join _inbound first
-            self._listener = None
-        if self._inbound:
-            for proto in list(self._inbound):
-                transport = proto.transport
-                # those the publishers and services closed are flushing their last frames: leave them be
-                if transport is not None and not transport.is_closing():
-                    transport.abort()
-            self._inbound.clear()
-            await asyncio.sleep(0)  # let the aborted transports finish before the loop may stop
+        await self._inbound.aclose()
         if self._slave is not None:
             await self._slave.aclose()
             self._slave = None
