@@ -1,8 +1,9 @@
-"""A topic's publishing end of the shared-memory transport: its ring, its listener, its subscribers.
+"""A topic's publishing end of the shared-memory transport: its ring, its backlog, its subscribers' links.
 
-``ShmPublisherEndpoint`` owns one topic's ring (a sealed memfd, ``mrosd.shm.segment``), an abstract Unix
-socket (``mrosd.shm.channel``) on which same-host subscribers attach, and one Unix socket pair per
-subscriber for wake-ups both ways (each end receives only what the other sends). ``publish`` copies the
+``ShmPublisherEndpoint`` owns one topic's ring (a sealed memfd, ``mrosd.shm.segment``), the door on which
+same-host subscribers attach (an abstract Unix socket, ``mrosd.shm.door``: it must not know the ring), and
+one link per attached subscriber (``mrosd.shm.link``: its acknowledgement page and a socket pair for
+wake-ups both ways, each end receiving only what the other sends). ``publish`` copies the
 serialized message once into the ring and sends one byte to each subscriber, ``MSG_DONTWAIT``: its cost
 does not grow with the number of subscribers, and it never waits for anyone, whatever the subscriber did
 to its end (``mrosd.ixm.channel``).
@@ -26,32 +27,27 @@ from __future__ import annotations
 
 import asyncio
 import collections
-import contextlib
-import hmac
-import itertools
 import logging
 import os
-import secrets
-import socket
 import time
 from collections.abc import Callable, Iterable
 from typing import Any
 
 from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
-from mrosd.ixm.channel import drain_socket, small_send_buffer, wake_socket
+from mrosd.ixm.channel import drain_socket, wake_socket
 from mrosd.lograte import RateLimitedLog
 from mrosd.msg.runtime import is_immutable
 from mrosd.shm import control
 from mrosd.shm.channel import (
-    ATTACH_TIMEOUT,
     ControlChannel,
-    abstract_name,
     close_fds,
-    peer_credentials,
 )
+from mrosd.shm.door import MAX_PENDING, AttachDoor
+from mrosd.shm.door import refuse as refuse_attach
+from mrosd.shm.link import ShmSubscriberLink, grant_leases
 from mrosd.shm.negotiate import TRANSPORT, publisher_answer, trusted_uids
 from mrosd.shm.ring import MAX_SLOTS, slot_stride
-from mrosd.shm.segment import MAX_LEASES, AckPage, RingSegment
+from mrosd.shm.segment import RingSegment
 from mrosd.spin import loop_spinner
 from mrosd.wire.header import ConnectionHeader, decode_connection_header, encode_header
 
@@ -93,10 +89,6 @@ DEFAULT_LEASE_SLOTS = 4
 #: sizes) are written in front of it, those after it behind it (``mrosd.shm.loan``).
 LOAN_HEAD = 4096
 LOAN_TAIL = 4096
-#: Subscribers that connected but have not attached yet (each has ``ATTACH_TIMEOUT`` seconds).
-MAX_PENDING = 64
-
-_ids = itertools.count(1)
 
 
 def slots_for(queue_size: int, capacity: int, max_ring_bytes: int) -> int:
@@ -112,72 +104,6 @@ def _grown(capacity: int, needed: int) -> int:
     the old one while that stays under twice ``needed``."""
     size = max(needed + needed // 8, min(capacity * 2, needed * 2))
     return (size + 4095) // 4096 * 4096
-
-
-class ShmSubscriberLink:
-    """One attached subscriber, seen from the publisher."""
-
-    def __init__(
-        self,
-        endpoint: ShmPublisherEndpoint,
-        channel: ControlChannel,
-        *,
-        callerid: str,
-        pid: int,
-        first: int,
-    ) -> None:
-        self.endpoint = endpoint
-        self.channel = channel
-        self.callerid = callerid
-        self.pid = pid
-        self.id = next(_ids)
-        self.messages_sent = 0
-        self.bytes_sent = 0
-        #: as last reported by the subscriber
-        self.dropped = 0
-        self.connected = True
-        #: the subscriber's acknowledgement page: the number of the next message it wants
-        self.ack = AckPage(endpoint.label, first)
-        #: wake-ups both ways: we send on ``wake`` to wake it, it sends on its end (``peer_end``, sent with
-        #: Attached, then closed here) when it moves on while ``waiting`` is set. Only it holds its end, and a
-        #: send here ignores the file's flags: it cannot make us block, read what we send, or steal its own
-        #: wake-ups of us; flooding or shutting its end costs only itself.
-        try:
-            self.wake, self.peer_end = socket.socketpair(
-                socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_NONBLOCK | socket.SOCK_CLOEXEC
-            )
-        except OSError:
-            self.ack.close()
-            raise
-        small_send_buffer(self.wake)
-        #: no longer waited for (it fell too far behind) until it catches up
-        self.lagging = False
-        #: leases honoured for it (granted at attach; what it writes in more lease words is ignored)
-        self.grant = 0
-        #: its uid (from the kernel): a foreign uid's subscribers share half of the lease slots
-        self.uid = -1
-
-    def acked(self, head: int) -> int:
-        """The next message the subscriber wants, as it says, kept within 0..head + 1."""
-        return min(self.ack.read(), head + 1)
-
-    def leases(self) -> list[int]:
-        """The messages it holds leases on (at most ``grant`` of them, whatever it wrote)."""
-        return self.ack.leases(self.grant) if self.grant else []
-
-    def close(self) -> None:
-        if not self.connected:
-            return
-        self.connected = False
-        loop = self.endpoint._loop
-        with contextlib.suppress(Exception):
-            loop.remove_reader(self.channel.sock.fileno())
-        with contextlib.suppress(Exception):
-            loop.remove_reader(self.wake.fileno())
-        self.channel.close()
-        self.wake.close()
-        self.peer_end.close()
-        self.ack.close()
 
 
 class ShmPublisherEndpoint:
@@ -223,7 +149,7 @@ class ShmPublisherEndpoint:
             lambda header: ConnectionHeader(callerid="", latching="1" if self.latch else "0")
         )
         self.on_change = on_change or (lambda: None)
-        self.trusted = trusted_uids() if trusted is None else trusted
+        trusted = trusted_uids() if trusted is None else trusted
         self.max_ring_bytes = max_ring_bytes
         self.capacity = max(
             64, initial_capacity if max_message_size is None else max_message_size + LOAN_HEAD + LOAN_TAIL
@@ -237,8 +163,6 @@ class ShmPublisherEndpoint:
         self.lease_slots = max(0, lease_slots)
         #: rings are made whole and faulted in up front (the publisher declared its message size)
         self.populate = max_message_size is not None
-        self.token = secrets.token_hex(16)
-        self.address = "@mrosd-shm-" + secrets.token_hex(12)
         self.label = topic.strip("/").replace("/", "-")
         self.links: list[ShmSubscriberLink] = []
         self.ring: RingSegment | None = None
@@ -252,21 +176,15 @@ class ShmPublisherEndpoint:
         self.rings_made = 0
         self.closed = False
         self._loop = asyncio.get_running_loop()
-        self._sock: socket.socket | None = None
-        self._pending: dict[int, tuple[ControlChannel, asyncio.TimerHandle]] = {}
+        #: the socket subscribers attach through (``address``, ``token``)
+        self.door = AttachDoor(topic, trusted, self._attach, self._loop)
+        self.token = self.door.token
+        self.address = self.door.address
         self._poke = loop_spinner(self._loop).poke
 
     async def start(self) -> None:
         """Listen on the abstract Unix socket ``address``."""
-        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC | socket.SOCK_NONBLOCK)
-        try:
-            sock.bind(abstract_name(self.address))
-            sock.listen(64)
-        except BaseException:
-            sock.close()
-            raise
-        self._sock = sock
-        self._loop.add_reader(sock.fileno(), self._accept)
+        self.door.start()
         if self.populate:
             self._ring_for(0)  # the pool, once, now: not on the first message's path
 
@@ -531,73 +449,12 @@ class ShmPublisherEndpoint:
 
     # subscribers ------------------------------------------------------------------------------------------
 
-    def _accept(self) -> None:
-        assert self._sock is not None
-        for _ in range(64):  # then the loop's other work gets a turn, however fast peers connect
-            try:
-                conn, _ = self._sock.accept()
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError as exc:
-                _ratelog.warning("accept", "%s: shared-memory accept failed: %s", self.topic, exc)
-                return
-            pid, uid = peer_credentials(conn)
-            if uid not in self.trusted or len(self._pending) >= MAX_PENDING:
-                why = "uid not trusted" if uid not in self.trusted else "too many pending attachments"
-                _ratelog.warning(
-                    "refuse", "%s: refusing shared-memory subscriber pid %d uid %d: %s", self.topic, pid, uid, why
-                )
-                conn.close()
-                continue
-            channel = ControlChannel(conn)
-            fd = conn.fileno()
-            timer = self._loop.call_later(ATTACH_TIMEOUT, self._abandon, fd, "did not attach in time")
-            self._pending[fd] = (channel, timer)
-            self._loop.add_reader(fd, self._on_pending, fd, pid, uid)
-
-    def _abandon(self, fd: int, why: str) -> None:
-        entry = self._pending.pop(fd, None)
-        if entry is None:
-            return
-        channel, timer = entry
-        timer.cancel()
-        with contextlib.suppress(Exception):
-            self._loop.remove_reader(fd)
-        _ratelog.warning("abandon", "%s: closing a shared-memory subscriber connection: %s", self.topic, why)
-        channel.close()
-
-    def _on_pending(self, fd: int, pid: int, uid: int) -> None:
-        channel = self._pending[fd][0]
-        try:
-            got = channel.receive()
-        except RemoteProtocolError as exc:
-            self._abandon(fd, str(exc))
-            return
-        if got is None:
-            self._abandon(fd, "it closed before attaching")
-            return
-        if not got:
-            return
-        msg = got[0][0]
-        channel.reader.close()  # an Attach carries no descriptor: whatever came is closed, not held
-        if not isinstance(msg, control.Attach) or len(got) > 1:
-            self._abandon(fd, f"expected one attach, got {type(msg).__name__}")
-            return
-        entry = self._pending.pop(fd)
-        entry[1].cancel()
-        self._loop.remove_reader(fd)
-        self._attach(channel, msg, pid, uid)
-
     def _attach(self, channel: ControlChannel, msg: control.Attach, pid: int, uid: int) -> None:
-        def refuse(why: str) -> None:
-            _ratelog.warning("refuse", "%s: refusing shared-memory subscriber (pid %d): %s", self.topic, pid, why)
-            with contextlib.suppress(OSError):
-                channel.send(control.Refused(reason=why))
-            channel.close()
+        """A subscriber that showed the token: check its header, make its link, send it the ring."""
 
-        if not hmac.compare_digest(msg.token.encode(), self.token.encode()):
-            refuse("wrong token")
-            return
+        def refuse(why: str) -> None:
+            refuse_attach(channel, self.topic, pid, why)
+
         try:
             header = decode_connection_header(msg.header)
             reply = self.handshake(header)
@@ -611,12 +468,14 @@ class ShmPublisherEndpoint:
         head = ring.layout.head
         first = head if self.latch and head > self._unlatched_upto else head + 1
         try:
-            link = ShmSubscriberLink(self, channel, callerid=header.callerid or "?", pid=pid, first=first)
+            link = ShmSubscriberLink(
+                self.label, channel, callerid=header.callerid or "?", pid=pid, first=first, loop=self._loop
+            )
         except OSError as exc:
             refuse(f"cannot make its acknowledgement page: {exc}")
             return
         link.uid = uid
-        link.grant = self._grant(uid, msg.leases)
+        link.grant = grant_leases(self.links, self.lease_slots, uid, msg.leases)
         attached = control.Attached(header=encode_header(reply)[4:], first=first, leases=link.grant)
         if not self._send_ring(link, attached, link.ack.fd, link.peer_end.fileno()):
             return
@@ -629,16 +488,6 @@ class ShmPublisherEndpoint:
         self._loop.add_reader(channel.sock.fileno(), self._on_link, link)
         self._loop.add_reader(link.wake.fileno(), self._on_progress, link)
         self.on_change()
-
-    def _grant(self, uid: int, wanted: int) -> int:
-        """Leases for a new subscriber of ``uid``: what it asks, at most ``MAX_LEASES``, within what the
-        pool's lease slots have left; the subscribers of any other uid than ours and root's hold at most half
-        of them together, so that one trusted foreign uid attaching again and again cannot take them all."""
-        granted = sum(lk.grant for lk in self.links)
-        left = self.lease_slots - granted
-        if uid not in (0, os.getuid()):
-            left = min(left, self.lease_slots // 2 - sum(lk.grant for lk in self.links if lk.uid == uid))
-        return max(0, min(wanted, MAX_LEASES, left))
 
     def _on_link(self, link: ShmSubscriberLink) -> None:
         try:
@@ -727,13 +576,7 @@ class ShmPublisherEndpoint:
         if self.closed:
             return
         self.closed = True
-        if self._sock is not None:
-            with contextlib.suppress(Exception):
-                self._loop.remove_reader(self._sock.fileno())
-            self._sock.close()
-            self._sock = None
-        for fd in list(self._pending):
-            self._abandon(fd, "the publisher is closing")
+        self.door.close()
         for link in list(self.links):
             link.close()
         self.links.clear()

@@ -3,12 +3,12 @@
 ``ShmSubscriberConnection`` attaches (token and connection header out; header, read-only ring, its
 acknowledgement page and its end of a wake-up socket pair in, over the socket of ``mrosd.shm.channel``), then is
 woken by the loop (``add_reader`` on its end of the pair, spin-then-block through ``mrosd.spin``) and reads the ring:
-copies by default, or zero-copy ``ShmView``s on request. After each message it writes the number of the
-next one it wants into its acknowledgement page (for a view: once the view is released), and wakes the
-publisher when the ring says the publisher waits for a slot. A subscriber that falls too far behind loses
-the oldest messages and counts them; it reports the count to the publisher for its statistics. The
-publisher's end (exit, crash) is its socket closing; ``closed`` is then done and ``error`` says why. A
-publisher breaking the protocol closes this connection, with one log line.
+copies by default, or zero-copy ``ShmView``s on request (``mrosd.shm.lease``: the view and its lease). After
+each message it writes the number of the next one it wants into its acknowledgement page (for a view: once the
+view is released), and wakes the publisher when the ring says the publisher waits for a slot. A subscriber
+that falls too far behind loses the oldest messages and counts them; it reports the count to the publisher for
+its statistics. The publisher's end (exit, crash) is its socket closing; ``closed`` is then done and ``error``
+says why. A publisher breaking the protocol closes this connection, with one log line.
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ import collections
 import contextlib
 import logging
 import socket
-import sys
 import time
 from collections.abc import Callable
 from typing import Any
@@ -35,6 +34,7 @@ from mrosd.shm.channel import (
     connect_unix,
     peer_credentials,
 )
+from mrosd.shm.lease import ShmView
 from mrosd.shm.negotiate import ShmAnswer, trusted_uids
 from mrosd.shm.ring import RingCursor
 from mrosd.shm.segment import MAX_LEASES, MappedAck, MappedRing
@@ -67,86 +67,6 @@ class ShmRefused(HandshakeError):
     def __init__(self, reason: str) -> None:
         self.reason = reason
         super().__init__(f"publisher refused the shared-memory connection: {reason}")
-
-
-def _refs(views: list[memoryview]) -> int:
-    """The most references any of ``views`` has (the list's, the loop's, getrefcount's argument: unused)."""
-    return max((sys.getrefcount(view) for view in views), default=0)
-
-
-#: what ``_refs`` says of views nothing else references (measured, not assumed)
-_UNUSED = _refs([memoryview(b"")])
-
-
-class ShmView:
-    """A zero-copy, read-only view of one message in a slot of the publisher's ring, under a lease.
-
-    The subscriber wrote the message's number into one of its lease words before it took the view: the
-    publisher does not write that slot until the lease ends, whether this subscriber keeps up or lags. The
-    lease ends with ``release()`` (or ``with view:``), or once neither the view nor anything made from it is
-    referenced any more (``data``, a typed message's arrays in ``views``, a numpy array over them): not when a
-    callback returns, so a view may go to another thread. ``release()`` releases ``data`` and ``views`` too,
-    so that a use after it raises ``ValueError`` rather than read a slot that may hold another message by
-    then. ``intact()``: the slot still holds this message (always True under a lease).
-    """
-
-    __slots__ = ("__weakref__", "_conn", "_index", "_layout", "_slot", "number", "views")
-
-    def __init__(self, conn: ShmSubscriberConnection, number: int, slot: int, index: int, data: memoryview) -> None:
-        self._conn: ShmSubscriberConnection | None = conn
-        self._layout = conn._ring.layout if conn._ring is not None else None
-        self._slot = slot
-        self._index = index
-        self.number = number
-        #: every view of the slot handed out: the message's bytes first, then a typed message's arrays
-        self.views: list[memoryview] = [data]
-
-    @property
-    def data(self) -> memoryview:
-        """The message's serialized bytes, read-only, in the slot."""
-        return self.views[0]
-
-    def intact(self) -> bool:
-        layout = self._layout
-        try:
-            return layout is not None and bool(layout.words[self._slot][0] == 2 * self.number)
-        except ValueError:  # the ring was unmapped (the connection ended)
-            return False
-
-    @property
-    def leased(self) -> bool:
-        return self._conn is not None
-
-    def in_use(self) -> bool:
-        """Is any of its views referenced or exported outside this object?"""
-        return _refs(self.views) > _UNUSED
-
-    def _release_views(self) -> None:
-        for view in self.views:
-            with contextlib.suppress(BufferError):  # exported (numpy): it stays readable; the slot may change
-                view.release()
-
-    def release(self) -> None:
-        """End the lease now (idempotent); its views are released (a use after it is a ``ValueError``)."""
-        conn, self._conn = self._conn, None
-        if conn is not None:
-            self._release_views()
-            conn._unlease(self._index)
-
-    def __del__(self) -> None:
-        conn, self._conn = self._conn, None
-        if conn is not None:
-            if self.in_use():
-                conn._defer(self)  # a view of it lives on: the lease lasts until that is gone
-            else:
-                self._release_views()
-                conn._unlease(self._index)
-
-    def __enter__(self) -> ShmView:
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        self.release()
 
 
 Frame = bytes | bytearray | ShmView
@@ -482,9 +402,11 @@ class ShmSubscriberConnection:
             cursor.next = m + 1
             self._acknowledge(m + 1)
             start = cursor.start
-            return ShmView(self, m, slot, index, cursor.ring.data[slot][start : start + n].toreadonly())
+            data = cursor.ring.data[slot][start : start + n].toreadonly()
+            layout = self._ring.layout if self._ring is not None else None
+            return ShmView(self, layout, data, number=m, slot=slot, index=index)
 
-    def _unlease(self, index: int) -> None:
+    def end_lease(self, index: int) -> None:
         """A lease ended: its word goes back to 0 (the publisher may reuse the slot) and is free again. May run
         on another thread (a frame handed to a worker): one word written, one list append, one ``send``."""
         ack = self._ack
@@ -496,7 +418,7 @@ class ShmSubscriberConnection:
         if ring is not None and ring.layout.waiting and self._wake is not None:
             wake_socket(self._wake)
 
-    def _defer(self, view: ShmView) -> None:
+    def keep_lease(self, view: ShmView) -> None:
         """A lease dropped while one of its views is still referenced (kept, or a numpy array over it): it
         lasts until that is gone, looked at again before each message is leased."""
         self._deferred.append(view)
@@ -508,8 +430,8 @@ class ShmSubscriberConnection:
             if view.in_use():
                 deferred.append(view)
             else:
-                view._release_views()
-                self._unlease(view._index)
+                view.release_views()
+                self.end_lease(view.index)
 
     def _acknowledge(self, next_message: int) -> None:
         """Tell the publisher we are done with the messages before ``next_message``; wake it if it waits."""

@@ -26,6 +26,7 @@ import pytest
 
 from mrosd.errors import RemoteProtocolError
 from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection, control
+from mrosd.shm import door as shm_door
 from mrosd.shm import publisher as shm_publisher
 from mrosd.shm import subscriber as shm_subscriber
 from mrosd.shm.negotiate import VERSION, ShmAnswer
@@ -277,7 +278,7 @@ async def closed_by_peer(sock: socket.socket) -> bytes:
 
 
 async def test_hostile_subscribers_are_closed_and_the_others_served(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(shm_publisher, "ATTACH_TIMEOUT", 0.3)
+    monkeypatch.setattr(shm_door, "ATTACH_TIMEOUT", 0.3)
     ep = ShmPublisherEndpoint("/t", queue_size=4)
     await ep.start()
     good = await ShmSubscriberConnection.attach(ShmAnswer(version=VERSION, address=ep.address, token=ep.token), HEADER)
@@ -315,7 +316,7 @@ async def test_hostile_subscribers_are_closed_and_the_others_served(monkeypatch:
         assert len(ep.links) == 1
         ep.publish(b"still served")
         assert await asyncio.wait_for(anext(good), 5) == b"still served"
-        assert not ep._pending
+        assert not ep.door._pending
     finally:
         await good.aclose()
         await ep.aclose()
