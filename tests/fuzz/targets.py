@@ -556,8 +556,9 @@ def check_master_http(case: HttpCase) -> None:
     import asyncio
 
     from mrosd.master import Master
+    from mrosd.master.httpconn import HttpProtocol
     from mrosd.master.httpframing import MAX_HEADER_SIZE
-    from mrosd.master.httpserver import HttpProtocol, HttpServer
+    from mrosd.master.httpserver import HttpServer
 
     async def run() -> tuple[_RecordingTransport, HttpProtocol]:
         master = Master("127.0.0.1", 0)
@@ -617,5 +618,5 @@ TARGETS: dict[str, Target] = {
     "xmlrpc-fast-path": Target(
         fast_path_bodies, check_xmlrpc_fast_path, "mrosd.xmlrpc fast path decodes as the full decoder or defers"
     ),
-    "master-http": Target(http_cases, check_master_http, "mrosd.master.httpserver.HttpProtocol on split streams"),
+    "master-http": Target(http_cases, check_master_http, "mrosd.master.httpconn.HttpProtocol on split streams"),
 }

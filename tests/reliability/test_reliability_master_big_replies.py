@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 
-import mrosd.master.httpserver as httpserver
+import mrosd.master.httpconn as httpconn
 from mrosd.master import Master, MasterClient
 from mrosd.master.dispatch import BIG_REPLY, FAULT_REPLY_BUDGET
 from mrosd.xmlrpc import Fault, XmlRpcClient, decode_response, encode_call
@@ -197,7 +197,7 @@ async def test_over_budget_a_caller_gets_a_fault_it_can_act_on_and_a_stalled_rea
 ) -> None:
     """Non-readers hold two different big values; a third gets fault -32500 naming the budget; once the master
     lets the stalled readers go (REQUEST_TIMEOUT, shortened here) and the state changes, it is served."""
-    monkeypatch.setattr(httpserver, "REQUEST_TIMEOUT", 0.5)
+    monkeypatch.setattr(httpconn, "REQUEST_TIMEOUT", 0.5)
     master_cm = Master("127.0.0.1", 0, advertise="127.0.0.1", idle_timeout=0.4, cleanup_interval=0)
     async with master_cm as master, XmlRpcClient(timeout=30) as client:
         for key in ("/a", "/b", "/c"):

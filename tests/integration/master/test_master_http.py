@@ -129,9 +129,9 @@ async def test_a_dead_target_is_backed_off_instead_of_retried_for_every_notifica
 async def test_a_client_trickling_a_request_is_cut_off_while_idle_keep_alive_clients_stay(
     master: Master, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from mrosd.master import httpserver
+    from mrosd.master import httpconn
 
-    monkeypatch.setattr(httpserver, "REQUEST_TIMEOUT", 0.3)
+    monkeypatch.setattr(httpconn, "REQUEST_TIMEOUT", 0.3)
     slow_reader, slow_writer = await asyncio.open_connection("127.0.0.1", master.port)
     idle_reader, idle_writer = await asyncio.open_connection("127.0.0.1", master.port)
     try:
