@@ -1,10 +1,10 @@
 """The IXM daemon side (the paper's ixmcore): a Unix-socket server that owns every segment's lifetime.
 
-This module owns the I/O around the pure ``Registry``: accepting clients, learning who they are from the
-kernel (SO_PEERCRED, /proc), creating segments, handing them out as file descriptors (SCM_RIGHTS; read-only
-descriptors to readers, so that their mappings cannot be written), and telling writers which reader
-wake-up pipes to write. It is not in the data path: writes and reads go straight to shared memory, and wake-ups
-go straight from writer to reader.
+This module owns the I/O around the pure ``Registry``: accepting clients (each a ``ClientSession``,
+``mrosd.ixm.session``: who it is from the kernel, SO_PEERCRED and /proc, and its bounded outbox), creating
+segments, handing them out as file descriptors (SCM_RIGHTS; read-only descriptors to readers, so that their
+mappings cannot be written), and telling writers which reader wake-up pipes to write. It is not in the data
+path: writes and reads go straight to shared memory, and wake-ups go straight from writer to reader.
 
 Segments are sealed memfds: sized once, their header written with ``pwrite``, made 0600 (a reader's
 read-only descriptor cannot be reopened read-write through /proc by another uid), then sealed against
@@ -32,16 +32,13 @@ import logging
 import os
 import resource
 import socket
-import struct
-from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from mrosd.errors import IxmError, IxmPermissionError, MrosError, RemoteProtocolError
-from mrosd.ixm.channel import FdReader, is_wake_pipe, send_frame
+from mrosd.ixm.channel import is_wake_pipe
 from mrosd.ixm.protocol import (
-    MAX_REQUEST_SIZE,
     Close,
     Error,
     Hello,
@@ -51,7 +48,6 @@ from mrosd.ixm.protocol import (
     Open,
     Opened,
     ProcessView,
-    Reply,
     SegmentView,
     WakeList,
     decode_request,
@@ -59,8 +55,9 @@ from mrosd.ixm.protocol import (
 )
 from mrosd.ixm.registry import CreateSegment, Effect, ReadersChanged, Registry, UnlinkSegment
 from mrosd.ixm.resources import Limits, NoticePage, Segment, wake_slot_refusal
-from mrosd.ixm.rules import AccessRules, Peer, names_of, parse_rules
+from mrosd.ixm.rules import AccessRules, Peer, parse_rules
 from mrosd.ixm.rundir import prepare_socket_dir
+from mrosd.ixm.session import ClientSession, close_fd, peer_of
 from mrosd.lograte import RateLimitedLog
 
 __all__ = ["SHM_PREFIX", "IxmServer", "Limits", "segment_prefix"]
@@ -69,10 +66,6 @@ log = logging.getLogger("mrosd.ixm")
 
 #: Segments are memfds named ``<SHM_PREFIX><socket hash>-<n>`` (visible in /proc/PID/fd, never in /dev/shm).
 SHM_PREFIX = "mrosd-ixm-"
-#: Bytes queued for one client before it is considered stuck and disconnected.
-MAX_OUTBOX = 32 << 20
-
-_PEERCRED = struct.Struct("3i")
 _OUT_OF_FDS = (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM)
 _BACKOFF_MIN, _BACKOFF_MAX = 0.02, 0.25
 
@@ -81,42 +74,6 @@ def segment_prefix(socket_path: str) -> str:
     """The memfd name prefix of every segment served on ``socket_path``."""
     digest = hashlib.blake2s(os.path.abspath(socket_path).encode(), digest_size=4).hexdigest()
     return f"{SHM_PREFIX}{digest}-"
-
-
-def _peer_of(sock: socket.socket) -> Peer:
-    pid, uid, gid = _PEERCRED.unpack(sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, _PEERCRED.size))
-    groups: set[int] = set()
-    comm = ""
-    argv: list[str] = []
-    with contextlib.suppress(OSError):
-        comm = Path(f"/proc/{pid}/comm").read_text().strip()
-    with contextlib.suppress(OSError):
-        argv = [a.decode("utf-8", "replace") for a in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0") if a]
-    with contextlib.suppress(OSError, ValueError):
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("Groups:"):
-                groups = {int(g) for g in line.split()[1:]}
-    return Peer(pid=pid, uid=uid, gid=gid, groups=frozenset(groups), names=names_of(comm, argv))
-
-
-class _Client:
-    """One connected process: its socket, its decoder and fds, and what is queued to send to it."""
-
-    def __init__(self, conn_id: int, sock: socket.socket, peer: Peer) -> None:
-        self.id = conn_id
-        self.sock = sock
-        self.peer = peer
-        self.reader = FdReader(sock, MAX_REQUEST_SIZE)
-        #: (frame remainder, fds to attach, fds to close once sent)
-        self.outbox: deque[tuple[memoryview, list[int], list[int]]] = deque()
-        self.queued = 0
-        self.writing = False
-        self.closed = False
-        #: a send failed or the outbox overflowed: dropped on the next loop iteration (never re-entrantly)
-        self.broken = False
-        #: created at this connection's first open for writing
-        self.notice: NoticePage | None = None
-        self.pushes = 0
 
 
 class IxmServer:
@@ -148,7 +105,7 @@ class IxmServer:
         self.registry = Registry(self._resolve_rules(rules), self._name_segment)
         self._counter = 0
         self._segments: dict[str, Segment] = {}
-        self._clients: dict[int, _Client] = {}
+        self._clients: dict[int, ClientSession] = {}
         self._clients_by_uid: dict[int, int] = {}
         self._next_conn = 1
         self._listener: socket.socket | None = None
@@ -227,7 +184,7 @@ class IxmServer:
             with contextlib.suppress(OSError):
                 os.unlink(self.socket_path)
         if self._spare_fd is not None:
-            self._close_fd(self._spare_fd)
+            close_fd(self._spare_fd)
             self._spare_fd = None
         for client in list(self._clients.values()):
             self._drop(client, "daemon shutting down", level=logging.DEBUG)
@@ -265,7 +222,7 @@ class IxmServer:
             self._backoff = _BACKOFF_MIN
             sock.setblocking(False)
             try:
-                peer = _peer_of(sock)
+                peer = peer_of(sock)
             except OSError as exc:
                 self._ratelog.warning("peercred", "IXM: cannot read the peer's credentials, closing: %s", exc)
                 sock.close()
@@ -275,7 +232,7 @@ class IxmServer:
                 self._ratelog.warning(f"clients-{peer.uid}", "IXM: refused uid %d: %s", peer.uid, refusal)
                 self._refuse(sock, refusal)
                 continue
-            client = _Client(self._next_conn, sock, peer)
+            client = ClientSession(self._next_conn, sock, peer, self._loop, self._drop)
             self._next_conn += 1
             self._clients[client.id] = client
             self._clients_by_uid[peer.uid] = self._clients_by_uid.get(peer.uid, 0) + 1
@@ -333,7 +290,7 @@ class IxmServer:
                 self._spare_fd = os.open(os.devnull, os.O_RDONLY | os.O_CLOEXEC)
         self._loop.add_reader(self._listener.fileno(), self._on_accept)
 
-    def _on_readable(self, client: _Client) -> None:
+    def _on_readable(self, client: ClientSession) -> None:
         try:
             if not client.reader.recv():
                 self._drop(client, "closed its connection", level=logging.DEBUG)
@@ -353,7 +310,7 @@ class IxmServer:
             log.exception("IXM: internal error while serving client %d (pid %d)", client.id, client.peer.pid)
             self._drop(client, "dropped after an internal error", level=logging.ERROR)
 
-    def _drop(self, client: _Client, reason: str, level: int) -> None:
+    def _drop(self, client: ClientSession, reason: str, level: int) -> None:
         if client.closed:
             return
         client.closed = True
@@ -369,20 +326,7 @@ class IxmServer:
             )
         else:
             log.log(level, "IXM client %d (pid %d, uid %d) %s", client.id, client.peer.pid, client.peer.uid, reason)
-        loop = self._loop
-        if loop is not None:
-            loop.remove_reader(client.sock.fileno())
-            if client.writing:
-                loop.remove_writer(client.sock.fileno())
-        for _frame, _fds, to_close in client.outbox:
-            for fd in to_close:
-                self._close_fd(fd)
-        client.outbox.clear()
-        client.reader.close()
-        client.sock.close()
-        if client.notice is not None:
-            client.notice.close()
-            client.notice = None
+        client.close()
         del self._clients[client.id]
         left = self._clients_by_uid.get(client.peer.uid, 1) - 1
         if left > 0:
@@ -393,7 +337,7 @@ class IxmServer:
 
     # requests ------------------------------------------------------------------------------------------
 
-    def _handle(self, client: _Client, request: Any) -> None:
+    def _handle(self, client: ClientSession, request: Any) -> None:
         match request:
             case Open():
                 self._open(client, request)
@@ -401,19 +345,19 @@ class IxmServer:
                 try:
                     effects = self.registry.close(client.id, key)
                 except IxmError as exc:
-                    self._send(client, Error("invalid", str(exc)))
+                    client.send(Error("invalid", str(exc)))
                     return
                 self._apply(effects, client.id)  # unlinked before the client hears Ok
-                self._send(client, Ok())
+                client.send(Ok())
             case List(key=key):
-                self._send(client, self._listing(key, client.peer))
+                client.send(self._listing(key, client.peer))
             case Hello(name=name):
                 self.registry.rename(client.id, name)
-                self._send(client, Ok())
+                client.send(Ok())
             case _:  # pragma: no cover - the decoder only yields the types above
                 raise RemoteProtocolError(f"unexpected request {type(request).__name__}")
 
-    def _open(self, client: _Client, req: Open) -> None:
+    def _open(self, client: ClientSession, req: Open) -> None:
         wake_fd = client.reader.take_fds(1)[0] if req.wake else None
         try:
             if wake_fd is not None:
@@ -430,7 +374,7 @@ class IxmServer:
                 self._check_wake_slots(req.key, client.peer.uid)
             info, effects = self.registry.open(client.id, req.key, req.type, req.count, req.max_size, req.mode)
         except IxmPermissionError as exc:
-            self._close_fd(wake_fd)
+            close_fd(wake_fd)
             self._ratelog.log(  # a client can ask again and again: one line per uid and 10 s, with a count
                 logging.INFO,
                 f"refused-{client.peer.uid}",
@@ -440,11 +384,11 @@ class IxmServer:
                 client.peer.pid,
                 client.peer.uid,
             )
-            self._send(client, Error("permission", str(exc)))
+            client.send(Error("permission", str(exc)))
             return
         except MrosError as exc:
-            self._close_fd(wake_fd)
-            self._send(client, Error("invalid", str(exc)))
+            close_fd(wake_fd)
+            client.send(Error("invalid", str(exc)))
             return
         notice: NoticePage | None = None
         fds: list[int] = []
@@ -460,10 +404,10 @@ class IxmServer:
                     notice = client.notice = NoticePage(f"mrosd-ixm-notice-{client.id}")
         except (OSError, MrosError) as exc:
             for fd in (wake_fd, *fds):
-                self._close_fd(fd)
+                close_fd(fd)
             self._apply(self.registry.close(client.id, req.key), client.id)
             self._ratelog.warning("create", "IXM: cannot create the segment for %s: %s", req.key, exc)
-            self._send(client, Error("invalid", f"cannot create shared memory for {req.key}: {exc}"))
+            client.send(Error("invalid", f"cannot create shared memory for {req.key}: {exc}"))
             return
         if wake_fd is not None:
             seg.wake_fds[client.id] = wake_fd
@@ -486,7 +430,7 @@ class IxmServer:
             generation=client.pushes,
             notice=notice is not None,
         )
-        self._send(client, reply, fds=[*fds, *wake], close_after=fds)
+        client.send(reply, fds=[*fds, *wake], close_after=fds)
 
     def _check_wake_slots(self, key: str, uid: int) -> None:
         """Raises: IxmError: ``key`` has no woken-reader slot left, or ``uid`` holds its share of them."""
@@ -497,12 +441,6 @@ class IxmServer:
         refusal = wake_slot_refusal(key, holders, uid)
         if refusal:
             raise IxmError(refusal)
-
-    @staticmethod
-    def _close_fd(fd: int | None) -> None:
-        if fd is not None:
-            with contextlib.suppress(OSError):
-                os.close(fd)
 
     def _apply(self, effects: list[Effect], origin: int) -> None:
         for effect in effects:
@@ -517,7 +455,7 @@ class IxmServer:
                         continue
                     for conn in list(seg.wake_fds):
                         if conn not in seg.info.readers:
-                            self._close_fd(seg.wake_fds.pop(conn))
+                            close_fd(seg.wake_fds.pop(conn))
                     for conn in sorted(seg.info.writers):
                         if conn == origin:  # an opening "rw" client gets its list with Opened
                             continue
@@ -527,10 +465,10 @@ class IxmServer:
                 case CreateSegment():
                     pass
 
-    def _send_wake_list(self, writer: _Client, seg: Segment) -> None:
+    def _send_wake_list(self, writer: ClientSession, seg: Segment) -> None:
         fds = seg.fds_to_wake(writer.id)
         writer.pushes += 1
-        self._send(writer, WakeList(key=seg.info.key, generation=writer.pushes, count=len(fds)), fds=fds)
+        writer.send(WakeList(key=seg.info.key, generation=writer.pushes, count=len(fds)), fds=fds)
         # published after the list is queued: a writer that sees the new count finds the list in its socket
         if writer.notice is not None:
             writer.notice.count[0] = writer.pushes
@@ -567,60 +505,3 @@ class IxmServer:
             if keys or own:
                 processes.append(ProcessView(name=p.name, pid=p.peer.pid, uid=p.peer.uid, keys=keys))
         return Listing(processes=processes, segments=segments)
-
-    # output --------------------------------------------------------------------------------------------
-
-    def _send(
-        self, client: _Client, message: Reply, fds: list[int] | None = None, close_after: list[int] | None = None
-    ) -> None:
-        if client.closed or client.broken:
-            for fd in close_after or ():
-                self._close_fd(fd)
-            return
-        frame = memoryview(encode(message))
-        client.outbox.append((frame, fds or [], close_after or []))
-        client.queued += len(frame)
-        if client.queued > MAX_OUTBOX:
-            self._break(client, f"does not read its socket ({client.queued} bytes queued)", logging.WARNING)
-            return
-        if not client.writing:
-            self._flush(client)
-
-    def _flush(self, client: _Client) -> None:
-        while client.outbox and not client.closed:
-            frame, fds, to_close = client.outbox[0]
-            try:
-                sent = send_frame(client.sock, frame, fds)
-            except (BlockingIOError, InterruptedError):
-                sent = 0
-            except OSError as exc:
-                quiet = exc.errno in (errno.EPIPE, errno.ECONNRESET)
-                self._break(client, f"send failed: {exc}", logging.DEBUG if quiet else logging.WARNING)
-                return
-            if sent == 0 and len(frame):
-                if not client.writing and self._loop is not None:
-                    client.writing = True
-                    self._loop.add_writer(client.sock.fileno(), self._on_writable, client)
-                return
-            client.queued -= sent
-            if sent < len(frame):
-                client.outbox[0] = (frame[sent:], [], to_close)  # fds went with the first byte
-                continue
-            client.outbox.popleft()
-            for fd in to_close:
-                self._close_fd(fd)
-        if client.writing and self._loop is not None and not client.closed:
-            client.writing = False
-            self._loop.remove_writer(client.sock.fileno())
-
-    def _break(self, client: _Client, reason: str, level: int) -> None:
-        client.broken = True
-        for _frame, _fds, to_close in client.outbox:
-            for fd in to_close:
-                self._close_fd(fd)
-        client.outbox.clear()
-        if self._loop is not None:
-            self._loop.call_soon(self._drop, client, reason, level)
-
-    def _on_writable(self, client: _Client) -> None:
-        self._flush(client)
