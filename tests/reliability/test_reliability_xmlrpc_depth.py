@@ -66,7 +66,8 @@ async def test_a_slave_api_handler_never_sees_a_value_nested_5000_deep(caplog: p
         return 1
 
     async with XmlRpcServer({"setParam": handler}, host="127.0.0.1") as server, aiohttp.ClientSession() as http:
-        async with http.post(f"http://127.0.0.1:{server.port}/", data=nested_call("setParam", ARRAY, 5000)) as resp:
+        url = f"http://127.0.0.1:{server.port}/"
+        async with http.post(url, data=nested_call("setParam", ARRAY, 5000)) as resp:
             body = await resp.read()
     with pytest.raises(Fault, match="nested deeper than"):
         decode_response(body)
