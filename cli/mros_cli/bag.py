@@ -9,15 +9,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
-import signal
 import sys
 import time
-from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
 import click
 
 from mros_cli.main import error_text, master_uri, run
+from mrosd.app import on_stop_signal
 from mrosd.bag.model import DEFAULT_BUFFER_MB, DEFAULT_CLOCK_HZ, BagError, SplitPolicy, parse_duration
 
 if TYPE_CHECKING:
@@ -45,18 +44,6 @@ def group() -> None:
       mros bag info run1.bag
       mros topic echo -b run1.bag /odom
     """
-
-
-@contextlib.contextmanager
-def _stop_on_signals(loop: asyncio.AbstractEventLoop, stop: asyncio.Event) -> Iterator[None]:
-    sigs = (signal.SIGINT, signal.SIGTERM)
-    for sig in sigs:
-        loop.add_signal_handler(sig, stop.set)
-    try:
-        yield
-    finally:
-        for sig in sigs:
-            loop.remove_signal_handler(sig)
 
 
 def _status_enabled(flag: bool | None) -> bool:
@@ -166,7 +153,7 @@ def record(  # noqa: PLR0917  (one parameter per click option)
         sink: RecordSink | None = None
         status_task = None
         try:
-            with _stop_on_signals(loop, stop):
+            with on_stop_signal(stop.set):
                 async with Node(_anonymous("record"), master_uri=master_uri(), argv=[]) as node:
                     # After the master answered (no empty file when it is down), before subscribing.
                     sink = RecordSink(
@@ -285,7 +272,7 @@ def play(  # noqa: PLR0917
         loop_ = asyncio.get_running_loop()
         stop = asyncio.Event()
         try:
-            with _stop_on_signals(loop_, stop):
+            with on_stop_signal(stop.set):
                 async with Node(_anonymous("play"), master_uri=master_uri(), argv=[]) as node:
                     player = Player(
                         node,

@@ -5,7 +5,7 @@ the clients of the master (``master_client``, a ``mrosd.master.client.MasterClie
 slave APIs (``slave_call``), user-typed name resolution (``resolve_name``, via ``mrosd.names``) and the exit
 codes scripts rely on: 0 success, 1 error (on stderr ``ERROR: ...`` as rostopic, rosparam, rosnode and
 rosservice print it, with their hint after a blank line where they give one), 2 usage error (click's, and
-where rosservice exits 2), 130 interrupted.
+where rosservice exits 2), 130 interrupted (143 after SIGTERM).
 """
 
 from __future__ import annotations
@@ -112,10 +112,17 @@ async def slave_call(xmlrpc: XmlRpcClient, uri: str, method: str, *args: Any, ti
 
 
 def run(coro: Coroutine[Any, Any, T]) -> T:
-    """Run one command's coroutine on a fresh loop chosen by ``mrosd.loop`` (uvloop unless ``MROSD_LOOP=asyncio``)."""
-    from mrosd.loop import run as run_on_loop
+    """Run one command's coroutine on a fresh loop chosen by ``mrosd.loop`` (uvloop unless ``MROSD_LOOP=asyncio``).
 
-    return run_on_loop(coro)
+    SIGINT and SIGTERM, once or repeatedly, cancel it (``mrosd.app.run_until_signal``): its nodes unregister
+    and close, then the command exits quietly with 130 or 143, as a shell reports the signal.
+    """
+    from mrosd.app import Interrupted, run_until_signal
+
+    try:
+        return run_until_signal(coro)
+    except Interrupted as stop:
+        sys.exit(128 + stop.signum)
 
 
 #: What rostopic, rosparam, rosnode and rosservice print when the master does not answer.
