@@ -97,6 +97,7 @@ async def run(cfg: Config, *, config_path: str | None, master_only: bool, strict
                 log.error("SIGHUP: reload failed, keeping the running configuration: %s", reason(exc))
                 if not isinstance(exc, MrosError):
                     log.debug("reload failure", exc_info=exc)
+            daemon.publish_status()
             notifier.ready(daemon.status_line())
 
     code = EXIT_OK
@@ -109,6 +110,7 @@ async def run(cfg: Config, *, config_path: str | None, master_only: bool, strict
             code = EXIT_FAILURE
         else:
             notifier.ready(daemon.status_line())
+            daemon.publish_status()
             (log.warning if daemon.failed else log.info)("ready: %s", daemon.status_line())
             interval = watchdog_interval()
             if interval is not None:

@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     from mrosd.logfiles import RunLogs
     from mrosd.master import Master
     from mrosd.rosout import RosoutAggregator
+    from mrosd.runstatus import DaemonStatus
     from mrosd.tcpros.admission import AdmissionLimits
     from mrosd.web.server import WebServer
     from mrosd.xmlrpc import XmlRpcClient
@@ -102,6 +103,7 @@ class Daemon:
         self.failed: dict[str, str] = {}
         self._parts: list[tuple[str, Any]] = []
         self._xmlrpc: XmlRpcClient | None = None
+        self._status_file: str | None = None
 
     async def start(self) -> None:
         """Start every configured part; on a fatal failure the parts already started are closed again.
@@ -175,8 +177,12 @@ class Daemon:
             options["max_connections"] = cap
             per_host = options.get("max_connections_per_host", MAX_CONNECTIONS_PER_HOST)
             options["max_connections_per_host"] = min(per_host, max(1, cap * 3 // 4))
-        master = Master(self.cfg.master.host, self.cfg.master.port, allow=allow, **options)
-        await master.start()
+        host, port = self.cfg.master.host, self.cfg.master.port
+        master = Master(host, port, allow=allow, **options)
+        try:
+            await master.start()
+        except OSError as exc:  # name the port: "Address already in use" alone does not say which
+            raise OSError(exc.errno, f"{exc.strerror or exc}: master port {port} on {host or '*'}") from exc
         self.master = master
         self._parts.append(("master", master))
         self.master_uri = local_master_uri(self.cfg, int(master.port))
@@ -314,6 +320,50 @@ class Daemon:
             return "running: " + line
         return "degraded: " + line + "; " + "; ".join(f"{name} failed: {why}" for name, why in self.failed.items())
 
+    def status(self) -> DaemonStatus:
+        """What runs and where, for the status file (``mrosd.runstatus``)."""
+        import mrosd
+        from mrosd.runstatus import DaemonStatus, WebStatus
+
+        web = None
+        if self.web is not None:
+            web = WebStatus(
+                page=self.web.page_url.split("?", 1)[0],
+                foxglove=list(self.web.urls),
+                rosbridge=list(self.web.rosbridge_urls) if self.web.rosbridge_port is not None else [],
+                token_required=bool(self.web.policy.token),
+            )
+        return DaemonStatus(
+            pid=os.getpid(),
+            version=mrosd.__version__,
+            master_uri=self.master_uri,
+            state="degraded" if self.failed else "running",
+            ixm=self.cfg.ixm.socket if self.ixm is not None else None,
+            ixm_bridges=len(self.bridge.bridges) if self.bridge is not None else 0,
+            rosout=self.rosout is not None,
+            web=web,
+            fleet=self.cfg.fleet.robot if self.fleet is not None else None,
+            failed=dict(self.failed),
+        )
+
+    def publish_status(self) -> None:
+        """Write the status file into the runtime directory (the IXM socket's), creating it as IXM would;
+        a failure is one warning (``mros web`` then falls back to the configuration)."""
+        if self.master is None:
+            return
+        from mrosd.ixm.rundir import prepare_socket_dir
+        from mrosd.runstatus import status_path, write_status
+
+        run_dir = os.path.dirname(os.path.abspath(self.cfg.ixm.socket))
+        path = status_path(run_dir, int(self.master.port))
+        try:
+            prepare_socket_dir(run_dir)
+            write_status(path, self.status())
+        except (OSError, MrosError) as exc:
+            log.warning("no status file %s: %s", path, reason(exc))
+            return
+        self._status_file = path
+
     async def master_alive(self, timeout: float) -> bool:
         """True when the master answers ``getPid`` within ``timeout`` seconds (the watchdog's health check)."""
         if self._xmlrpc is None:
@@ -370,6 +420,11 @@ class Daemon:
         Each part gets a fair share of the time left, so one part that hangs cannot keep the later ones
         (the master last) from closing; each failure is logged and none stops the others.
         """
+        if self._status_file is not None:  # first: a client must not find a daemon that is going away
+            from mrosd.runstatus import remove_status
+
+            remove_status(self._status_file)
+            self._status_file = None
         loop = asyncio.get_running_loop()
         deadline = loop.time() + timeout
         clean = True
