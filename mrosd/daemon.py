@@ -136,14 +136,41 @@ async def run(cfg: Config, *, config_path: str | None, master_only: bool, strict
     return code
 
 
+#: The end of ``mrosd --help``: examples, and the variables that set what the flags do not.
+EPILOG = """\
+Examples:
+  mrosd
+  mrosd --config /etc/mrosd/mrosd.toml --check-config
+  mrosd --master-only
+  mrosd --web-port 8765 --rosbridge-port 9090     # then: mros web
+
+Environment (each overrides its key in the file; a flag overrides its variable):
+  MROSD_CONFIG              the configuration file
+  ROS_MASTER_URI            its port is the master's; MROSD_MASTER_HOST, MROSD_MASTER_PORT, MROSD_MASTER_ALLOW
+  MROSD_IXM, MROSD_IXM_SOCKET, MROSD_ROSOUT   the IXM registry (1/0, its socket) and rosout (1/0)
+  MROSD_WEB                 the web part (1/0)
+  MROSD_WEB_PORT            the page and Foxglove WebSocket port (default 8765)
+  MROSD_WEB_ROSBRIDGE_PORT  rosbridge v2 (default 9090; -1: off)
+  MROSD_WEB_HOST            bind address(es), comma-separated (default 127.0.0.1)
+  MROSD_WEB_TOKEN           the token clients must present (required off loopback)
+  MROSD_LOG_LEVEL           debug, info, warning or error
+  MROSD_LOOP=asyncio        asyncio's own event loop instead of uvloop
+"""
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``mrosd`` command line."""
+    import mrosd
+
     parser = argparse.ArgumentParser(
         prog="mrosd",
-        description="mrosd: ROS 1 master + parameter server, IXM shared-memory registry and rosout aggregator.",
-        epilog="Examples:\n  mrosd\n  mrosd --config /etc/mrosd/mrosd.toml --check-config\n  mrosd --master-only",
+        description="mrosd: ROS 1 master + parameter server, IXM shared-memory registry, rosout aggregator, "
+        "and the web part: a page (graph, topics, plots, images) and Foxglove WebSocket on one port, rosbridge "
+        "v2 on another.",
+        epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"mrosd {mrosd.__version__}")
     parser.add_argument(
         "--config",
         "-c",
@@ -164,15 +191,44 @@ def build_parser() -> argparse.ArgumentParser:
         help="exit 1 when IXM, a bridge, rosout or web cannot start (default: run degraded)",
     )
     parser.add_argument("--port", "-p", type=int, help="master port (overrides the file and environment)")
+    web = parser.add_argument_group("web part ([web] in the file; each flag overrides its variable)")
+    web.add_argument(
+        "--web-port", type=int, metavar="PORT", help="the page and Foxglove WebSocket port ($MROSD_WEB_PORT)"
+    )
+    web.add_argument(
+        "--rosbridge-port", type=int, metavar="PORT", help="rosbridge v2 port, -1: off ($MROSD_WEB_ROSBRIDGE_PORT)"
+    )
+    web.add_argument(
+        "--web-host",
+        metavar="ADDR[,ADDR]",
+        help="bind address(es); one that is not loopback needs $MROSD_WEB_TOKEN ($MROSD_WEB_HOST)",
+    )
+    web.add_argument("--no-web", action="store_true", help="run without the web part ($MROSD_WEB=0)")
     parser.add_argument("--log-level", choices=["debug", "info", "warning", "error"], help="log verbosity")
     return parser
+
+
+def _flag_environment(args: argparse.Namespace) -> dict[str, str] | None:
+    """The web flags as the ``MROSD_WEB_*`` overrides they stand for (a flag wins over its variable)."""
+    flags = {
+        "MROSD_WEB_PORT": args.web_port,
+        "MROSD_WEB_ROSBRIDGE_PORT": args.rosbridge_port,
+        "MROSD_WEB_HOST": args.web_host,
+        "MROSD_WEB": "0" if args.no_web else None,
+    }
+    given = {k: str(v) for k, v in flags.items() if v is not None}
+    return {**os.environ, **given} if given else None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``mrosd`` console script; returns (and exits with) the exit code."""
     args = build_parser().parse_args(argv)
+    for flag, value, low in (("--web-port", args.web_port, 0), ("--rosbridge-port", args.rosbridge_port, -1)):
+        if value is not None and not low <= value <= 65535:
+            print(f"mrosd: {flag} must be {low}..65535, got {value}", file=sys.stderr)
+            return _exit(EXIT_USAGE, argv)
     try:
-        cfg = load_config(args.config)
+        cfg = load_config(args.config, _flag_environment(args))
         if cfg.ixm.enabled:  # validate [ixm.rules] now, not at the first client
             load_ixm_rules(cfg.ixm.rules, cfg.source)
             load_bridges(cfg.ixm.rules, cfg.source)
