@@ -143,3 +143,22 @@ async def test_the_examples_stop_cleanly_on_ctrl_c(procs: Processes, example: st
                 proc.wait()
         assert (proc.returncode, err.decode()) == (0, "")
         assert gone_after < 1.0
+
+
+async def test_the_example_talker_prints_what_it_publishes_as_rospy_s_does(procs: Processes) -> None:
+    """rospy's talker prints ``[INFO] [<seconds>]: hello world ...`` for each message it publishes."""
+    import re
+
+    async with Master(host="127.0.0.1", port=0) as master:
+        proc = await _run_until_up(procs, [sys.executable, str(PROJECT_ROOT / "examples" / "talker.py")], master, set())
+        try:
+            assert proc.stdout is not None
+            line = await asyncio.wait_for(asyncio.to_thread(proc.stdout.readline), timeout=10)
+            proc.send_signal(signal.SIGINT)
+            _, err = await asyncio.to_thread(proc.communicate, timeout=10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    assert re.fullmatch(rb"\[INFO\] \[\d+\.\d+\]: hello world 0\n", line), line
+    assert (proc.returncode, err.decode()) == (0, "")
