@@ -31,7 +31,7 @@ import logging
 import os
 import signal
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from mrosd.config import Config, load_config
 from mrosd.errors import ConfigError, MrosError
@@ -63,8 +63,18 @@ async def _watchdog(daemon: Daemon, interval: float) -> None:
             log.warning("watchdog: the master did not answer getPid; not pinging systemd")
 
 
-async def run(cfg: Config, *, config_path: str | None, master_only: bool, strict: bool = False) -> int:
-    """Run until SIGTERM/SIGINT; returns the process exit code. Must run on the main thread."""
+async def run(
+    cfg: Config,
+    *,
+    config_path: str | None,
+    master_only: bool,
+    strict: bool = False,
+    reread: Callable[[], Config] | None = None,
+) -> int:
+    """Run until SIGTERM/SIGINT; returns the process exit code. Must run on the main thread.
+
+    ``reread`` gives the configuration a SIGHUP applies (default: ``config_path`` read again).
+    """
     loop = asyncio.get_running_loop()
     notifier = Notifier()
     daemon = Daemon(cfg, master_only=master_only, strict=strict, notifier=notifier)
@@ -92,7 +102,7 @@ async def run(cfg: Config, *, config_path: str | None, master_only: bool, strict
             await reloads.get()
             notifier.reloading()
             try:
-                await daemon.reload(load_config(config_path))
+                await daemon.reload(reread() if reread is not None else load_config(config_path))
             except Exception as exc:  # whatever the file holds, the running configuration stays
                 log.error("SIGHUP: reload failed, keeping the running configuration: %s", reason(exc))
                 if not isinstance(exc, MrosError):
@@ -220,6 +230,20 @@ def _flag_environment(args: argparse.Namespace) -> dict[str, str] | None:
     return {**os.environ, **given} if given else None
 
 
+def _load(args: argparse.Namespace) -> Config:
+    """The configuration with the command line's overrides on top (at start and at each SIGHUP).
+
+    Raises:
+        ConfigError: as ``load_config``.
+    """
+    cfg = load_config(args.config, _flag_environment(args))
+    if args.port is not None:
+        cfg.master.port = args.port
+    if args.log_level:
+        cfg.log.level = args.log_level
+    return cfg
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``mrosd`` console script; returns (and exits with) the exit code."""
     args = build_parser().parse_args(argv)
@@ -227,21 +251,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         if value is not None and not low <= value <= 65535:
             print(f"mrosd: {flag} must be {low}..65535, got {value}", file=sys.stderr)
             return _exit(EXIT_USAGE, argv)
+    if args.port is not None and not 0 <= args.port <= 65535:
+        print(f"mrosd: --port must be 0..65535, got {args.port}", file=sys.stderr)
+        return _exit(EXIT_USAGE, argv)
     try:
-        cfg = load_config(args.config, _flag_environment(args))
+        cfg = _load(args)
         if cfg.ixm.enabled:  # validate [ixm.rules] now, not at the first client
             load_ixm_rules(cfg.ixm.rules, cfg.source)
             load_bridges(cfg.ixm.rules, cfg.source)
     except ConfigError as exc:
         print(f"mrosd: configuration error: {exc}", file=sys.stderr)
         return _exit(EXIT_USAGE, argv)
-    if args.port is not None:
-        if not 0 <= args.port <= 65535:
-            print(f"mrosd: --port must be 0..65535, got {args.port}", file=sys.stderr)
-            return _exit(EXIT_USAGE, argv)
-        cfg.master.port = args.port
-    if args.log_level:
-        cfg.log.level = args.log_level
     if args.check_config or args.check:
         import msgspec
 
@@ -256,7 +276,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     mask = signal.pthread_sigmask(signal.SIG_BLOCK, SignalThread.SIGNALS)
     try:
         with asyncio.Runner(loop_factory=event_loop_factory()) as runner:
-            code = runner.run(run(cfg, config_path=args.config, master_only=args.master_only, strict=args.strict))
+            daemon = run(
+                cfg,
+                config_path=args.config,
+                master_only=args.master_only,
+                strict=args.strict,
+                reread=lambda: _load(args),
+            )
+            code = runner.run(daemon)
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, mask)
     return _exit(code, argv)

@@ -17,7 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from mrosd.config import Config, part_options
+from mrosd.config import Config, FleetConfig, LogConfig, part_options
 from mrosd.errors import MrosError
 from mrosd.fdbudget import FdBudgets, fd_budgets
 from mrosd.process import reason
@@ -152,7 +152,7 @@ class Daemon:
         from mrosd.logfiles import RunLogs, ros_log_root
         from mrosd.rosout import new_run_id
 
-        self.run_id = new_run_id()
+        self.run_id = self.run_id or new_run_id()  # a reload moves this run's files; the id stays
         cfg = self.cfg.log
         if cfg.dir == cfg.OFF:
             return
@@ -163,7 +163,7 @@ class Daemon:
             log.error("no log files: cannot write %s: %s", logs.dir, reason(exc))
             return
         self.logs = logs
-        self._parts.append(("logs", logs))  # first in, last out: master.log sees the whole shutdown
+        self._parts.insert(0, ("logs", logs))  # first in, last out: master.log sees the whole shutdown
         log.info("log files in %s", logs.dir)
 
     async def _start_master(self) -> None:
@@ -375,26 +375,78 @@ class Daemon:
         return True
 
     async def reload(self, cfg: Config) -> None:
-        """Apply a re-read configuration: IXM access rules now, and the parts that failed to start are tried
-        again; other changes are logged as needing a restart.
+        """Apply a re-read configuration: IXM access rules now, ``[log]`` and ``[fleet]`` by restarting their
+        parts, and the parts that failed to start are tried again; other changes are logged as needing a
+        restart.
 
         Raises:
-            ConfigError: the new rules do not parse (the running ones stay).
+            ConfigError: the new rules or fleet settings do not parse (everything running stays).
         """
         rules = load_ixm_rules(cfg.ixm.rules, cfg.source)
         old = self.cfg
+        if cfg.fleet != old.fleet and cfg.fleet.enabled:
+            from mrosd.fleet.options import fleet_options
+
+            fleet_options(cfg.fleet, cfg.source or "configuration")  # refuse a bad [fleet] before stopping ours
         if (cfg.master, cfg.rosout, cfg.web) != (old.master, old.rosout, old.web) or cfg.ixm.socket != old.ixm.socket:
-            log.warning("SIGHUP: only [ixm.rules] is reloaded; restart mrosd to apply the other changes")
+            log.warning("SIGHUP: [master], [rosout], [web] and ixm.socket are applied at the next restart of mrosd")
         if cfg.ixm.rules.get("bridges") != old.ixm.rules.get("bridges"):
             log.warning("SIGHUP: [ixm.rules.bridges] changed; restart mrosd to apply it")
-        if cfg.fleet != old.fleet:
-            log.warning("SIGHUP: [fleet] changed; restart mrosd to apply it")
         if self.ixm is not None:
             self.ixm.reload_rules(rules)
             log.info("SIGHUP: IXM access rules reloaded from %s", cfg.source or "defaults")
         self.cfg.ixm.rules = cfg.ixm.rules
+        if cfg.log != old.log:
+            await self._apply_log(cfg.log)
+        if cfg.fleet != old.fleet:
+            await self._restart_fleet(cfg.fleet)
         if self.failed:
             await self._retry_failed()
+
+    async def _apply_log(self, new: LogConfig) -> None:
+        """``[log]``: the level at once; a new directory or rotation by reopening this run's files there
+        (master.log, then rosout.log through a restarted rosout aggregator)."""
+        old, self.cfg.log = self.cfg.log, new
+        if new.level != old.level:
+            logging.getLogger().setLevel(new.level.upper())
+        if (new.dir, new.max_bytes, new.backups) != (old.dir, old.max_bytes, old.backups):
+            await self._close_part("logs")
+            self.logs = None
+            self._open_logs()
+            if self.logs is not None and self.master is not None:
+                self.logs.follow_graph(self.master.api)
+            if self.rosout is not None:
+                await self._close_part("rosout")
+                self.rosout = None
+                await self._optional("rosout", self._start_rosout)
+        where = self.logs.dir if self.logs is not None else "no log files"
+        log.info("SIGHUP: [log] applied (level %s, %s)", new.level, where)
+
+    async def _restart_fleet(self, new: FleetConfig) -> None:
+        """``[fleet]``: the fleet part stops and, when still enabled, starts again with the new settings."""
+        self.cfg.fleet = new
+        self.failed.pop("fleet", None)
+        if self.fleet is not None:
+            await self._close_part("fleet")
+            self.fleet = None
+        if new.enabled and not self.master_only:
+            await self._optional("fleet", self._start_fleet)
+        log.info("SIGHUP: [fleet] applied (%s)", "running" if self.fleet is not None else "off")
+
+    async def _close_part(self, name: str) -> None:
+        """Close one running part (a reload restarts it), bounded like a shutdown; failures are logged."""
+        for i, (part_name, part) in enumerate(self._parts):
+            if part_name != name:
+                continue
+            del self._parts[i]
+            try:
+                async with asyncio.timeout(SHUTDOWN_TIMEOUT):
+                    await part.aclose()
+            except TimeoutError:
+                log.error("closing %s took longer than %.1f s; left behind", name, SHUTDOWN_TIMEOUT)
+            except Exception as exc:
+                log.error("closing %s failed: %s", name, reason(exc))
+            return
 
     async def _retry_failed(self) -> None:
         """Start again the parts that did not start (the operator fixed the cause and sent SIGHUP).
