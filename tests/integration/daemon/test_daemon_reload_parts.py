@@ -77,6 +77,9 @@ def test_sighup_starts_changes_and_stops_the_fleet_part(procs: Processes, tmp_pa
         config.write_text(base + fleet("robot1"))
         assert "fleet robot1" in reload(run)
         assert FLEET_STATUS in services(run.uri)
+        config.write_text(base + fleet("robot2").replace('"tcp/', '"nonsense/'))
+        assert "fleet robot1" in reload(run)  # a [fleet] that does not parse: the running part stays
+        assert FLEET_STATUS in services(run.uri)
         config.write_text(base + fleet("robot2"))
         assert "fleet robot2" in reload(run)
         assert FLEET_STATUS in services(run.uri)
@@ -87,4 +90,6 @@ def test_sighup_starts_changes_and_stops_the_fleet_part(procs: Processes, tmp_pa
         assert run.stop()[0] == 0
     finally:
         run.close()
-    assert "restart mrosd" not in run.stderr()
+    log = run.stderr()
+    assert "restart mrosd" not in log
+    assert "reload failed, keeping the running configuration: " in log and "fleet.listen" in log
