@@ -13,6 +13,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    __version__: str
     from mrosd.app import run
     from mrosd.errors import MrosError
     from mrosd.msg import Duration, Time
@@ -31,7 +32,6 @@ __all__ = [
     "Time",
     "run",
 ]
-__version__ = "0.1.0"
 
 #: Where each re-exported name lives.
 _EXPORTS = {
@@ -47,9 +47,21 @@ _EXPORTS = {
 _SUBMODULES = frozenset({"errors", "master", "msg", "names", "tcpros", "xmlrpc"})
 
 
+def _version() -> str:
+    """The installed distribution's version (pyproject.toml's, the one source); looked up on first use."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("mrosd")
+    except PackageNotFoundError:  # a source tree on sys.path that was never installed
+        return "0+unknown"
+
+
 def __getattr__(name: str) -> Any:
     module = _EXPORTS.get(name)
-    if module is not None:
+    if name == "__version__":
+        value: Any = _version()
+    elif module is not None:
         value = getattr(importlib.import_module(module), name)
     elif name in _SUBMODULES:
         value = importlib.import_module(f"{__name__}.{name}")

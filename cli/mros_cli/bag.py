@@ -1,7 +1,7 @@
 """``mros bag``: record, play and summarize bags as rosbag does, with no ROS install.
 
 The command line follows ``rosbag record/play/info`` (same option letters where they exist); the work is
-done by ``mrosd.bag``. ``echo_bag`` is the bag-reading half of ``mros topic echo -b BAG``.
+done by ``mrosd.bag``.
 """
 
 from __future__ import annotations
@@ -9,15 +9,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
-import signal
 import sys
 import time
-from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
 import click
 
 from mros_cli.main import error_text, master_uri, run
+from mrosd.app import on_stop_signal
 from mrosd.bag.model import DEFAULT_BUFFER_MB, DEFAULT_CLOCK_HZ, BagError, SplitPolicy, parse_duration
 
 if TYPE_CHECKING:
@@ -45,18 +44,6 @@ def group() -> None:
       mros bag info run1.bag
       mros topic echo -b run1.bag /odom
     """
-
-
-@contextlib.contextmanager
-def _stop_on_signals(loop: asyncio.AbstractEventLoop, stop: asyncio.Event) -> Iterator[None]:
-    sigs = (signal.SIGINT, signal.SIGTERM)
-    for sig in sigs:
-        loop.add_signal_handler(sig, stop.set)
-    try:
-        yield
-    finally:
-        for sig in sigs:
-            loop.remove_signal_handler(sig)
 
 
 def _status_enabled(flag: bool | None) -> bool:
@@ -166,7 +153,7 @@ def record(  # noqa: PLR0917  (one parameter per click option)
         sink: RecordSink | None = None
         status_task = None
         try:
-            with _stop_on_signals(loop, stop):
+            with on_stop_signal(stop.set):
                 async with Node(_anonymous("record"), master_uri=master_uri(), argv=[]) as node:
                     # After the master answered (no empty file when it is down), before subscribing.
                     sink = RecordSink(
@@ -285,7 +272,7 @@ def play(  # noqa: PLR0917
         loop_ = asyncio.get_running_loop()
         stop = asyncio.Event()
         try:
-            with _stop_on_signals(loop_, stop):
+            with on_stop_signal(stop.set):
                 async with Node(_anonymous("play"), master_uri=master_uri(), argv=[]) as node:
                     player = Player(
                         node,
@@ -351,65 +338,3 @@ def info(bags: tuple[str, ...]) -> None:
             click.echo("---")
     if failed:
         sys.exit(1)
-
-
-# --- topic echo -b ------------------------------------------------------------------------------------
-
-
-class StoredMessage:
-    """A stored message in the shape ``mros topic echo`` renders (like ``RawMessage``: data and header),
-    with the time it was recorded (``stamp_ns``, what ``rostopic echo -b -p`` prints as ``%time``)."""
-
-    __slots__ = ("data", "header", "stamp_ns")
-
-    def __init__(self, data: bytes, header: dict[str, str], stamp_ns: int) -> None:
-        self.data = data
-        self.header = header
-        self.stamp_ns = stamp_ns
-
-
-def echo_bag(path: str, name: str, echo_factory: Any) -> None:
-    """``mros topic echo -b BAG NAME``: render the stored messages of a topic (or one field of it).
-
-    ``echo_factory(fields)`` builds the renderer (``mros_cli.topic.Echo``) for the field path that follows
-    the topic in ``name``; it is called inside the running loop and fed ``StoredMessage`` objects in time
-    order until its ``done`` event is set (``-n``) or the topic's messages end.
-
-    Raises:
-        BagError: the bag cannot be read, or holds no topic matching ``name``.
-    """
-    from mros_cli.topic import split_topic
-    from mrosd.bag.files import open_bag
-
-    async def main() -> None:
-        reader = open_bag(path)
-        try:
-            types = {c.topic: c.type for c in reader.connections}
-            found = split_topic(name, types)
-            if found is None:
-                raise BagError(f"{path} has no topic {name}; it has: {', '.join(sorted(types)) or 'none'}")
-            topic, _type, fields = found
-            echo = echo_factory(fields)
-            headers: dict[Any, dict[str, str]] = {}
-            for count, (conn, t_ns, data) in enumerate(reader.messages()):
-                if conn.topic != topic:
-                    continue
-                header = headers.get(conn)
-                if header is None:
-                    header = headers[conn] = {
-                        "type": conn.type,
-                        "md5sum": conn.md5sum,
-                        "message_definition": conn.message_definition,
-                    }
-                echo.on_raw(StoredMessage(data, header, t_ns))
-                if echo.done.is_set():
-                    break
-                if count % 256 == 255:
-                    await asyncio.sleep(0)  # let the coalesced writes go out
-            echo.flush()
-            if echo.error is not None:
-                raise BagError(f"cannot show {name}: {echo.error}")
-        finally:
-            reader.close()
-
-    run(main())

@@ -1,5 +1,10 @@
 """What ``mros topic echo`` does with each message: decode it with the publisher's definition, filter, render
-(``mros_cli.output``) and queue it for the stdout writer (``mros_cli.writer``)."""
+(``mros_cli.output``) and queue it for the stdout writer (``mros_cli.writer``).
+
+Also where a name typed as ``/topic/field/sub`` is split into its topic and field path (``split_topic``),
+and the bag-reading half of ``mros topic echo -b BAG`` (``echo_bag``): the messages come from a file
+instead of a connection, and the same ``Echo`` renders them.
+"""
 
 from __future__ import annotations
 
@@ -15,7 +20,7 @@ from mros_cli.writer import CoalescedWriter
 from mrosd.errors import MrosError
 from mrosd.msg import get_message_class
 
-__all__ = ["Echo", "MessageFilter", "field_type"]
+__all__ = ["Echo", "MessageFilter", "StoredMessage", "echo_bag", "field_type", "split_topic"]
 
 _SEPARATOR_BYTES = SEPARATOR.encode()
 
@@ -137,3 +142,95 @@ class Echo:
     def flush(self) -> None:
         """Write what is still queued, and wait until it is written."""
         self.writer.close()
+
+
+def split_topic(name: str, types: dict[str, str]) -> tuple[str, str, list[str]] | None:
+    """``/topic/field/sub`` -> (topic, type, [field, sub]) by exact, else longest-prefix, match.
+
+    As rostopic, a prefix whose type is known locally and has no such field is not a match (so echo keeps
+    waiting for the topic); one whose type is not known locally is taken as it is.
+    """
+    if name in types:
+        return name, types[name], []
+    candidates = sorted((t for t in types if name.startswith(t.rstrip("/") + "/")), key=len, reverse=True)
+    for topic in candidates:
+        fields = [f for f in name[len(topic) :].split("/") if f]
+        if _has_fields(types[topic], name[len(topic) :].split("[", 1)[0]):
+            return topic, types[topic], fields
+    return None
+
+
+def _has_fields(msg_type: str, path: str) -> bool:
+    """False only when ``msg_type`` is known locally and has no field ``path`` (``a/b``; True if unknown)."""
+    names = [f for f in path.split("/") if f]
+    if not names:
+        return True
+    try:
+        get_message_class(msg_type)
+    except MrosError:
+        return True
+    try:
+        field_type(msg_type, names)
+    except MrosError:
+        return False
+    return True
+
+
+class StoredMessage:
+    """A stored message in the shape ``mros topic echo`` renders (like ``RawMessage``: data and header),
+    with the time it was recorded (``stamp_ns``, what ``rostopic echo -b -p`` prints as ``%time``)."""
+
+    __slots__ = ("data", "header", "stamp_ns")
+
+    def __init__(self, data: bytes, header: dict[str, str], stamp_ns: int) -> None:
+        self.data = data
+        self.header = header
+        self.stamp_ns = stamp_ns
+
+
+def echo_bag(path: str, name: str, echo_factory: Any) -> None:
+    """``mros topic echo -b BAG NAME``: render the stored messages of a topic (or one field of it).
+
+    ``echo_factory(fields)`` builds the renderer (an ``Echo``) for the field path that follows
+    the topic in ``name``; it is called inside the running loop and fed ``StoredMessage`` objects in time
+    order until its ``done`` event is set (``-n``) or the topic's messages end.
+
+    Raises:
+        BagError: the bag cannot be read, or holds no topic matching ``name``.
+    """
+    from mros_cli.main import run
+    from mrosd.bag.files import open_bag
+    from mrosd.bag.model import BagError
+
+    async def main() -> None:
+        reader = open_bag(path)
+        try:
+            types = {c.topic: c.type for c in reader.connections}
+            found = split_topic(name, types)
+            if found is None:
+                raise BagError(f"{path} has no topic {name}; it has: {', '.join(sorted(types)) or 'none'}")
+            topic, _type, fields = found
+            echo = echo_factory(fields)
+            headers: dict[Any, dict[str, str]] = {}
+            for count, (conn, t_ns, data) in enumerate(reader.messages()):
+                if conn.topic != topic:
+                    continue
+                header = headers.get(conn)
+                if header is None:
+                    header = headers[conn] = {
+                        "type": conn.type,
+                        "md5sum": conn.md5sum,
+                        "message_definition": conn.message_definition,
+                    }
+                echo.on_raw(StoredMessage(data, header, t_ns))
+                if echo.done.is_set():
+                    break
+                if count % 256 == 255:
+                    await asyncio.sleep(0)  # let the coalesced writes go out
+            echo.flush()
+            if echo.error is not None:
+                raise BagError(f"cannot show {name}: {echo.error}")
+        finally:
+            reader.close()
+
+    run(main())

@@ -20,10 +20,10 @@ __all__ = ["group"]
 
 
 def _socket(ctx: click.Context) -> str:
-    from mrosd.config import default_ixm_socket
+    from mrosd.ixm.rundir import find_ixm_socket
 
     value = ctx.obj.get("ixm_socket") if isinstance(ctx.obj, dict) else None
-    return str(value) if value else default_ixm_socket()
+    return str(value) if value else find_ixm_socket()
 
 
 def _client(ctx: click.Context) -> Any:

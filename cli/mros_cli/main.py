@@ -5,7 +5,7 @@ the clients of the master (``master_client``, a ``mrosd.master.client.MasterClie
 slave APIs (``slave_call``), user-typed name resolution (``resolve_name``, via ``mrosd.names``) and the exit
 codes scripts rely on: 0 success, 1 error (on stderr ``ERROR: ...`` as rostopic, rosparam, rosnode and
 rosservice print it, with their hint after a blank line where they give one), 2 usage error (click's, and
-where rosservice exits 2), 130 interrupted.
+where rosservice exits 2), 130 interrupted (143 after SIGTERM).
 """
 
 from __future__ import annotations
@@ -112,10 +112,28 @@ async def slave_call(xmlrpc: XmlRpcClient, uri: str, method: str, *args: Any, ti
 
 
 def run(coro: Coroutine[Any, Any, T]) -> T:
-    """Run one command's coroutine on a fresh loop chosen by ``mrosd.loop`` (uvloop unless ``MROSD_LOOP=asyncio``)."""
-    from mrosd.loop import run as run_on_loop
+    """Run one command's coroutine on a fresh loop chosen by ``mrosd.loop`` (uvloop unless ``MROSD_LOOP=asyncio``).
 
-    return run_on_loop(coro)
+    SIGINT and SIGTERM, once or repeatedly, cancel it (``mrosd.app.run_until_signal``): its nodes unregister
+    and close, then ``StopSignal`` (a ``KeyboardInterrupt``) ends the command quietly: 130 or 143, as a shell
+    reports the signal, or 0 where Ctrl-C is the normal end.
+    """
+    from mrosd.app import Interrupted, run_until_signal
+
+    try:
+        return run_until_signal(coro)
+    except Interrupted as stop:
+        raise StopSignal(stop.signum) from None
+
+
+class StopSignal(KeyboardInterrupt):
+    """SIGINT or SIGTERM ended a command's coroutine, after its clean-up. A ``KeyboardInterrupt``, so the
+    commands that end normally on Ctrl-C (echo, hz, bw, delay) end normally on SIGTERM too; the others exit
+    128 + ``signum`` (130, 143)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__()
+        self.signum = signum
 
 
 #: What rostopic, rosparam, rosnode and rosservice print when the master does not answer.
@@ -167,8 +185,10 @@ class LazyGroup(click.Group):
         except MrosError as exc:
             # (HintedError by its attribute: under ``python -m mros_cli.main`` this module is loaded twice)
             fail(" ".join(str(exc).split()), hint=getattr(exc, "hint", ""))
-        except KeyboardInterrupt:
-            sys.exit(EXIT_INTERRUPTED)
+        except KeyboardInterrupt as exc:
+            # (StopSignal by its attribute, as HintedError above)
+            signum = getattr(exc, "signum", None)
+            sys.exit(128 + signum if isinstance(signum, int) else EXIT_INTERRUPTED)
         except BrokenPipeError:
             # `mros topic echo ... | head` closed the pipe: not an error for the user.
             try:

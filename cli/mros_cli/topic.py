@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from mros_cli.echo import Echo, MessageFilter, field_type
+from mros_cli.echo import Echo, MessageFilter, echo_bag, field_type, split_topic
 from mros_cli.graph import poll_option, shared_memory_section, watch_topics
 from mros_cli.main import anonymous, master_client, resolve_name, run
 from mros_cli.output import Decoder
@@ -26,7 +26,6 @@ from mros_cli.publish import pub
 from mros_cli.stats import BandwidthStats, DelayStats, RateStats
 from mros_cli.values import build_message, file_documents, parse_pub_args
 from mrosd.errors import MrosError
-from mrosd.msg import get_message_class
 
 if TYPE_CHECKING:
     from mrosd.master.client import MasterClient
@@ -48,38 +47,6 @@ async def topic_types(master: MasterClient) -> dict[str, str]:
     """Topic -> type for every topic the master knows (published or subscribed)."""
     pairs = await master.get_topic_types()
     return {str(t): str(ty) for t, ty in pairs}
-
-
-def split_topic(name: str, types: dict[str, str]) -> tuple[str, str, list[str]] | None:
-    """``/topic/field/sub`` -> (topic, type, [field, sub]) by exact, else longest-prefix, match.
-
-    As rostopic, a prefix whose type is known locally and has no such field is not a match (so echo keeps
-    waiting for the topic); one whose type is not known locally is taken as it is.
-    """
-    if name in types:
-        return name, types[name], []
-    candidates = sorted((t for t in types if name.startswith(t.rstrip("/") + "/")), key=len, reverse=True)
-    for topic in candidates:
-        fields = [f for f in name[len(topic) :].split("/") if f]
-        if _has_fields(types[topic], name[len(topic) :].split("[", 1)[0]):
-            return topic, types[topic], fields
-    return None
-
-
-def _has_fields(msg_type: str, path: str) -> bool:
-    """False only when ``msg_type`` is known locally and has no field ``path`` (``a/b``; True if unknown)."""
-    names = [f for f in path.split("/") if f]
-    if not names:
-        return True
-    try:
-        get_message_class(msg_type)
-    except MrosError:
-        return True
-    try:
-        field_type(msg_type, names)
-    except MrosError:
-        return False
-    return True
 
 
 async def wait_for_topic(master: MasterClient, name: str) -> tuple[str, str, list[str]]:
@@ -334,8 +301,6 @@ def echo(  # noqa: PLR0917  (one parameter per click option)
     if bag is not None:
         if offset:
             raise click.UsageError("--offset does not apply to bag files (as in rostopic)")
-        from mros_cli.bag import echo_bag
-
         keep_bag = MessageFilter(filter_expr, name) if filter_expr is not None else None
         echo_bag(
             bag,

@@ -1,8 +1,11 @@
 """``mros web``: the URL of the page mrosd serves (graph, topics, live values, plots, images).
 
-The page is on the daemon's Foxglove port (``[web]`` in mrosd.toml, or ``$MROSD_WEB_*``); the URL printed
-carries the token when one is configured, since the page passes it on to its WebSocket. A loopback-only
-daemon on a robot is reached through an SSH tunnel: ``ssh -L 8765:127.0.0.1:8765 robot``.
+The page is on the daemon's Foxglove port. The URL comes from the running daemon of ``$ROS_MASTER_URI``
+(its status file, ``mrosd.runstatus``: the port it actually bound, or why its web part failed, then exit
+1); only when no daemon of this host serves that master is it computed from the configuration (``[web]``
+in mrosd.toml, or ``$MROSD_WEB_*``), with a warning. The URL carries the token when one is configured,
+since the page passes it on to its WebSocket. A loopback-only daemon on a robot is reached through an SSH
+tunnel: ``ssh -L 8765:127.0.0.1:8765 robot``.
 """
 
 from __future__ import annotations
@@ -35,6 +38,8 @@ def group(config_path: str | None) -> None:
     Example:
       mros web            # http://127.0.0.1:8765/
     """
+    from mros_cli.daemon import daemon_status
+    from mros_cli.main import fail, master_uri
     from mrosd.config import load_config
 
     try:
@@ -42,10 +47,22 @@ def group(config_path: str | None) -> None:
     except ConfigError as exc:
         raise click.UsageError(str(exc)) from None
     web = cfg.web
+    st = daemon_status(master_uri())
+    if st is not None:
+        if "web" in st.failed:
+            fail(f"the daemon's web part failed to start: {st.failed['web']}")
+        if st.web is None:
+            fail("the daemon's web part is off ([web] enabled = false): no page is served")
+        query = f"?token={web.token}" if st.web.token_required and web.token else ""
+        click.echo(st.web.page + query)
+        if st.web.token_required and not web.token:
+            click.echo("note: the daemon asks for a token: add ?token=... ([web] token in mrosd.toml)", err=True)
+        return
     if not web.enabled:
         raise click.ClickException("the daemon's web part is off ([web] enabled = false): no page is served")
     host = web.hosts()[0]  # the daemon's URLs name its first address too
     click.echo(page_url(host, web.foxglove_port, web.token))
+    click.echo(f"warning: no running mrosd serves {master_uri()} on this host; URL from the configuration", err=True)
     probe_host = "127.0.0.1" if host in ("0.0.0.0", "") else ("::1" if host == "::" else host)
     try:
         with socket.create_connection((probe_host, web.foxglove_port), timeout=PROBE_TIMEOUT):

@@ -40,12 +40,12 @@ import time
 from collections.abc import AsyncIterator, Iterable, Iterator
 from typing import Any, Literal
 
-from mrosd.config import default_ixm_socket
 from mrosd.errors import IxmError, RemoteProtocolError
 from mrosd.ixm.channel import recv_with_fds, send_frame
 from mrosd.ixm.connection import ClientConnection, check_daemon, close_all, error_from, open_request, trusted_uids
 from mrosd.ixm.keys import ASYNC_LOCK_WAIT, KeyBase, KeyState
 from mrosd.ixm.protocol import Close, Error, Hello, List, Listing, Reply, Request
+from mrosd.ixm.rundir import find_ixm_socket
 from mrosd.spin import AdaptiveSpin, default_max_ns, loop_spinner
 
 _now_ns = time.monotonic_ns
@@ -179,7 +179,7 @@ class IxmClient:
         *,
         trusted_uids: Iterable[int] | None = None,
     ) -> None:
-        self.socket_path = socket_path or default_ixm_socket()
+        self.socket_path = socket_path or find_ixm_socket()
         self.timeout = timeout
         trusted = _trusted(trusted_uids)
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -447,7 +447,7 @@ class AsyncIxmClient:
         *,
         trusted_uids: Iterable[int] | None = None,
     ) -> None:
-        self.socket_path = socket_path or default_ixm_socket()
+        self.socket_path = socket_path or find_ixm_socket()
         self.name = name or _default_name()
         self.timeout = timeout
         self._trusted = _trusted(trusted_uids)

@@ -511,7 +511,7 @@ class ShmPublisherEndpoint:
         if why:
             _ratelog.warning("drop", "%s: closing shared-memory subscriber %s: %s", self.topic, link.callerid, why)
         else:
-            _ratelog.log(logging.INFO, "gone", "%s: shared-memory subscriber %s went away", self.topic, link.callerid)
+            _ratelog.log(logging.DEBUG, "gone", "%s: shared-memory subscriber %s went away", self.topic, link.callerid)
         link.close()
         if link in self.links:
             self.links.remove(link)

@@ -68,10 +68,14 @@ async def _run_until_up(procs: Processes, argv: list[str], master: Master, wante
     return proc
 
 
-async def _stop(proc: subprocess.Popen[bytes], master: Master, signum: signal.Signals, names: set[str]) -> float:
-    """Send ``signum``; return the seconds until none of ``names`` is in the master's lists."""
+async def _stop(
+    proc: subprocess.Popen[bytes], master: Master, signum: signal.Signals, names: set[str], *, repeat: int = 1
+) -> float:
+    """Send ``signum`` (``repeat`` times at once); return the seconds until none of ``names`` is in the
+    master's lists."""
     start = time.monotonic()
-    proc.send_signal(signum)
+    for _ in range(repeat):
+        proc.send_signal(signum)
     while names & await _nodes(master):
         if time.monotonic() - start > 5:
             break
@@ -79,16 +83,18 @@ async def _stop(proc: subprocess.Popen[bytes], master: Master, signum: signal.Si
     return time.monotonic() - start
 
 
+@pytest.mark.parametrize("repeat", [1, 3], ids=["once", "thrice"])
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 async def test_a_signal_ends_the_app_quietly_with_status_0_and_unregistered(
-    procs: Processes, signum: signal.Signals
+    procs: Processes, signum: signal.Signals, repeat: int
 ) -> None:
+    """A repeated signal (Ctrl-C pressed again while closing) still lets every node unregister."""
     async with Master(host="127.0.0.1", port=0) as master:
         proc = await _run_until_up(procs, [sys.executable, "-c", APP], master, {"/app", "/stray"})
         assert proc.stdout is not None
         assert await asyncio.to_thread(proc.stdout.readline) == b"up\n"  # main is in spin(), not starting
         try:
-            gone_after = await _stop(proc, master, signum, {"/app", "/stray"})
+            gone_after = await _stop(proc, master, signum, {"/app", "/stray"}, repeat=repeat)
             out, err = await asyncio.to_thread(proc.communicate, timeout=10)
         finally:
             if proc.poll() is None:
@@ -137,3 +143,22 @@ async def test_the_examples_stop_cleanly_on_ctrl_c(procs: Processes, example: st
                 proc.wait()
         assert (proc.returncode, err.decode()) == (0, "")
         assert gone_after < 1.0
+
+
+async def test_the_example_talker_prints_what_it_publishes_as_rospy_s_does(procs: Processes) -> None:
+    """rospy's talker prints ``[INFO] [<seconds>]: hello world ...`` for each message it publishes."""
+    import re
+
+    async with Master(host="127.0.0.1", port=0) as master:
+        proc = await _run_until_up(procs, [sys.executable, str(PROJECT_ROOT / "examples" / "talker.py")], master, set())
+        try:
+            assert proc.stdout is not None
+            line = await asyncio.wait_for(asyncio.to_thread(proc.stdout.readline), timeout=10)
+            proc.send_signal(signal.SIGINT)
+            _, err = await asyncio.to_thread(proc.communicate, timeout=10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    assert re.fullmatch(rb"\[INFO\] \[\d+\.\d+\]: hello world 0\n", line), line
+    assert (proc.returncode, err.decode()) == (0, "")

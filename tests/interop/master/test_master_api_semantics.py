@@ -102,6 +102,19 @@ def test_a_star_type_is_reported_until_a_real_type_and_never_overwrites_one(m: P
         assert [topic, "test_rosmaster/String"] in ok(m.getTopicTypes(ME))
 
 
+def test_a_topic_with_only_a_star_typed_subscriber_is_in_no_type_list(m: Proxy) -> None:
+    """rosmaster lets a subscriber set a topic's type only with a real type (master_api.registerSubscriber:
+    "don't let '*' type squash valid typing"): a topic whose one registration is a ``*`` subscriber is in
+    getSystemState but in neither getTopicTypes nor getPublishedTopics, until a real type comes."""
+    topic = "/star_sub_topic"
+    ok(m.registerSubscriber("/star_sub", topic, "*", NODE_API))
+    assert [topic, ["/star_sub"]] in ok(m.getSystemState(ME))[1]
+    assert topic not in [t for t, _ in ok(m.getTopicTypes(ME))]
+    assert topic not in [t for t, _ in ok(m.getPublishedTopics(ME, "/"))]
+    ok(m.registerSubscriber("/typed_sub", topic, "test_rosmaster/String", NODE_API))
+    assert [topic, "test_rosmaster/String"] in ok(m.getTopicTypes(ME))
+
+
 SRV, SRV_API, TOPIC, TYPE = "/service", "rosrpc://localhost:1234/", "/a_topic", "test_rosmaster/String"
 INVALID_CALLS = [
     ("registerService", ()),

@@ -9,12 +9,11 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from mros_cli.echo import MessageFilter
+from mros_cli.echo import MessageFilter, split_topic
 from mros_cli.msg import find_short, package_order
 from mros_cli.output import PlotRenderer
 from mros_cli.param import pretty_text
 from mros_cli.stats import DelayStats
-from mros_cli.topic import split_topic
 from mros_cli.values import printable_args
 
 from mrosd.errors import MrosError
