@@ -228,6 +228,15 @@ def _getpid_latency(uri: str, timeout: float) -> float:
 @pytest.fixture
 def daemon(procs: Processes, tmp_path: Path) -> Iterator[DaemonRun]:
     run = DaemonRun(procs, tmp_path)  # the full daemon, as shipped: master, web part on
+    log: list[bytes] = []
+
+    def drain() -> None:  # a full stderr pipe would block the daemon's logging, and so its loop
+        assert run.proc.stderr is not None
+        for line in run.proc.stderr:
+            if len(log) < 10_000:
+                log.append(line)
+
+    threading.Thread(target=drain, daemon=True).start()
     try:
         run.ready()
         yield run
@@ -261,9 +270,9 @@ def test_a_rogue_rospy_node_sending_a_new_exploding_definition_every_second_neve
     while time.monotonic() < settle:  # the last definitions are still being read
         worst = max(worst, _getpid_latency(daemon.uri, 5.0))
         time.sleep(0.05)
-    assert "done" in lines, (len(lines), lines[-5:], [x for x in lines if not x.startswith("subscribed")])
+    assert worst < 1.0, f"getPid took {worst:.2f} s during the attack"
+    assert "done" in lines, lines  # its registrations were answered in time too
     probed = [line for line in lines if line.startswith("subscribed")]
     assert probed, "the daemon never read a rogue definition: the attack did not reach it"
-    assert worst < 1.0, f"getPid took {worst:.2f} s during the attack"
     assert _rss(daemon.proc.pid) - rss_before < 256 * MiB
     assert daemon.proc.poll() is None
