@@ -225,30 +225,72 @@ def _getpid_latency(uri: str, timeout: float) -> float:
     return time.perf_counter() - start
 
 
+class Daemon:
+    """The full daemon, as shipped (master, web part on), and what it logged so far."""
+
+    def __init__(self, run: DaemonRun) -> None:
+        self.run = run
+        self.uri = run.uri
+        self.log: list[str] = []
+
+    def foxglove_url(self) -> str:
+        for line in self.log:
+            if "Foxglove WebSocket on " in line:
+                return line.split("Foxglove WebSocket on ", 1)[1].split()[0].rstrip(",")
+        raise AssertionError(f"no Foxglove URL in the daemon's log: {self.log[-5:]}")
+
+
 @pytest.fixture
-def daemon(procs: Processes, tmp_path: Path) -> Iterator[DaemonRun]:
-    run = DaemonRun(procs, tmp_path)  # the full daemon, as shipped: master, web part on
-    log: list[bytes] = []
+def daemon(procs: Processes, tmp_path: Path) -> Iterator[Daemon]:
+    run = DaemonRun(procs, tmp_path)
+    got = Daemon(run)
 
     def drain() -> None:  # a full stderr pipe would block the daemon's logging, and so its loop
         assert run.proc.stderr is not None
         for line in run.proc.stderr:
-            if len(log) < 10_000:
-                log.append(line)
+            if len(got.log) < 10_000:
+                got.log.append(line.decode(errors="replace"))
 
     threading.Thread(target=drain, daemon=True).start()
     try:
         run.ready()
-        yield run
+        yield got
     finally:
         run.close()
 
 
+class Prober:
+    """getPid on the master every 50 ms in a thread; the worst latency seen (inf: no answer within 5 s)."""
+
+    def __init__(self, uri: str) -> None:
+        self.uri = uri
+        self.worst = 0.0
+        self.calls = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.worst = max(self.worst, _getpid_latency(self.uri, 5.0))
+            self.calls += 1
+            self._stop.wait(0.05)
+
+    def __enter__(self) -> Prober:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(10)
+
+
 @needs_ros
 def test_a_rogue_rospy_node_sending_a_new_exploding_definition_every_second_never_stalls_the_master(
-    procs: Processes, tmp_path: Path, daemon: DaemonRun
+    procs: Processes, tmp_path: Path, daemon: Daemon
 ) -> None:
-    rss_before = _rss(daemon.proc.pid)
+    """The web hub reads the definition of a topic whose type it has no files for from the publisher."""
+    pid = daemon.run.proc.pid
+    rss_before = _rss(pid)
     count = 8
     env = ros_env(daemon.uri, tmp_path)
     rogue = procs.start([ROS_PYTHON, "-c", ROGUE, str(count), "1.0"], env, stderr=subprocess.DEVNULL)
@@ -259,20 +301,57 @@ def test_a_rogue_rospy_node_sending_a_new_exploding_definition_every_second_neve
         for raw in rogue.stdout:
             lines.append(raw.decode().strip())
 
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
-    worst = 0.0
-    deadline = time.monotonic() + count + 15
-    while time.monotonic() < deadline and "done" not in lines:
-        worst = max(worst, _getpid_latency(daemon.uri, 5.0))
-        time.sleep(0.05)
-    settle = time.monotonic() + 3
-    while time.monotonic() < settle:  # the last definitions are still being read
-        worst = max(worst, _getpid_latency(daemon.uri, 5.0))
-        time.sleep(0.05)
-    assert worst < 1.0, f"getPid took {worst:.2f} s during the attack"
+    threading.Thread(target=read, daemon=True).start()
+    with Prober(daemon.uri) as prober:
+        deadline = time.monotonic() + count + 15
+        while time.monotonic() < deadline and "done" not in lines:
+            time.sleep(0.05)
+        time.sleep(3)  # the last definitions are still being read
+    assert prober.calls > 50
+    assert prober.worst < 1.0, f"getPid took {prober.worst:.2f} s during the attack"
     assert "done" in lines, lines  # its registrations were answered in time too
     probed = [line for line in lines if line.startswith("subscribed")]
     assert probed, "the daemon never read a rogue definition: the attack did not reach it"
-    assert _rss(daemon.proc.pid) - rss_before < 256 * MiB
-    assert daemon.proc.poll() is None
+    assert _rss(pid) - rss_before < 256 * MiB
+    assert daemon.run.proc.poll() is None
+
+
+def test_a_foxglove_client_advertising_exploding_schemas_never_stalls_the_master(daemon: Daemon) -> None:
+    """A Foxglove client's ``advertise`` names a schema (a message_definition) the daemon turns into a class."""
+    import aiohttp
+
+    pid = daemon.run.proc.pid
+    rss_before = _rss(pid)
+    url = daemon.foxglove_url()
+    statuses: list[str] = []
+
+    async def attack() -> None:
+        async with aiohttp.ClientSession() as http, http.ws_connect(url, protocols=["foxglove.websocket.v1"]) as ws:
+            for i in range(16):  # a new schema every 0.25 s: alternately far over the bounds, the costliest under
+                depth = 14 if i % 2 == 0 else 9
+                channel = {
+                    "id": i,
+                    "topic": f"/fg{i}",
+                    "encoding": "ros1",
+                    "schemaName": f"fg{i}/Top",
+                    "schemaEncoding": "ros1msg",
+                    "schema": chain(f"fg{i}", depth),
+                }
+                await ws.send_json({"op": "advertise", "channels": [channel]})
+                end = time.monotonic() + 0.25
+                while (left := end - time.monotonic()) > 0:
+                    try:
+                        msg = await ws.receive(timeout=left)
+                    except TimeoutError:
+                        break
+                    if msg.type == aiohttp.WSMsgType.TEXT and '"status"' in msg.data:
+                        statuses.append(msg.data)
+
+    with Prober(daemon.uri) as prober:
+        asyncio.run(asyncio.wait_for(attack(), 60))
+        time.sleep(1)
+    assert prober.calls > 40
+    assert prober.worst < 1.0, f"getPid took {prober.worst:.2f} s during the attack"
+    assert any("fg0/Top" in s for s in statuses), statuses  # refused, naming the type: the route was reached
+    assert _rss(pid) - rss_before < 256 * MiB
+    assert daemon.run.proc.poll() is None
