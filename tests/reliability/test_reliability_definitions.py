@@ -116,7 +116,7 @@ async def test_load_type_async_refuses_the_same_way_and_the_loop_keeps_ticking()
     finally:
         stop.set()
         await task
-    assert max(gaps) < 0.25, max(gaps)
+    assert max(gaps) < 0.5, max(gaps)  # (a loaded shared machine; the bar is 1 s)
 
 
 async def test_concurrent_loads_of_one_definition_compile_once() -> None:
@@ -166,6 +166,16 @@ def test_endless_distinct_definitions_do_not_grow_the_caches_past_their_bounds(
     for i in range(40, 60):
         load_type(f"churn_{i}/Top", "Header h\n" + chain(f"churn_{i}", 2))
     assert load_type("std_msgs/Header", "") is header
+
+
+def test_the_caches_are_bounded_by_the_code_behind_them_too(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Few entries can still be big classes: each cache also bounds the generated source it keeps alive."""
+    monkeypatch.setattr(loader, "MAX_CACHED_SOURCE_CHARS", 300_000)
+    for i in range(12):  # each about 100 K characters of source: 64 strings inlined
+        load_type(f"fat_{i}/T", "\n".join(f"string s{j}" for j in range(64)))
+    for cache in (loader._DEFINITIONS, loader._PEER_CLASSES):
+        assert 0 < cache._cost <= 300_000
+        assert len(cache) < 12
 
 
 # ------------------------------------------------------------------------------- the full daemon, rospy
