@@ -88,7 +88,7 @@ def cases(store: TypeStore) -> list[tuple[str, Callable[[], Any]]]:
         ),
         ("visualization_msgs/MarkerArray x10", lambda: markers(markers=[a_marker(i) for i in range(10)])),
         (
-            "InteractiveMarkerUpdate (98 fields)",
+            "InteractiveMarkerUpdate 98 fields",
             lambda: update(
                 server_id="bench",
                 markers=[
