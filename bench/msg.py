@@ -14,7 +14,7 @@ from io import BytesIO
 from pathlib import Path
 from typing import Any
 
-from mrosd.msg import Time, TypeStore, get_message_class
+from mrosd.msg import Time, TypeStore, get_message_class, load_type
 
 DIST_PACKAGES = "/usr/lib/python3/dist-packages"
 COORDINATE_DIR = Path(__file__).resolve().parent.parent / "tests" / "data" / "msg" / "mros_test_msgs"
@@ -64,7 +64,41 @@ def cases(store: TypeStore) -> list[tuple[str, Callable[[], Any]]]:
     p = pose(header=hdr)
     p.pose.position.x, p.pose.position.y, p.pose.position.z = 1.0, 2.0, 3.0
     p.pose.orientation.w = 1.0
+    tf = get_message_class("tf2_msgs/TFMessage")
+    transform = get_message_class("geometry_msgs/TransformStamped")
+    markers = get_message_class("visualization_msgs/MarkerArray")
+    marker = get_message_class("visualization_msgs/Marker")
+    point = get_message_class("geometry_msgs/Point")
+    update = get_message_class("visualization_msgs/InteractiveMarkerUpdate")
+    imarker = get_message_class("visualization_msgs/InteractiveMarker")
+    control = get_message_class("visualization_msgs/InteractiveMarkerControl")
+    pose_update = get_message_class("visualization_msgs/InteractiveMarkerPose")
+
+    def a_marker(i: int) -> Any:
+        return marker(header=hdr, ns="robot", id=i, type=4, points=[point(x=j, y=j, z=j) for j in range(10)])
+
+    # Over the inline size (mrosd.msg.codegen.writer.INLINE_MAX_FIELDS): the inner type is called, not inlined.
+    inner = "\n".join(f"float64 f{i}" for i in range(130)) + "\nstring name"
+    called = load_type("mros_bench/Called", f"Inner a\nInner b\n{'=' * 80}\nMSG: mros_bench/Inner\n{inner}")
     return [
+        ("std_msgs/Header", lambda: hdr),
+        (
+            "tf2_msgs/TFMessage x10",
+            lambda: tf(transforms=[transform(header=hdr, child_frame_id=f"link{i}") for i in range(10)]),
+        ),
+        ("visualization_msgs/MarkerArray x10", lambda: markers(markers=[a_marker(i) for i in range(10)])),
+        (
+            "InteractiveMarkerUpdate 98 fields",
+            lambda: update(
+                server_id="bench",
+                markers=[
+                    imarker(header=hdr, name=f"m{i}", controls=[control(name="c", markers=[a_marker(i)])])
+                    for i in range(3)
+                ],
+                poses=[pose_update(header=hdr, name=f"m{i}") for i in range(3)],
+            ),
+        ),
+        ("nested type called (2x131 fields)", called),
         ("std_msgs/String", lambda: string(data="hello world from mrosd")),
         ("Coordinate (float32 x3 + time)", lambda: coordinate(x=1.0, y=2.0, z=3.0, time=stamp)),
         ("geometry_msgs/PoseStamped", lambda: p),

@@ -77,6 +77,11 @@ class MsgNotFoundError(MsgError):
     """No definition for a message or service type was found on the search path."""
 
 
+class MsgTooComplexError(MsgError):
+    """A definition would cost more to load than its use allows: nested too deep, too many fields once nested
+    types are expanded, too long, or not compiled within the time budget; the message names the type."""
+
+
 class SerializationError(MsgError):
     """A value cannot be serialized as its declared type (wrong type, out of range, wrong length)."""
 

@@ -64,7 +64,8 @@ class AnyMsg:
 class RawMessage(msgspec.Struct, gc=False):
     """A message body as received (no length prefix) and the publisher's connection header.
 
-    Decode it with ``mrosd.msg.load_type(header.type, header.message_definition).deserialize(data)``.
+    Decode it with ``mrosd.msg.load_type(header.type, header.message_definition).deserialize(data)`` (on an event
+    loop, the class from ``await mrosd.msg.load_type_async(...)``: a peer's definition is compiled off the loop).
     """
 
     data: bytes | bytearray

@@ -19,6 +19,7 @@ from mrosd.msg.codegen.sizes import (
     symbol,
 )
 from mrosd.msg.codegen.writer import Writer
+from mrosd.msg.md5 import all_dependencies
 from mrosd.msg.spec import PRIMITIVE_FORMATS, Field, MsgSpec
 
 
@@ -140,12 +141,8 @@ def generate_view_decoder(spec: MsgSpec, lookup: Lookup) -> GeneratedClass:
 
 
 def _all_deps(spec: MsgSpec, lookup: Lookup) -> list[str]:
-    out: list[str] = []
-    for f in spec.fields:
-        if not f.is_builtin:
-            out.append(f.base)
-            out += _all_deps(lookup(f.base), lookup)
-    return out
+    """Every message type ``spec`` uses, each once (a walk of the expansion would be exponential)."""
+    return all_dependencies(spec, lookup)
 
 
 #: Imports every generated class needs (files and runtime namespaces alike).

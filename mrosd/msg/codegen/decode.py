@@ -19,6 +19,9 @@ from mrosd.msg.spec import PRIMITIVE_FORMATS, Field, MsgSpec
 #: Placeholder for the string decode call; the strict variant is tried first, the lenient one (invalid
 #: UTF-8 replaced by U+FFFD, as genpy does) only after a UnicodeDecodeError.
 DECODE = "\x00DECODE\x00"
+#: Placeholder for the method decoding a called nested type: ``_decode_at``, or ``_decode_at_lenient`` in
+#: the lenient variant (so that a retry after invalid UTF-8 is lenient all the way down).
+DECODE_AT = "\x00AT\x00"
 
 
 class Decoder:
@@ -127,9 +130,15 @@ class Decoder:
                     w.emit(indent, f"{v} = b[{self.off()}:{e}]{DECODE}")
                 self.rebase(e)
                 return v
-            sub = w.lookup(base)
-            args = self.fields(sub, indent, path + ".")
-            return f"{symbol(base)}({', '.join(args)})"
+            if self.views or w.inline(base):
+                args = self.fields(w.lookup(base), indent, path + ".")
+                return f"{symbol(base)}({', '.join(args)})"
+            # too big to inline: its class's ``_decode_at`` reads it and says where it ended
+            self.flush(indent)
+            v, e = w.tmp(), w.tmp("e")
+            w.emit(indent, f"{v}, {e} = {symbol(base)}.{DECODE_AT}(b, {self.off()}, n)")
+            self.rebase(e)
+            return v
         n = f.length
         v = w.tmp()
         if base in BYTE_TYPES:
@@ -254,7 +263,10 @@ def deserialize_source(spec: MsgSpec, w: Writer) -> list[str]:
         del body[-3:-1]
         body = tail_string_fast_path(body, dec, w)
 
-    def variant(method: str, decode: str, doc: str, fallback: bool) -> list[str]:
+    def fill(line: str, decode: str, at: str) -> str:
+        return line.replace(DECODE, decode).replace(DECODE_AT, at)
+
+    def variant(method: str, decode: str, at: str, doc: str, fallback: bool) -> list[str]:
         # A staticmethod (not a classmethod): looking it up allocates no bound method on every call.
         out = [
             "    @staticmethod",
@@ -264,7 +276,7 @@ def deserialize_source(spec: MsgSpec, w: Writer) -> list[str]:
             "        n = len(b)",
             "        try:",
         ]
-        out += [line.replace(DECODE, decode) for line in body] or ["            pass"]
+        out += [fill(line, decode, at) for line in body] or ["            pass"]
         if fallback:
             out += ["        except UnicodeDecodeError:", f"            return {name}._deserialize_lenient(b)"]
         if lenient:
@@ -284,11 +296,45 @@ def deserialize_source(spec: MsgSpec, w: Writer) -> list[str]:
         ]
         return out
 
+    strict, replace = ".decode()", ".decode('utf-8', 'replace')"
     doc = "Decode a message body; raises DeserializationError on truncated, oversized or trailing input."
-    out = variant("deserialize", ".decode()", doc, lenient)
+    out = variant("deserialize", strict, "_decode_at", doc, lenient)
     if lenient:
         out.append("")
-        out += variant("_deserialize_lenient", ".decode('utf-8', 'replace')", "Decode, replacing invalid UTF-8.", False)
+        out += variant("_deserialize_lenient", replace, "_decode_at_lenient", "Decode, replacing invalid UTF-8.", False)
+    if not w.inline(spec.full_name):
+        out += decode_at_source(spec, w, lenient)
+    return out
+
+
+def decode_at_source(spec: MsgSpec, w: Writer, lenient: bool) -> list[str]:
+    """``_decode_at(b, o, n) -> (message, end)`` (and ``_decode_at_lenient``) for a type too big to inline,
+    which the types holding it call: it reads one message at offset ``o`` of ``b`` (``n`` bytes), with the
+    same bounds checks as ``deserialize``; errors propagate to the caller's ``deserialize``, which handles
+    them as its own (truncation, invalid UTF-8, a memoryview)."""
+    dec = Decoder(w, "o")
+    start = len(w.lines)
+    args = dec.fields(spec, 2, "")
+    dec.flush(2)
+    body = w.lines[start:]
+    del w.lines[start:]
+    name = class_name(spec)
+
+    def method(label: str, decode: str, at: str) -> list[str]:
+        return [
+            "",
+            "    @staticmethod",
+            f"    def {label}(b: _Any, o: int, n: int) -> tuple[{name!r}, int]:",
+            '        """One message at offset o of b (n bytes): (message, end offset); for the types holding it."""',
+            *(line.replace(DECODE, decode).replace(DECODE_AT, at) for line in body),
+            f"        return {name}({', '.join(args)}), {dec.off()}",
+        ]
+
+    out = method("_decode_at", ".decode()", "_decode_at")
+    if lenient:
+        out += method("_decode_at_lenient", ".decode('utf-8', 'replace')", "_decode_at_lenient")
+    else:
+        out += ["", "    _decode_at_lenient = _decode_at"]
     return out
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from mrosd.msg.codegen.sizes import BYTE_TYPES, TIME_FORMATS, Lookup, attribute_name
+from mrosd.msg.codegen.sizes import BYTE_TYPES, TIME_FORMATS, Lookup, attribute_name, symbol
 from mrosd.msg.codegen.writer import Writer
 from mrosd.msg.spec import PRIMITIVE_FORMATS, Field, MsgSpec
 
@@ -68,7 +68,10 @@ class Encoder:
             else:
                 v = w.tmp("m")
                 w.emit(indent, f"{v} = {acc}")
-                self.fields(w.lookup(base), v, indent, path + ".")
+                if w.inline(base):
+                    self.fields(w.lookup(base), v, indent, path + ".")
+                else:
+                    self.call(base, v, indent)
             return
         a = w.tmp("a")
         w.emit(indent, f"{a} = {acc}")
@@ -110,6 +113,17 @@ class Encoder:
         inner.flush(indent + 1)
         if not inner.appended:
             w.emit(indent + 1, "pass")
+
+    def call(self, base: str, v: str, indent: int) -> None:
+        """Encode the nested message ``v`` by calling its class's encoder (a type too big to inline). Like the
+        inlined code it needs only the fields' attributes, so any object with them encodes the same."""
+        self.flush(indent)
+        if has_blobs(self.w.lookup(base), self.w.lookup):  # keep its payload uncopied in serialize_parts()
+            self.to_append_mode(indent)
+            self.w.emit(indent, f"_p.extend({symbol(base)}.serialize_parts({v}))")
+            self.appended = True
+        else:
+            self.add(indent, f"{symbol(base)}.serialize({v})")
 
 
 def has_blobs(spec: MsgSpec, lookup: Lookup) -> bool:

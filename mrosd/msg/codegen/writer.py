@@ -4,7 +4,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from mrosd.msg.bounds import Measure
 from mrosd.msg.codegen.sizes import Lookup
+
+#: A nested message type with at most this many fields (expanded) is inlined into the code of the types
+#: that hold it; a bigger one is called (its ``serialize``, its ``_decode_at``), so generated code grows
+#: with the definition, not with the expansion. Every type shipped with Debian's ROS (98 at most) inlines.
+INLINE_MAX_FIELDS = 128
 
 
 @dataclass
@@ -18,6 +24,13 @@ class Writer:
     helpers: dict[str, str] = field(default_factory=dict)
     counter: int = 0
     tag: str = ""  #: distinguishes the structs of several classes generated into one module
+    measure: Measure | None = None
+
+    def inline(self, base: str) -> bool:
+        """Whether the nested message type ``base`` is inlined (else called): see ``INLINE_MAX_FIELDS``."""
+        if self.measure is None:
+            self.measure = Measure(self.lookup)
+        return self.measure.fields(base) <= INLINE_MAX_FIELDS
 
     def emit(self, indent: int, text: str) -> None:
         self.lines.append("    " * indent + text)
