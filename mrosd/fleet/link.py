@@ -59,8 +59,9 @@ class ReceivedTopic:
 
     local: str
     item: Item
-    #: the type's generated class: every body is checked against it before a local subscriber sees it
+    #: the type's generated class, and the checker every body passes before a local subscriber sees it
     cls: Any = None
+    checker: Any = None
     publisher: Any = None
     subscriber: Any = None
     received: int = 0

@@ -1,8 +1,9 @@
 """Bodies as the fleet forwards them (serialized, undecoded) and the real classes that check them.
 
 What crosses is forwarded as is, but never unchecked: every body received over Zenoh (a topic's sample, a
-latched body, a service request or response) is first read by its type's generated deserializer, which checks
-every length prefix, array bound and string length and the exact consumed length (issue 31, case 4). So the
+latched body, a service request or response) is first checked against its type, which checks
+every length prefix, array bound and string length and the exact consumed length (issue 31, case 4; the
+walk of ``mrosd.fleet.check``, which agrees with the generated deserializer without building objects). So the
 fleet crosses only types it can check: a type on this robot's search path whose md5 is the announced one.
 Classes come from ``load_type_async`` and worker threads, never from the loop (a definition may be costly).
 """
@@ -14,12 +15,13 @@ import importlib
 from typing import Any, ClassVar
 
 from mrosd.errors import ConfigError, MrosError
+from mrosd.fleet.check import Checker, body_checker
 from mrosd.msg import get_service_class, load_type_async
 
 __all__ = [
     "FleetTypeError",
     "RawBody",
-    "check_body",
+    "checker",
     "message_class",
     "raw_message_class",
     "raw_service_class",
@@ -115,12 +117,13 @@ async def service_class(srv_type: str, md5sum: str = "") -> Any:
     return _same_md5(cls, srv_type, md5sum)
 
 
-def check_body(cls: Any, body: bytes) -> str | None:
-    """None when ``body`` is exactly one well-formed ``cls``; else why not (one line, for the log)."""
+async def checker(cls: Any) -> Checker:
+    """The body checker of a generated class (``mrosd.fleet.check``), compiled in a worker thread.
+
+    Raises:
+        FleetTypeError: a field type the checker does not understand, or a nested type that cannot be loaded.
+    """
     try:
-        cls.deserialize(body)
-    except (MrosError, ValueError, TypeError, IndexError, OverflowError, UnicodeDecodeError, MemoryError) as exc:
-        return str(exc)[:200]
-    except RecursionError:
-        return "nested too deep"
-    return None
+        return await asyncio.to_thread(body_checker, cls)
+    except (MrosError, ValueError, RecursionError) as exc:
+        raise FleetTypeError(f"{cls._type}: cannot check its bodies: {exc}") from None

@@ -4,7 +4,8 @@ A remote ``pub`` announcement whose local (renamed) name is in ``receive_topics`
 that name, once the type is found on the search path with the announced md5 (else the item is refused: a
 body of a type this robot cannot check never reaches a subscriber). Its Zenoh subscription exists only while
 a local subscriber is connected, and starts with a query for the latched body. Each body is decoded by the
-type's generated deserializer before it is published; one that does not decode exactly is dropped and
+type's checker (``mrosd.fleet.check``) before it is published; one that is not exactly one well-formed
+message of the type is dropped and
 counted, and the local subscribers' connections never see it (rospy drops a connection on a bad frame, and
 the subscription then stays dead).
 """
@@ -19,7 +20,7 @@ from mrosd.errors import MrosError
 from mrosd.fleet.frames import prefix_tf_frames, wants_tf_prefix
 from mrosd.fleet.keys import LATCHED_ATTACHMENT, WILDCARD_NS, Item
 from mrosd.fleet.link import QUERY_TIMEOUT, FleetLink, ReceivedTopic, ratelog
-from mrosd.fleet.raw import FleetTypeError, check_body, message_class, raw_message_class
+from mrosd.fleet.raw import FleetTypeError, checker, message_class, raw_message_class
 
 #: How a received body came: a plain sample, a sample of a latched topic, or the answer to the latched query.
 LIVE, LIVE_LATCHED, CACHED = 0, 1, 2
@@ -62,6 +63,7 @@ class Receiver:
         link = self.link
         try:
             rt.cls = await message_class(rt.item.type, rt.item.md5sum)
+            rt.checker = await checker(rt.cls)
         except FleetTypeError as exc:
             link.counters.unchecked_types += 1
             if len(self.uncheckable) >= MAX_UNCHECKABLE:
@@ -88,7 +90,7 @@ class Receiver:
         if rt is None or rt.publisher is None or (rt.publisher.closed and not rt.relatching):
             return
         for raw, how in items:
-            why = check_body(rt.cls, raw)
+            why = rt.checker.check(raw)
             if why is not None:
                 rt.refused += 1
                 link.malformed("body", name, why)

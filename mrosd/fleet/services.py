@@ -1,14 +1,15 @@
 """Services across the fleet: local ones offered as Zenoh queryables, remote ones provided here.
 
 A local service in ``send_services`` is a queryable on its data key (announced ``srv``). Each request from
-Zenoh is decoded as the service's request type first (a malformed one gets an error reply at once: rospy
-never answers one, and it would hold a call slot for the whole timeout), then called on its own TCPROS
-connection with a timeout, so slow calls never queue others behind them. Calls in flight are capped in all
-and per calling peer: the query's source id when it carries one (mrosd's own queries do; a hostile peer
-may claim any, so the total cap is what bounds it), and callers that carry none share one cap.
+Zenoh is checked against the service's request type first (``mrosd.fleet.check``): a malformed one gets an
+error reply at once (rospy never answers one, and it would hold a call slot for the whole timeout). The rest
+are called each on its own TCPROS connection with a timeout, so slow calls never queue others behind them.
+Calls in flight are capped in all and per calling peer: the query's source id when it carries one (mrosd's
+own queries do; a hostile peer may claim any, so the total cap is what bounds it), and callers that carry
+none share one cap.
 
-A remote service in ``receive_services`` becomes a local service that queries it; its response is decoded as
-the response type before the local caller gets it.
+A remote service in ``receive_services`` becomes a local service that queries it; its response is checked
+against the response type before the local caller gets it.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from typing import Any
 from mrosd.errors import MrosError, ServiceError
 from mrosd.fleet.keys import Item, ItemKind, data_key, discovery_key
 from mrosd.fleet.link import QUERY_TIMEOUT, FleetLink, ReceivedService, SentService, ratelog
-from mrosd.fleet.raw import FleetTypeError, RawBody, check_body, raw_service_class, service_class
+from mrosd.fleet.raw import FleetTypeError, RawBody, checker, raw_service_class, service_class
 from mrosd.tcpros.service import probe_service
 
 #: Service calls from the fleet in flight at once; more are refused at once.
@@ -88,6 +89,7 @@ class Services:
             return
         try:
             srv = await service_class(srv_type, md5sum)
+            check_request = (await checker(srv._request_class)).check
         except FleetTypeError as exc:
             # Kept, unoffered, until the service leaves the graph: its requests could not be checked.
             link.counters.unchecked_types += 1
@@ -104,7 +106,7 @@ class Services:
             # body's size); beyond the caps, or once closing, the call is refused at once; else to the loop.
             payload = query.payload
             body = payload.to_bytes() if payload is not None else b""
-            why = check_body(srv._request_class, body)
+            why = check_request(body)
             if why is not None:
                 ss.refused += 1
                 link.malformed("request", name, why)
@@ -181,6 +183,7 @@ class Services:
         link = self.link
         try:
             srv = await service_class(rs.item.type, rs.item.md5sum)
+            check_response = (await checker(srv._response_class)).check
         except FleetTypeError as exc:
             link.counters.unchecked_types += 1
             ratelog.warning("unchecked", "fleet: not providing %s: %s", rs.local, exc)
@@ -197,7 +200,7 @@ class Services:
             except ServiceError:
                 rs.errors += 1
                 raise
-            why = check_body(srv._response_class, body)
+            why = check_response(body)
             if why is not None:
                 rs.errors += 1
                 rs.refused += 1
