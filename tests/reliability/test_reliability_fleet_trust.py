@@ -248,3 +248,30 @@ async def test_a_garbage_response_never_reaches_the_local_caller() -> None:
             queryable.undeclare()
         finally:
             peer.close()
+
+
+async def test_types_this_robot_cannot_check_are_not_received() -> None:
+    """Unknown here, or another md5 than ours: the bodies could not be checked, so nothing is published."""
+    everything = NameFilter(include=("/**",))
+    async with fleet("robot1", receive_topics=everything, receive_services=everything) as (r1,):
+        peer = await asyncio.to_thread(bare_peer, r1.endpoint)
+        try:
+            _announce(peer, ItemKind.PUBLISHER, "evil_pkg/Unknown", "0" * 32, "evil", "/unknown")
+            _announce(peer, ItemKind.PUBLISHER, String._type, "1" * 32, "evil", "/other_md5")
+            _announce(peer, ItemKind.SERVICE, "evil_pkg/Nope", "2" * 32, "evil", "/nope")
+            _announce(peer, ItemKind.PUBLISHER, String._type, String._md5sum, "evil", "/fine")
+            await r1.bridge.wait_until(
+                lambda: (
+                    r1.bridge.status()["unchecked_types"] >= 3
+                    and r1.bridge.received.get("/evil/fine") is not None
+                    and r1.bridge.received["/evil/fine"].publisher is not None
+                ),
+                15,
+            )
+            assert "/evil/unknown" not in r1.bridge.received and "/evil/other_md5" not in r1.bridge.received
+            assert r1.bridge.received_services["/evil/nope"].service is None
+            state = await r1.bridge.node.master_call("getSystemState")
+            assert not [t for t, _ in state[0] if t in ("/evil/unknown", "/evil/other_md5")]
+            assert not [s for s, _ in state[2] if s == "/evil/nope"]
+        finally:
+            peer.close()
