@@ -83,6 +83,25 @@ async def _lines(proc: Any, count: int, timeout: float) -> list[str]:
     return await asyncio.to_thread(lambda: list(iter_lines_until(proc, count, timeout)))
 
 
+async def _matched(publisher: Any, timeout: float) -> None:
+    """Return once a Zenoh subscriber matches ``publisher`` (the peer knows where to send)."""
+    loop = asyncio.get_running_loop()
+    matched = asyncio.Event()
+
+    def on_status(status: Any) -> None:
+        if status.matching:
+            loop.call_soon_threadsafe(matched.set)
+
+    listener = publisher.declare_matching_listener(on_status)
+    try:
+        if publisher.matching_status.matching:
+            matched.set()
+        async with asyncio.timeout(timeout):
+            await matched.wait()
+    finally:
+        listener.undeclare()
+
+
 def _announce(peer: Any, kind: ItemKind, msg_type: str, md5: str, namespace: str, name: str) -> None:
     peer.put(discovery_key(kind, msg_type, md5, namespace, name), b"")
 
@@ -154,15 +173,17 @@ async def test_a_lying_length_prefix_never_reaches_a_rospy_subscriber(procs: Pro
                 30,
             )
             key = data_key(String._type, String._md5sum, "evil", "/chatter")
+            publisher = peer.declare_publisher(key)
+            await _matched(publisher, 15)
             bad = [
                 struct.pack("<I", 1_000_000) + b"lies",  # a length prefix past the body
                 struct.pack("<I", 2) + b"ok" + b"trailing",  # bytes after the message
                 b"\x01\x00",  # shorter than the length prefix itself
             ]
             for body in bad:
-                peer.put(key, body)
+                publisher.put(body)
             for i in range(23):
-                peer.put(key, String(data=f"valid {i}").serialize())
+                publisher.put(String(data=f"valid {i}").serialize())
                 await asyncio.sleep(0.02)
             got = await _lines(listener, 23, 15)
             assert got == [f"valid {i}" for i in range(23)]
