@@ -167,10 +167,11 @@ class FleetConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     multicast_scouting: bool = False
     send_topics: list[str] = msgspec.field(default_factory=list)
     send_topics_exclude: list[str] = msgspec.field(default_factory=list)
-    receive_topics: list[str] = msgspec.field(default_factory=lambda: ["/**"])
+    #: nothing crosses unless named: a peer may publish only into the names listed here (issue 31)
+    receive_topics: list[str] = msgspec.field(default_factory=list)
     receive_topics_exclude: list[str] = msgspec.field(default_factory=list)
     send_services: list[str] = msgspec.field(default_factory=list)
-    receive_services: list[str] = msgspec.field(default_factory=lambda: ["/**"])
+    receive_services: list[str] = msgspec.field(default_factory=list)
     prefix: str = "/{robot}"
     bridge_robot: str = ""
     prefix_tf: bool = False

@@ -18,7 +18,7 @@ __all__ = ["FdBudgets", "fd_budgets"]
 MIN_RESERVE = 32
 
 #: Each part's share (in percent) of what is left after the reserve.
-SHARES = {"master": 40, "ixm": 35, "tcpros": 15, "shm": 5, "web": 5}
+SHARES = {"master": 40, "ixm": 33, "tcpros": 14, "shm": 5, "web": 5, "fleet": 3}
 
 
 class FdBudgets(msgspec.Struct, frozen=True, kw_only=True):
@@ -32,6 +32,9 @@ class FdBudgets(msgspec.Struct, frozen=True, kw_only=True):
         tcpros: inbound TCPROS connections of the nodes inside the daemon (rosout aggregator, bridges).
         shm: shared-memory topic segments and control sockets of those nodes.
         web: the web part: half for browser clients' sockets (its ``max_clients``), half for its TCPROS links.
+        fleet: the fleet part's node (``mrosd.fleet.bridge.fleet_admission``): half for the inbound TCPROS
+            connections of local subscribers and callers of what it receives, the rest for its outgoing
+            connections (a quarter caps its service calls in flight) and its Zenoh session.
     """
 
     limit: int
@@ -41,6 +44,7 @@ class FdBudgets(msgspec.Struct, frozen=True, kw_only=True):
     tcpros: int
     shm: int
     web: int
+    fleet: int
 
     def parts(self) -> dict[str, int]:
         return {name: getattr(self, name) for name in SHARES}

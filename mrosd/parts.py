@@ -294,7 +294,9 @@ class Daemon:
         from mrosd.fleet.bridge import FleetBridge
         from mrosd.fleet.options import fleet_options
 
-        fleet = FleetBridge(fleet_options(self.cfg.fleet, self.cfg.source or "configuration"), self.master_uri)
+        options = fleet_options(self.cfg.fleet, self.cfg.source or "configuration")
+        budget = self.budgets.fleet if self.budgets is not None else None
+        fleet = FleetBridge(options, self.master_uri, fd_budget=budget)
         await fleet.start()
         self.fleet = fleet
         self._parts.append(("fleet", fleet))

@@ -13,7 +13,7 @@ robot running mrosd and one running ROS + zenoh-bridge-ros1 see each other witho
 
 mrosd uses NS for the robot's name: a remote robot's topics appear locally under ``/<robot>/...``
 (``RenameRule``). A plain bridge announces NS ``*``, which matches every name; its items are kept under the
-name configured for it (``RenameRule.wildcard_robot``), or unrenamed.
+name configured for it (``RenameRule.wildcard_robot``), and left out without one.
 """
 
 from __future__ import annotations
@@ -179,18 +179,23 @@ class RenameRule:
     """How remote names map to local ones and back.
 
     ``prefix`` is a template with ``{robot}`` (default ``/{robot}``; ``""`` keeps remote names as they are,
-    as the bridge does). ``wildcard_robot`` is the robot name given to items announced under ``*`` (a plain
-    zenoh-bridge-ros1); ``""`` keeps them unrenamed.
+    as the bridge does: an explicit choice in the configuration). ``wildcard_robot`` is the robot name given to
+    items announced under ``*`` (a plain zenoh-bridge-ros1, or anyone claiming to be one); ``""`` leaves them
+    out, unless ``prefix`` is ``""``: an item never keeps its remote name by default, so a peer cannot
+    announce ``/cmd_vel`` into this robot's own names (issue 31).
     """
 
     prefix: str = "/{robot}"
     wildcard_robot: str = ""
 
-    def local_name(self, namespace: str, topic: str) -> str:
-        """Where a remote robot's ``topic`` appears here (``robot1``, ``/chatter`` -> ``/robot1/chatter``)."""
-        robot = self.wildcard_robot if namespace == WILDCARD_NS else namespace
-        if not robot or not self.prefix:
+    def local_name(self, namespace: str, topic: str) -> str | None:
+        """Where a remote robot's ``topic`` appears here (``robot1``, ``/chatter`` -> ``/robot1/chatter``), or
+        None: an item announced under ``*`` with no ``wildcard_robot`` to put it under is not bridged."""
+        if not self.prefix:
             return canonicalize(topic)
+        robot = self.wildcard_robot if namespace == WILDCARD_NS else namespace
+        if not robot:
+            return None
         return canonicalize(self.prefix.format(robot=robot) + "/" + topic_chunks(topic))
 
     def remote_name(self, local: str, robots: frozenset[str] | set[str]) -> tuple[str, str] | None:

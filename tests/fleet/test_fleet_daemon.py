@@ -48,7 +48,10 @@ async def test_two_daemons_and_mros_fleet_status(procs: Processes, tmp_path: Pat
     d1 = DaemonRun(
         procs, tmp_path / "a", "--config", str(config(tmp_path, "robot1", z1, None, 'send_topics = ["/chatter"]\n'))
     )
-    d2 = DaemonRun(procs, tmp_path / "b", "--config", str(config(tmp_path, "robot2", z2, z1, "")))
+    # robot2 imports robot1's names explicitly: [fleet] receives nothing by default (issue 31)
+    d2 = DaemonRun(
+        procs, tmp_path / "b", "--config", str(config(tmp_path, "robot2", z2, z1, 'receive_topics = ["/robot1/**"]\n'))
+    )
     try:
         assert "fleet robot1" in await asyncio.to_thread(d1.ready)
         assert "fleet robot2" in await asyncio.to_thread(d2.ready)

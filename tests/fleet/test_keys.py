@@ -129,7 +129,9 @@ def test_renaming_round_trips(robot: str, topic: str) -> None:
 
 
 def test_renaming_rules() -> None:
-    assert RenameRule().local_name("*", "/chatter") == "/chatter"
+    # an item under ``*`` keeps no local name unless the configuration maps it (issue 31, case 3)
+    assert RenameRule().local_name("*", "/chatter") is None
+    assert RenameRule(prefix="").local_name("*", "/chatter") == "/chatter"
     assert RenameRule(wildcard_robot="legacy").local_name("*", "/chatter") == "/legacy/chatter"
     assert RenameRule(prefix="").local_name("robot1", "/chatter") == "/chatter"
     assert RenameRule(prefix="/fleet/{robot}").local_name("r2", "/odom") == "/fleet/r2/odom"
