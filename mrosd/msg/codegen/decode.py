@@ -302,7 +302,7 @@ def deserialize_source(spec: MsgSpec, w: Writer) -> list[str]:
     if lenient:
         out.append("")
         out += variant("_deserialize_lenient", replace, "_decode_at_lenient", "Decode, replacing invalid UTF-8.", False)
-    if not w.inline(spec.full_name):
+    if not w.inline_spec(spec):
         out += decode_at_source(spec, w, lenient)
     return out
 

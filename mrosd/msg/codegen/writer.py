@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 from mrosd.msg.bounds import Measure
 from mrosd.msg.codegen.sizes import Lookup
+from mrosd.msg.spec import MsgSpec
 
 #: A nested message type with at most this many fields (expanded) is inlined into the code of the types
 #: that hold it; a bigger one is called (its ``serialize``, its ``_decode_at``), so generated code grows
@@ -26,11 +27,20 @@ class Writer:
     tag: str = ""  #: distinguishes the structs of several classes generated into one module
     measure: Measure | None = None
 
-    def inline(self, base: str) -> bool:
-        """Whether the nested message type ``base`` is inlined (else called): see ``INLINE_MAX_FIELDS``."""
+    def _measure(self) -> Measure:
         if self.measure is None:
             self.measure = Measure(self.lookup)
-        return self.measure.fields(base) <= INLINE_MAX_FIELDS
+        return self.measure
+
+    def inline(self, base: str) -> bool:
+        """Whether the nested message type ``base`` is inlined (else called): see ``INLINE_MAX_FIELDS``."""
+        return self._measure().fields(base) <= INLINE_MAX_FIELDS
+
+    def inline_spec(self, spec: MsgSpec) -> bool:
+        """``inline`` for the type being generated (which ``lookup`` need not know)."""
+        measure = self._measure()
+        total = sum(1 + (0 if f.is_builtin else measure.fields(f.base)) for f in spec.fields)
+        return total <= INLINE_MAX_FIELDS
 
     def emit(self, indent: int, text: str) -> None:
         self.lines.append("    " * indent + text)
