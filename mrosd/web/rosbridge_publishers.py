@@ -43,10 +43,11 @@ class _Lingering:
 _lingering: weakref.WeakKeyDictionary[WebHub, _Lingering] = weakref.WeakKeyDictionary()
 
 
-async def linger_release(hub: WebHub, topic: str, timeout: float = UNREGISTER_TIMEOUT) -> None:
+async def linger_release(hub: WebHub, topic: str, timeout: float | None = None) -> None:
     """Give back one ownership of ``topic``'s shared publisher ``timeout`` seconds from now (now when the hub
     already holds ``MAX_LINGERING`` such releases)."""
     state = _lingering.setdefault(hub, _Lingering())
+    timeout = UNREGISTER_TIMEOUT if timeout is None else timeout
     if timeout <= 0 or len(state.timers) >= MAX_LINGERING:
         await hub.release_publisher(topic)
         return
