@@ -213,3 +213,21 @@ async def test_publish_on_a_fresh_socket_that_closes_at_once_reaches_rospy(
             while "/cmd_vel" in dict((await robot.master.get_system_state())[0]):  # noqa: ASYNC110
                 await asyncio.sleep(0.1)
         assert [e for e in listener.events if e["event"] == "message"] == [{"event": "message", "x": 0.5}]
+
+
+async def test_lingering_publishers_are_bounded(master: Master, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A client that advertises and leaves: at most MAX_LINGERING publishers stay; the others go at once."""
+    monkeypatch.setattr(rosbridge_publishers, "MAX_LINGERING", 2)
+    async with (
+        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
+        node("robot", master.uri) as robot,
+        aiohttp.ClientSession() as http,
+    ):
+        async with http.ws_connect(server.rosbridge_url) as ws:
+            for i in range(5):
+                await ws.send_str(json.dumps({"op": "advertise", "topic": f"/t{i}", "type": "std_msgs/String"}))
+            await values(ws, "/rosapi/get_time")
+        async with asyncio.timeout(10):
+            while len([t for t in dict((await robot.master.get_system_state())[0]) if t.startswith("/t")]) != 2:  # noqa: ASYNC110
+                await asyncio.sleep(0.05)
+        assert len(server.hub._publishers) == 2
