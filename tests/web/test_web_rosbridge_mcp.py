@@ -45,8 +45,8 @@ class Agent:
     def __init__(self, session: Any) -> None:
         self.session = session
 
-    async def tool(self, name: str, **args: Any) -> dict[str, Any]:
-        result = await self.session.call_tool(name, args)
+    async def tool(self, tool: str, **args: Any) -> dict[str, Any]:
+        result = await self.session.call_tool(tool, args)
         assert not result.isError, result.content
         if result.structuredContent is not None:
             return dict(result.structuredContent)
@@ -110,6 +110,23 @@ async def test_ros_mcp_publishes_calls_and_lists_actions_through_mrosd(master: M
 
         topics = await agent.tool("get_topics")
         assert "/cmd_vel" in json.dumps(topics)
+        # the read-only tools an agent explores with: each answers without an error
+        await switch.master.set_param("/rosdistro", "noetic\n")
+        for tool, args in [
+            ("get_services", {}),
+            ("get_service_type", {"service": "/enable"}),
+            ("get_service_details", {"service": "/enable"}),
+            ("get_nodes", {}),
+            ("get_node_details", {"node": "/switch"}),
+            ("get_topic_type", {"topic": "/cmd_vel"}),
+            ("get_topic_details", {"topic": "/cmd_vel"}),
+            ("get_message_details", {"message_type": "geometry_msgs/Twist"}),
+            ("get_parameter", {"name": "/rosdistro"}),
+            ("detect_ros_version", {}),
+        ]:
+            answer_of = await agent.tool(tool, **args)
+            assert "error" not in answer_of, (tool, answer_of)
+        assert "std_srvs/SetBool" in json.dumps(await agent.tool("get_service_type", service="/enable"))
         assert [e for e in robot.events if e["event"] == "message"] == [
             {"event": "message", "x": 1.0},
             *[{"event": "message", "x": 2.0}] * burst["published_count"],
