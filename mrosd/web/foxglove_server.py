@@ -305,7 +305,11 @@ class FoxgloveSession(ClientSession):
         capabilities = [*self.CAPABILITIES, "time"] if self._offered_time else list(self.CAPABILITIES)
         if hub.assets is not None:
             capabilities.append("assets")
-        self._send_json(fg.server_info("mrosd", capabilities, session_id=uuid.uuid4().hex, metadata={"ros": "1"}))
+        self._send_json(
+            fg.server_info(
+                "mrosd", capabilities, session_id=uuid.uuid4().hex, metadata={"ros": "1", "node": self.hub.node.name}
+            )
+        )
         if self._offered_time:
             hub.time_listeners.add(self._time)
         hub.sim_time_listeners.add(self._sim_time_changed)

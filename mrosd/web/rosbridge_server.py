@@ -9,8 +9,10 @@ what the client asked: ``service_response`` to a ``call_service``, ``status`` to
 op is compressed in a small thread pool, off the loop; a client's ``fragment`` ops are joined by the session's
 ``Defragmenter`` (bounded per client and, with the server's ledger, for all clients) and handled as one op.
 
-The ``/rosapi/*`` services that roslibjs, roslibpy and Lichtblick call are answered here from the master
-(``rosapi/get_param`` and other relative names resolve to them, as rosbridge's own rosapi node is found).
+The ``/rosapi/*`` services that roslibjs, roslibpy, Lichtblick and ros-mcp call are answered by
+``mrosd.web.rosapi`` (``rosapi/get_param`` and other relative names resolve to them, as rosbridge's own rosapi
+node is found). Publishers follow rosbridge's ROS 1 manager (``mrosd.web.rosbridge_publishers``): one per
+topic, kept 10 s after its last client, its first second re-sent to subscribers that connect within it.
 """
 
 from __future__ import annotations
@@ -20,7 +22,6 @@ import collections
 import concurrent.futures
 import contextlib
 import itertools
-import json
 import logging
 import os
 import sys
@@ -34,8 +35,10 @@ from aiohttp import WSMsgType, web
 
 from mrosd.errors import MrosError
 from mrosd.master.client import GraphSnapshot
-from mrosd.msg import get_service_class, load_type
+from mrosd.msg import get_service_class, load_type_async
+from mrosd.web import rosapi
 from mrosd.web import rosbridge as rb
+from mrosd.web import rosbridge_publishers as publishers
 from mrosd.web.foxglove_server import SessionLimits
 from mrosd.web.hub import PAUSE_BYTES, ServiceInfo, TopicInfo, WebHub
 from mrosd.web.queue import ByteQueue, Ledger, trim_to_budget
@@ -230,7 +233,7 @@ class RosbridgeSession(ClientSession):
             await self.hub.remove_sink(topic, self)
         self.subs.clear()
         for topic in list(self._published):
-            await self.hub.release_publisher(topic)
+            await publishers.linger_release(self.hub, topic)
         self._published.clear()
         for future in self._pending.values():
             if not future.done():
@@ -319,7 +322,7 @@ class RosbridgeSession(ClientSession):
             await self._advertise(op.topic, op.type)
         elif isinstance(op, rb.Unadvertise):
             if self._published.pop(op.topic, None) is not None:
-                await self.hub.release_publisher(op.topic)
+                await publishers.linger_release(self.hub, op.topic)
         elif isinstance(op, rb.Publish):
             await self._publish(op)
         elif isinstance(op, rb.CallService):
@@ -335,17 +338,19 @@ class RosbridgeSession(ClientSession):
             if future is None:
                 self.status("warning", f"service_response: no call {op.id!r} is waiting", op.id)
             elif not future.done():
-                future.set_result((op.result, op.values))
+                # rosbridge's ROS 1 server reads the values whatever ``result`` says (roslibpy's handlers
+                # answer False and mean the values); only a response without values fails the call
+                future.set_result((op.result or isinstance(op.values, dict), op.values))
         elif isinstance(op, rb.SetLevel):
             pass  # status levels are not filtered: every refusal is an error the client asked about
 
-    def _topic_class(self, topic: str, msg_type: str | None) -> Any:
+    async def _topic_class(self, topic: str, msg_type: str | None) -> Any:
         info = self.hub.topics.get(topic)
         if info is not None and (not msg_type or msg_type == info.type):
-            return load_type(info.type, info.definition)
+            return await load_type_async(info.type, info.definition)
         if not msg_type:
             raise MrosError(f"{topic}: the type is unknown (no publisher yet): give it with 'type'")
-        return self.hub.message_class(msg_type)
+        return await load_type_async(msg_type, "")
 
     async def _subscribe(self, op: rb.Subscribe) -> None:
         compression = op.compression or "none"
@@ -357,7 +362,9 @@ class RosbridgeSession(ClientSession):
             if len(self.subs) >= self.limits.max_subscriptions:
                 raise MrosError(f"at most {self.limits.max_subscriptions} subscriptions")
             sub = _Sub(
-                op.topic, self._topic_class(op.topic, op.type), ByteQueue(self.limits.queue_bytes, self.hub.ledger)
+                op.topic,
+                await self._topic_class(op.topic, op.type),
+                ByteQueue(self.limits.queue_bytes, self.hub.ledger),
             )
             self.subs[op.topic] = sub
             try:
@@ -388,8 +395,11 @@ class RosbridgeSession(ClientSession):
         pub = self._published.get(topic)
         if pub is not None:
             return pub
-        cls = self._topic_class(topic, msg_type or None)
+        if len(self._published) >= self.limits.max_subscriptions:
+            raise MrosError(f"at most {self.limits.max_subscriptions} advertised topics per client")
+        cls = await self._topic_class(topic, msg_type or None)
         pub = await self.hub.acquire_publisher(topic, cls)
+        publishers.watch_new(pub)
         self._published[topic] = pub
         return pub
 
@@ -399,6 +409,7 @@ class RosbridgeSession(ClientSession):
             pub = await self._advertise(op.topic, "")
         msg = rb.message_from_json(pub.msg_class, op.msg)
         pub.publish_nowait(msg)
+        publishers.published(pub, msg)
 
     # --- services this client provides ----------------------------------------------------------
 
@@ -426,7 +437,7 @@ class RosbridgeSession(ClientSession):
             finally:
                 self._pending.pop(call_id, None)
             if not ok:
-                raise MrosError(str(values))
+                raise MrosError(str(values) if values is not None else "the rosbridge client answered result: false")
             return rb.message_from_json(srv_class._response_class, values)
 
         self._provided[name] = await self.hub.node.advertise_service(name, srv_class, handler)
@@ -448,7 +459,7 @@ class RosbridgeSession(ClientSession):
         name = op.service if op.service.startswith("/") else "/" + op.service
         try:
             if name.startswith("/rosapi/"):
-                values = await self._rosapi(name[len("/rosapi/") :], _args(op.args))
+                values = await rosapi.answer(self.hub, name[len("/rosapi/") :], _args(op.args))
             else:
                 values = await self._call_ros(name, op)
         except (MrosError, rb.RosbridgeRefusal, OSError, TimeoutError) as exc:
@@ -459,8 +470,10 @@ class RosbridgeSession(ClientSession):
     async def _call_ros(self, name: str, op: rb.CallService) -> Any:
         if not self.hub.policy.allows_service(name):
             raise MrosError(f"service {name} is not allowed by the [web] services allow-list")
+        # As rosbridge's ROS 1 server: the client's ``type`` is not used; the service's own type is (so a
+        # ROS 2-style ``std_srvs/srv/SetBool`` calls a std_srvs/SetBool service)
         info = self.hub.services.get(name)
-        srv_type = op.type or (info.type if info is not None else "")
+        srv_type = info.type if info is not None else ""
         if not srv_type:  # registered since the graph watch last looked (or never probed): ask it now
             try:
                 srv_type = await self.hub.probe_service_type(name)
@@ -475,93 +488,6 @@ class RosbridgeSession(ClientSession):
         timeout = op.timeout if op.timeout and op.timeout > 0 else self.limits.call_timeout
         response = await proxy.call(request, timeout=min(timeout, self.limits.call_timeout))
         return msgspec.to_builtins(response)
-
-    async def _rosapi(self, method: str, args: dict[str, Any]) -> Any:
-        """The rosapi node's services, answered from the master (values as rosapi gives them)."""
-        hub, master, policy = self.hub, self.hub.node.master, self.hub.policy
-        if method in ("topics", "topics_and_raw_types"):
-            topics = sorted((t, ty) for t, ty in hub.graph.topics.items() if policy.allows_topic(t))
-            out: dict[str, Any] = {"topics": [t for t, _ in topics], "types": [ty for _, ty in topics]}
-            if method == "topics_and_raw_types":
-                out["typedefs_full_text"] = [hub.topics[t].definition if t in hub.topics else "" for t, _ in topics]
-            return out
-        if method == "topic_type":
-            return {"type": hub.graph.topics.get(str(args.get("topic", "")), "")}
-        if method == "nodes":
-            return {"nodes": sorted(hub.graph.nodes)}
-        if method == "services":
-            return {"services": sorted(s for s in hub.graph.services if policy.allows_service(s))}
-        if method == "service_type":
-            info = hub.services.get(str(args.get("service", "")))
-            return {"type": info.type if info is not None else ""}
-        if method == "node_details":
-            node = str(args.get("node", ""))
-            pubs, subs, srvs = await master.get_system_state()
-            return {
-                "publishing": sorted(t for t, ns in pubs if node in ns),
-                "subscribing": sorted(t for t, ns in subs if node in ns),
-                "services": sorted(s for s, ns in srvs if node in ns),
-            }
-        if method in ("publishers", "subscribers"):
-            pubs, subs, _ = await master.get_system_state()
-            topic = str(args.get("topic", ""))
-            nodes = dict(pubs if method == "publishers" else subs).get(topic, [])
-            return {method: sorted(nodes) if policy.allows_topic(topic) else []}
-        if method in ("service_providers", "service_node"):
-            _, _, srvs = await master.get_system_state()
-            service = str(args.get("service", ""))
-            providers = sorted(dict(srvs).get(service, [])) if policy.allows_service(service) else []
-            return (
-                {"providers": providers}
-                if method == "service_providers"
-                else {"node": providers[0] if providers else ""}
-            )
-        if method == "topics_for_type":
-            wanted = str(args.get("type", ""))
-            return {
-                "topics": sorted(t for t, ty in hub.graph.topics.items() if ty == wanted and policy.allows_topic(t))
-            }
-        if method == "services_for_type":
-            wanted = str(args.get("type", ""))
-            return {"services": sorted(s.name for s in hub.services.values() if s.type == wanted)}
-        if method in ("message_details", "service_request_details", "service_response_details"):
-            name = str(args.get("type", ""))
-            if method != "message_details":
-                name += "Request" if method == "service_request_details" else "Response"
-            return {"typedefs": rb.typedefs(name)}
-        if method == "get_ros_version":
-            return {"version": 1, "distro": "noetic"}
-        if method == "search_param":
-            found = await master.search_param(_param_name(args.get("name", "")))
-            return {"global_name": found or ""}
-        if method == "get_time":
-            now = time.time_ns()
-            return {"time": {"secs": now // 1_000_000_000, "nsecs": now % 1_000_000_000}}
-        if method == "get_param_names":
-            return {"names": [n for n in await master.get_param_names() if policy.allows_param(n)]}
-        name = _param_name(args.get("name", ""))
-        if method in ("get_param", "has_param", "set_param", "delete_param") and not policy.allows_param(name):
-            raise MrosError(f"parameter {name} is not allowed by the [web] params allow-list")
-        if method == "get_param":
-            try:
-                value = await master.get_param(name)
-            except MrosError:
-                default = args.get("default", "")
-                return {"value": default if default != "" else "null"}
-            return {"value": json.dumps(value, default=_json_default)}
-        if method == "has_param":
-            return {"exists": await master.has_param(name)}
-        if method == "set_param":
-            try:
-                value = json.loads(str(args.get("value", "null")))
-            except ValueError as exc:
-                raise MrosError(f"set_param {name}: value is not JSON: {exc}") from None
-            await master.set_param(name, value)
-            return {}
-        if method == "delete_param":
-            await master.delete_param(name)
-            return {}
-        raise MrosError(f"/rosapi/{method} is not served by mrosd")
 
 
 #: A ``png`` op of a JSON text up to this long is encoded on the event loop (at most about 0.2 ms); a longer one
@@ -610,16 +536,3 @@ def _status_id(op: rb.Op) -> str | None:
 
 def _args(args: Any) -> dict[str, Any]:
     return args if isinstance(args, dict) else {}
-
-
-def _param_name(name: Any) -> str:
-    text = str(name)
-    return text if text.startswith("/") else "/" + text
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, bytes | bytearray):
-        import base64
-
-        return base64.b64encode(value).decode()
-    raise TypeError(f"cannot encode {type(value).__name__}")

@@ -138,6 +138,9 @@ class WebServer:
             self._runner, self.port = await self._listen(self._foxglove, self.port, page=True)
             if self.rosbridge_port is not None:
                 self._rosbridge_runner, self.rosbridge_port = await self._listen(self._rosbridge, self.rosbridge_port)
+                from mrosd.web import rosapi  # rosapi's services in the graph, as its node registers them
+
+                await rosapi.register(self.hub)
         except BaseException:
             await self.aclose()
             raise

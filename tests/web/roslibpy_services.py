@@ -1,7 +1,8 @@
 """A roslibpy client (PyPI) driven by tests/web/test_web_rosbridge_types.py: one JSON line per result.
 
 Usage: python roslibpy_services.py HOST PORT. On ``{"cmd": "advertise", "service", "type"}`` it provides the
-service (AddTwoInts-shaped: ``sum = a + b``); on ``{"cmd": "call", "service", "args"}`` it calls one and prints
+service (AddTwoInts-shaped: ``sum = a + b``; its handler returns ``"result"``, True unless given: roslibpy's
+own ROS 1 test returns False and expects the sum); on ``{"cmd": "call", "service", "args"}`` it calls one and prints
 the response or the error roslibpy raises (with ``"retry": seconds``, calling again until it answers: a ROS
 node's service is callable once the bridge has probed its type).
 """
@@ -9,6 +10,7 @@ node's service is callable once the bridge has probed its type).
 import json
 import sys
 import time
+from collections.abc import Callable
 
 import roslibpy
 
@@ -17,9 +19,12 @@ def out(**kw: object) -> None:
     print(json.dumps(kw), flush=True)
 
 
-def add(request: dict, response: dict) -> bool:
-    response["sum"] = request["a"] + request["b"]
-    return True
+def adder(result: bool) -> Callable[[dict, dict], bool]:
+    def add(request: dict, response: dict) -> bool:
+        response["sum"] = request["a"] + request["b"]
+        return result
+
+    return add
 
 
 ros = roslibpy.Ros(host=sys.argv[1], port=int(sys.argv[2]))
@@ -30,7 +35,7 @@ for line in sys.stdin:
     cmd = json.loads(line)
     service = roslibpy.Service(ros, cmd["service"], cmd.get("type", ""))
     if cmd["cmd"] == "advertise":
-        service.advertise(add)
+        service.advertise(adder(cmd.get("result", True)))
         provided.append(service)
         out(event="advertised", service=cmd["service"])
     elif cmd["cmd"] == "call":

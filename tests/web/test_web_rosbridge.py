@@ -327,7 +327,7 @@ async def test_rosapi_details_and_unknown_types(master: Master) -> None:
         while len(answers) < len(calls):  # calls run concurrently: answers come in any order
             reply = await receive(ws, "service_response")
             answers[reply["id"]] = reply["values"]
-        assert [d["type"] for d in answers["0"]["typedefs"]] == ["sensor_msgs/Image", "std_msgs/Header"]
+        assert [d["type"] for d in answers["0"]["typedefs"]] == ["sensor_msgs/Image", "std_msgs/Header", "time"]
         assert answers["1"]["publishers"] == ["/talker"]
         assert answers["2"]["version"] == 1
         sub = {"op": "subscribe", "topic": "/x", "type": "nope_msgs/Nope", "id": "u"}

@@ -12,6 +12,8 @@ const state = {
   channels: new Map(), byTopic: new Map(), pubs: new Map(), subs: new Map(), dead: new Set(),
   stats: new Map(), nextSub: 1, mine: new Map(), view: "graph", current: null, plotPath: null, open: new Set(),
   log: [], rosoutSub: null, services: new Map(), calls: new Map(), nextCall: 1,
+  // the daemon's own web node (serverInfo's metadata): it subscribes to what the page measures and views
+  hubNode: "/mrosd_web",
 };
 const plot = new Plot($("#plot"));
 const images = new ImageView($("#image"));
@@ -37,6 +39,9 @@ function connect() {
 
 function onJson(m) {
   switch (m.op) {
+    case "serverInfo":
+      if (m.metadata && m.metadata.node) state.hubNode = m.metadata.node;
+      break;
     case "advertise":
       for (const c of m.channels) { state.channels.set(c.id, c); state.byTopic.set(c.topic, c); }
       refreshTopicPick(); renderTopics(); if (state.view === "log") ensureRosout();
@@ -161,8 +166,10 @@ function renderTopics() {
     const s = state.stats.get(t) || {};
     const tr = document.createElement("tr");
     tr.dataset.topic = t;
+    // The page's own measuring subscriber (the daemon's web node) is not one of the user's.
+    const subs = [...(state.subs.get(t) || [])].filter((n) => n !== state.hubNode).length;
     for (const cell of [t, state.byTopic.get(t)?.schemaName ?? "?", (state.pubs.get(t) || new Set()).size,
-      (state.subs.get(t) || new Set()).size, fmtRate(s.hz), fmtBytes(s.bps)]) {
+      subs, fmtRate(s.hz), fmtBytes(s.bps)]) {
       const td = document.createElement("td"); td.textContent = cell; tr.append(td);
     }
     tr.children[4].dataset.hz = s.hz ?? "";
@@ -265,15 +272,28 @@ function ensureRosout() {
 }
 let logPending = false;
 function scheduleLog() { if (!logPending) { logPending = true; setTimeout(() => { logPending = false; renderLog(); }, 200); } }
+// A log time as people read it: the local time of day to the millisecond (the date too when it is not today;
+// a time before 2001, as simulated time starts near zero, as seconds); the exact stamp as its title.
+function fmtStamp(secs, nsecs) {
+  const exact = `${secs}.${String(nsecs).padStart(9, "0")}`;
+  if (secs < 1e9) return [`${(secs + nsecs / 1e9).toFixed(3)} s`, exact];
+  const d = new Date(secs * 1000 + Math.floor(nsecs / 1e6)), pad = (n, w = 2) => String(n).padStart(w, "0");
+  const time = `${pad(d.getHours())}:${pad(d.getMinutes())}:${pad(d.getSeconds())}.${pad(d.getMilliseconds(), 3)}`;
+  const day = `${d.getFullYear()}-${pad(d.getMonth() + 1)}-${pad(d.getDate())}`, now = new Date();
+  const today = d.toDateString() === now.toDateString();
+  return [today ? time : `${day} ${time}`, `${day} ${time} (${exact})`];
+}
 function renderLog() {
   const text = $("#log-filter").value.toLowerCase(), level = Number($("#log-level").value);
   const rows = state.log.filter((m) => m.level >= level && (!text || m.name.toLowerCase().includes(text) || m.msg.toLowerCase().includes(text)))
     .slice(-300).reverse().map((m) => {
       const tr = document.createElement("tr"); tr.className = "lvl-" + m.level;
       const name = { 1: "DEBUG", 2: "INFO", 4: "WARN", 8: "ERROR", 16: "FATAL" }[m.level] || m.level;
-      for (const c of [`${m.header.stamp.secs}.${String(m.header.stamp.nsecs).padStart(9, "0").slice(0, 3)}`, name, m.name, m.msg]) {
+      const [when, exact] = fmtStamp(m.header.stamp.secs, m.header.stamp.nsecs);
+      for (const c of [when, name, m.name, m.msg]) {
         const td = document.createElement("td"); td.textContent = c; tr.append(td);
       }
+      tr.firstChild.title = exact;
       return tr;
     });
   $("#log tbody").replaceChildren(...rows);

@@ -7,6 +7,25 @@ const el = (name, attrs, text) => {
   return e;
 };
 
+// Cut a label that does not fit its shape to "…" and its end (the full name is the shape's title). Measured
+// when the SVG is drawn; estimated from the length (11 px font) when it is not (a hidden view measures 0).
+function fit(text, label, width) {
+  const measure = () => text.getComputedTextLength();
+  if (measure() === 0) {
+    const chars = Math.floor(width / 6.6);
+    if (label.length > chars) text.textContent = "…" + label.slice(-(chars - 1));
+    return;
+  }
+  if (measure() <= width) return;
+  let lo = 1, hi = label.length - 1; // the longest tail that fits, by halving
+  while (lo < hi) {
+    const mid = Math.ceil((lo + hi) / 2);
+    text.textContent = "…" + label.slice(-mid);
+    if (measure() <= width) lo = mid; else hi = mid - 1;
+  }
+  text.textContent = "…" + label.slice(-lo);
+}
+
 // pubs/subs: Map(topic -> Set(node)); dead: Set(node); onNode(name) when a node is clicked.
 export function drawGraph(svg, pubs, subs, dead, onNode, hide = new Set()) {
   svg.replaceChildren();
@@ -45,10 +64,12 @@ export function drawGraph(svg, pubs, subs, dead, onNode, hide = new Set()) {
     const g = el("g", { class: `${kind}${dead.has(label) ? " dead" : ""}`, "data-name": label, transform: `translate(${x},${y})` });
     g.append(el(kind === "node" ? "ellipse" : "rect", kind === "node"
       ? { rx: w, ry: 13 } : { x: -w, y: -12, width: 2 * w, height: 24, rx: 3 }));
-    g.append(el("text", { "text-anchor": "middle", y: 4 }, label.length > 30 ? "…" + label.slice(-29) : label));
+    const text = el("text", { "text-anchor": "middle", y: 4 }, label);
+    g.append(text);
     g.append(el("title", {}, label + (dead.has(label) ? " (not answering)" : "")));
     if (kind === "node") g.addEventListener("click", () => onNode(label));
     svg.append(g);
+    fit(text, label, kind === "node" ? 2 * w - 28 : 2 * w - 10);
   };
   for (const n of [...left, ...right]) box("n" + n, n, "node", 100);
   for (const t of topics) box("t" + t, t, "topic", 120);
