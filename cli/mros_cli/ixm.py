@@ -210,4 +210,6 @@ def write(  # noqa: PLR0917  (one parameter per click option)
             import signal
 
             click.echo(f"holding {key}; Ctrl-C to release", err=True)
-            signal.sigwait({signal.SIGINT, signal.SIGTERM})
+            stops = {signal.SIGINT, signal.SIGTERM}
+            signal.pthread_sigmask(signal.SIG_BLOCK, stops)  # SIGTERM too goes to sigwait, not to its default
+            signal.sigwait(stops)  # (death): the key is released below, as on Ctrl-C
