@@ -42,7 +42,7 @@ from mrosd.web.graphwatch import (
     TopicInfo,
     graph_deltas,
 )
-from mrosd.web.probes import ProbePool, definition_from_publisher, service_type, split_rosrpc
+from mrosd.web.probes import Attempt, ProbePool, definition_from_publisher, service_type, split_rosrpc
 from mrosd.web.queue import Ledger
 from mrosd.web.shared import MAX_QUEUED_BYTES, PAUSE_BYTES, HoldingSink, Shared, SharedSubscriptions, TopicSink
 
@@ -373,8 +373,8 @@ class WebHub:
         if provider is None or not self.listeners:  # nobody asked yet
             return
 
-        async def probe() -> None:
-            srv_type = await service_type(self.node, name)
+        async def probe(attempt: Attempt) -> None:
+            srv_type = await service_type(self.node, name, attempt)
             store = default_store()
             spec = store.srv_spec(srv_type)
             request, response = store.full_text(spec.request.full_name), store.full_text(spec.response.full_name)
@@ -402,7 +402,8 @@ class WebHub:
                 many lookups are in flight.
             OSError, TimeoutError: its server could not be reached in time.
         """
-        return await self.probes.lookup(self.graph.services.get(name) or name, lambda: service_type(self.node, name))
+        peer = self.graph.services.get(name) or name
+        return await self.probes.lookup(peer, lambda attempt: service_type(self.node, name, attempt))
 
     async def call_service(self, name: str, request: bytes | bytearray | memoryview, timeout: float = 10.0) -> bytes:
         """Call a service with a serialized request; returns the serialized response.
@@ -440,7 +441,7 @@ class WebHub:
         if msg_type is None or not publishers or not self.listeners or self._topic_failed.get(name) == publishers:
             return
 
-        async def probe() -> None:
+        async def probe(_attempt: Attempt) -> None:
             definition = await definition_from_publisher(self.subs, name, self.probes.timeout + 1.0)
             if not definition:
                 raise RemoteProtocolError(f"no publisher of {name} sent its type's definition")

@@ -4,10 +4,12 @@ A probe is one short TCPROS connection to a peer that may be hostile: a server t
 costs the probe its whole timeout. So:
 
 - at most ``max_total`` probes run at once, and at most ``per_peer`` of them for one peer (a node);
-- waiting probes are queued per peer and started round-robin over the peers, one each per turn: a node that
-  registers 400 services waits behind its own probes, not in front of everyone else's;
-- each probe has a short timeout; a peer that lets one time out is quarantined for ``quarantine`` seconds:
-  its waiting probes fail at once, and new ones for it fail without a connection;
+- waiting probes are queued per peer and started round-robin over the peers, one each per turn, a peer seen
+  for the first time first: a node that registers 400 services waits behind its own probes, not in front of
+  everyone else's, and a newcomer (a service that just appeared) is probed next;
+- each probe has a short timeout; a peer that lets one time out is quarantined for ``quarantine`` seconds,
+  and so is every address the probe contacted (``Attempt.contact``): its waiting probes fail at once, and new
+  ones for it, or for a service at that address under another node's name, fail without a connection;
 - a lookup a client is waiting for (rosbridge ``call_service`` without a type) never queues: it runs now within
   its own bound (``lookup``), or fails at once with the reason.
 
@@ -52,11 +54,29 @@ QUARANTINE = 30.0
 MAX_QUARANTINED = 4096
 
 
+class Attempt:
+    """One probe's contacts: ``contact(address)`` before connecting to a peer's address (refused while the
+    address is quarantined); a probe that times out quarantines every address it contacted."""
+
+    __slots__ = ("_pool", "addresses")
+
+    def __init__(self, pool: ProbePool) -> None:
+        self._pool = pool
+        self.addresses: list[str] = []
+
+    def contact(self, address: str) -> None:
+        """Raises: MrosError: the address is quarantined."""
+        reason = self._pool.quarantine_reason(address)
+        if reason:
+            raise MrosError(reason)
+        self.addresses.append(address)
+
+
 @dataclass(slots=True)
 class _Job:
     key: str
     peer: str
-    run: Callable[[], Awaitable[None]]
+    run: Callable[[Attempt], Awaitable[None]]
     fail: Callable[[str], None]
 
 
@@ -88,16 +108,22 @@ class ProbePool:
 
     # --- background probes -----------------------------------------------------------------------
 
-    def submit(self, peer: str, key: str, run: Callable[[], Awaitable[None]], fail: Callable[[str], None]) -> None:
-        """Queue ``run()`` for ``peer`` unless ``key`` is already waiting or running; ``fail(reason)`` is called
+    def submit(
+        self, peer: str, key: str, run: Callable[[Attempt], Awaitable[None]], fail: Callable[[str], None]
+    ) -> None:
+        """Queue ``run(attempt)`` for ``peer`` unless ``key`` is already waiting or running; ``fail(reason)`` is called
         instead when the peer is quarantined, the probe times out or raises ``MrosError``/``OSError``."""
         if key in self._running or key in self._where:
             return
-        reason = self._quarantine_reason(peer)
+        reason = self.quarantine_reason(peer)
         if reason:
             fail(reason)
             return
-        queue = self._waiting.setdefault(peer, collections.OrderedDict())
+        queue = self._waiting.get(peer)
+        if queue is None:
+            queue = self._waiting[peer] = collections.OrderedDict()
+            if peer not in self._turns and peer not in self._active:
+                self._turns.appendleft(peer)  # a newcomer goes first: a flood of old peers cannot bury it
         queue[key] = _Job(key, peer, run, fail)
         self._where[key] = peer
         if peer not in self._turns:
@@ -147,11 +173,12 @@ class ProbePool:
             self._running[job.key] = loop.create_task(self._run(job), name=f"web probe {job.key}")
 
     async def _run(self, job: _Job) -> None:
+        attempt = Attempt(self)
         try:
             async with asyncio.timeout(self.timeout):
-                await job.run()
+                await job.run(attempt)
         except TimeoutError:
-            self._quarantine(job.peer)
+            self._quarantine(job.peer, *attempt.addresses)
             job.fail(f"{job.peer} did not answer within {self.timeout:g} s")
         except (MrosError, OSError) as exc:
             job.fail(str(exc) or type(exc).__name__)
@@ -169,22 +196,29 @@ class ProbePool:
 
     # --- quarantine --------------------------------------------------------------------------------
 
-    def _quarantine(self, peer: str) -> None:
-        now = time.monotonic()
-        self._quarantined.pop(peer, None)
-        self._quarantined[peer] = now + self.quarantine
+    def _quarantine(self, peer: str, *addresses: str) -> None:
+        until = time.monotonic() + self.quarantine
+        for name in (peer, *addresses):
+            self._quarantined.pop(name, None)
+            self._quarantined[name] = until
         while len(self._quarantined) > MAX_QUARANTINED:
             del self._quarantined[next(iter(self._quarantined))]
-        log.warning("web: %s let a type probe time out: not probed for %g s", peer, self.quarantine)
+        log.warning(
+            "web: %s (%s) let a type probe time out: not probed for %g s",
+            peer,
+            ", ".join(addresses) or "no address",
+            self.quarantine,
+        )
         queue = self._waiting.pop(peer, None)
         if queue:
             for key in queue:
                 self._where.pop(key, None)
-            reason = self._quarantine_reason(peer)
+            reason = self.quarantine_reason(peer)
             for job in queue.values():
                 job.fail(reason)
 
-    def _quarantine_reason(self, peer: str) -> str:
+    def quarantine_reason(self, peer: str) -> str:
+        """Why ``peer`` (a node or an address) is not probed now; empty when it may be."""
         until = self._quarantined.get(peer)
         if until is None:
             return ""
@@ -196,25 +230,26 @@ class ProbePool:
 
     # --- lookups a client waits for ------------------------------------------------------------------
 
-    async def lookup(self, peer: str, run: Callable[[], Awaitable[T]]) -> T:
-        """``await run()`` now, within ``lookup_timeout``, outside the queue of background probes.
+    async def lookup(self, peer: str, run: Callable[[Attempt], Awaitable[T]]) -> T:
+        """``await run(attempt)`` now, within ``lookup_timeout``, outside the queue of background probes.
 
         Raises:
             MrosError: the peer is quarantined or already has its share of lookups in flight, or too many are.
             TimeoutError: no answer in time (the peer is quarantined).
             OSError: as ``run`` raises it.
         """
-        reason = self._quarantine_reason(peer)
+        reason = self.quarantine_reason(peer)
         if reason:
             raise MrosError(reason)
         if self._lookups[peer] >= LOOKUPS_PER_PEER or sum(self._lookups.values()) >= MAX_LOOKUPS:
             raise MrosError(f"too many type lookups in flight for {peer}: give the type in the call")
         self._lookups[peer] += 1
+        attempt = Attempt(self)
         try:
             async with asyncio.timeout(self.lookup_timeout):
-                return await run()
+                return await run(attempt)
         except TimeoutError:
-            self._quarantine(peer)
+            self._quarantine(peer, *attempt.addresses)
             raise TimeoutError(f"{peer} did not answer a type probe within {self.lookup_timeout:g} s") from None
         finally:
             self._lookups[peer] -= 1
@@ -248,15 +283,17 @@ def split_rosrpc(uri: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
-async def service_type(node: Node, name: str) -> str:
+async def service_type(node: Node, name: str, attempt: Attempt) -> str:
     """Ask service ``name`` its type with a ``probe=1`` connection header, as roscpp's tools do.
 
     Raises:
-        MrosError: the master does not know it, or its server refused the probe or sent no type.
+        MrosError: the master does not know it, its address is quarantined, or its server refused the probe
+            or sent no type.
         OSError: its server could not be reached.
     """
     uri = await node.master.lookup_service(name)
     host, port = split_rosrpc(uri)
+    attempt.contact(f"{host}:{port}")
     reader, writer = await asyncio.open_connection(host, port)
     try:
         writer.write(encode_header(ConnectionHeader(callerid=node.name, service=name, md5sum="*", probe="1")))
