@@ -460,7 +460,9 @@ class WebHub:
             self._topic_failed[name] = publishers  # not again until the topic's publishers change
             log.info("web: topic %s is not offered to clients: %s", name, reason)
 
-        self.probes.submit(publishers[0], f"topic {name}", probe, failed)
+        # the probe takes the first definition any publisher sends: charge it to the newest that may be probed
+        peer = next((p for p in reversed(publishers) if not self.probes.quarantine_reason(p)), publishers[-1])
+        self.probes.submit(peer, f"topic {name}", probe, failed)
 
     async def _unprobe(self, topic: str) -> None:
         """Before a topic's shared subscription: wait for a probe that holds the node's subscription to it."""

@@ -206,3 +206,30 @@ async def test_no_subscription_to_a_publisher_while_no_browser_client_asks(maste
         assert web.hub.topics["/secret"].definition.startswith("int32 x")
         await fox.close()
         await until(lambda: web.hub.sink_count("/secret") == 0)
+
+
+async def test_an_unreachable_publisher_is_probed_once_not_forever(master: Master) -> None:
+    """A publisher whose slave API refuses connections: one probe while a client is connected, then none until
+    the topic's publishers change."""
+    web = WebServer(master.uri, port=0, node_host="127.0.0.1")
+    web.hub.probes.timeout = 0.5
+    async with (
+        web,
+        MasterClient(master.uri, "/ghost") as ghost,
+        aiohttp.ClientSession() as http,
+    ):
+        fox = Inbox(await http.ws_connect(web.url, protocols=["foxglove.websocket.v1"]))
+        await ghost.register_publisher("/ghost", "hubtest/Ghost", "http://127.0.0.1:9/")
+        await until(lambda: "/ghost" in web.hub._topic_failed)
+        await until(lambda: not web.hub.probes.in_flight())
+        subscribed = 0
+        for _ in range(20):  # 1 s: the hub's node never subscribes to /ghost again
+            subscribed += len(await web_subscriptions(master, "/ghost"))
+            await asyncio.sleep(0.05)
+        assert subscribed == 0
+        assert "/ghost" not in fox.advertised_topics()
+        # Another publisher appears: that one is worth a probe.
+        async with node("alive", master.uri) as alive:
+            await alive.advertise("/ghost", load_type("hubtest/Ghost", "int8 boo\n"))
+            await until(lambda: "/ghost" in fox.advertised_topics())
+        await fox.close()
