@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from mrosd.errors import MrosError, MsgError, RemoteProtocolError
+from mrosd.lograte import RateLimitedLog
 from mrosd.master.client import MasterClient
 from mrosd.msg import get_service_class, load_type, load_type_async
 from mrosd.msg.loader import default_store
@@ -47,6 +48,8 @@ from mrosd.web.queue import Ledger
 from mrosd.web.shared import MAX_QUEUED_BYTES, PAUSE_BYTES, HoldingSink, Shared, SharedSubscriptions, TopicSink
 
 log = logging.getLogger(__name__)
+#: a rogue node can make every one of its hundreds of services fail a probe: a few lines, then a count
+_ratelog = RateLimitedLog(log)
 
 __all__ = [
     "PAUSE_BYTES",
@@ -388,7 +391,7 @@ class WebHub:
         def failed(reason: str) -> None:
             self._service_wanted.pop(name, None)
             self._service_failed[name] = provider
-            log.info("web: service %s is not offered to clients: %s", name, reason)
+            _ratelog.log(logging.INFO, "service probe", "web: service %s is not offered: %s", name, reason)
 
         self.probes.submit(provider, f"service {name}", probe, failed)
 
@@ -458,7 +461,7 @@ class WebHub:
 
         def failed(reason: str) -> None:
             self._topic_failed[name] = publishers  # not again until the topic's publishers change
-            log.info("web: topic %s is not offered to clients: %s", name, reason)
+            _ratelog.log(logging.INFO, "topic probe", "web: topic %s is not offered to clients: %s", name, reason)
 
         # the probe takes the first definition any publisher sends: charge it to the newest that may be probed
         peer = next((p for p in reversed(publishers) if not self.probes.quarantine_reason(p)), publishers[-1])

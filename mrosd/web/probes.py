@@ -27,12 +27,14 @@ from dataclasses import dataclass
 from typing import TypeVar
 
 from mrosd.errors import MrosError, RemoteProtocolError
+from mrosd.lograte import RateLimitedLog
 from mrosd.tcpros import Node
 from mrosd.tcpros.subscriber import Subscriber
 from mrosd.web.shared import SharedSubscriptions
 from mrosd.wire.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header, encode_header
 
 log = logging.getLogger(__name__)
+_ratelog = RateLimitedLog(log)
 
 __all__ = ["ProbePool", "definition_from_publisher", "service_type", "split_rosrpc"]
 
@@ -203,7 +205,8 @@ class ProbePool:
             self._quarantined[name] = until
         while len(self._quarantined) > MAX_QUARANTINED:
             del self._quarantined[next(iter(self._quarantined))]
-        log.warning(
+        _ratelog.warning(
+            "quarantine",
             "web: %s (%s) let a type probe time out: not probed for %g s",
             peer,
             ", ".join(addresses) or "no address",
