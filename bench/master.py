@@ -6,7 +6,9 @@ keep connections alive: rosmaster's handler speaks HTTP/1.1 with a thread per co
 * latency of registerPublisher, lookupNode, getSystemState, getParam (one client, sequential calls);
 * throughput with 1/8/32 concurrent clients (worker subprocesses, a mix of the four calls);
 * registration of N nodes x M topics whose subscriber URIs point at dead ports, against the same
-  registration without subscribers to notify (is registration slowed by dead nodes?).
+  registration without subscribers to notify (is registration slowed by dead nodes?);
+* the full daemon's CPU for 1,000 registerPublisher calls with its web part on vs off (the web hub follows
+  the graph from the master in-process, so it should cost little; this row needs no rosmaster).
 
 Run: ``python -m bench.master [--quick] [--duration S]``.
 """
@@ -301,6 +303,73 @@ async def registration(uri: str, nodes: int, topics: int, dead: bool, tag: str) 
     return elapsed, statistics.median(samples) * 1e6
 
 
+async def register_publishers(uri: str, count: int) -> None:
+    """``count`` registerPublisher calls (20 nodes, a topic each) from 8 keep-alive connections."""
+    jobs = iter(
+        http_request(
+            uri, body("registerPublisher", f"/web_{i % 20}", f"/web/t{i}", "std_msgs/String", DEAD_API.format(port=9))
+        )
+        for i in range(count)
+    )
+    host, port = uri.split("//", 1)[1].rstrip("/").split(":")
+
+    async def caller() -> None:
+        reader, writer = await asyncio.open_connection(host, int(port))
+        try:
+            for request in jobs:
+                if not await raw_call(reader, writer, request):
+                    writer.close()
+                    reader, writer = await asyncio.open_connection(host, int(port))
+        finally:
+            writer.close()
+
+    await asyncio.gather(*(caller() for _ in range(8)))
+
+
+def settle(pid: int, quiet: float = 0.3, limit: float = 20.0) -> float:
+    """Wait until process ``pid`` uses no CPU for ``quiet`` seconds (at most ``limit``); its CPU seconds then."""
+    deadline = time.monotonic() + limit
+    last = cpu_seconds(pid)
+    while time.monotonic() < deadline:
+        time.sleep(quiet)
+        now = cpu_seconds(pid)
+        if now - last < 0.01:
+            return now
+        last = now
+    return last
+
+
+def daemon_registration_cpu(web: bool, count: int) -> float:
+    """Daemon CPU seconds (after it settles) for ``count`` registerPublisher calls, web part on or off."""
+    from tests.integration.daemon.daemonproc import DaemonRun, daemon_env
+
+    with TemporaryDirectory() as tmp:
+        conf = Path(tmp) / "mrosd.toml"
+        conf.write_text("[master]\ncleanup_interval = 0\n")  # dead node URIs stay, as in the rows above
+        procs = Processes(Path(tmp))
+        try:
+            env = daemon_env(Path(tmp), MROSD_WEB="1" if web else "0")
+            run = DaemonRun(procs, Path(tmp), "--config", str(conf), env=env)
+            run.ready()
+            pid = run.proc.pid
+            before = settle(pid)
+            asyncio.run(register_publishers(run.uri, count))
+            used = settle(pid) - before
+            run.stop()
+            run.close()
+            return used
+        finally:
+            procs.close()
+
+
+def web_cost(count: int = 1000, rounds: int = 2) -> None:
+    """Print the daemon's CPU for ``count`` registrations with web off and on (best of ``rounds`` each)."""
+    off = min(daemon_registration_cpu(False, count) for _ in range(rounds))
+    on = min(daemon_registration_cpu(True, count) for _ in range(rounds))
+    print(f"{'metric':48} {'web off':>12} {'web on':>12} {'on/off':>8}")
+    print(f"{f'daemon CPU, {count} registerPublisher (s)':48} {off:12.2f} {on:12.2f} {on / off:7.2f}x")
+
+
 # --- driver -------------------------------------------------------------------------------------
 
 
@@ -366,7 +435,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument(
         "--only",
         action="append",
-        choices=("latency", "throughput", "registration"),
+        choices=("latency", "throughput", "registration", "web"),
         help="run only these parts (repeatable; default: all)",
     )
     parser.add_argument(
@@ -394,6 +463,12 @@ def main(argv: list[str]) -> int:
         count, used = asyncio.run(worker(uri, int(conc), float(dur), tag))
         print(count, used)
         return 0
+    parts = set(args.only or ("latency", "throughput", "registration", "web"))
+    if "web" in parts:
+        web_cost(1000, 1 if args.quick else 2)
+        parts.discard("web")
+        if not parts:
+            return 0
     if not ros_available():
         print("bench.master: Debian rosmaster is not installed; nothing to compare against")
         return 0
@@ -411,7 +486,6 @@ def main(argv: list[str]) -> int:
                 masters["aiohttp"] = start_ours_behind_aiohttp(procs)
                 pids["aiohttp"] = procs._procs[-1].pid
             results: dict[str, dict[str, float]] = {name: {} for name in masters}
-            parts = set(args.only or ("latency", "throughput", "registration"))
             for name, uri in masters.items():
                 if "latency" not in parts:
                     break

@@ -282,6 +282,8 @@ class Daemon:
             max_queued_bytes=web.total_bytes,
             asset_bytes=web.asset_bytes,
         )
+        if self.master is not None:  # the hub follows the graph from the master's own change notes
+            server.hub.use_master(self.master)
         if web.max_clients is not None:
             server.max_clients = web.max_clients
         if self.budgets is not None:  # half the web budget for clients' sockets, half for the hub's TCPROS links

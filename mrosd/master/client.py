@@ -230,6 +230,8 @@ class GraphSnapshot:
     nodes: frozenset[str] = frozenset()
     topics: dict[str, str] = field(default_factory=dict)
     services: dict[str, str] = field(default_factory=dict)
+    #: the publishing nodes of each topic that has any, in registration order
+    publishers: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     @classmethod
     def from_master(cls, state: Any, topic_types: Any) -> GraphSnapshot:
@@ -243,6 +245,9 @@ class GraphSnapshot:
             types = {str(t): str(ty) for t, ty in topic_types}
             nodes: set[str] = set()
             topics: dict[str, str] = {}
+            publishers: dict[str, tuple[str, ...]] = {}
+            for name, members in pubs:
+                publishers[str(name)] = tuple(str(n) for n in members)
             for name, members in [*pubs, *subs]:
                 topics[str(name)] = types.get(str(name), "*")
                 nodes.update(str(n) for n in members)
@@ -252,7 +257,43 @@ class GraphSnapshot:
                 nodes.update(str(n) for n in members)
         except (TypeError, ValueError) as exc:
             raise MasterError("getSystemState", -1, f"malformed graph: {exc}") from exc
-        return cls(frozenset(nodes), topics, services)
+        return cls(frozenset(nodes), topics, services, publishers)
+
+
+@dataclass(slots=True)
+class GraphDelta:
+    """What changed in the graph, name by name: a topic's type (None: gone) and publishers, a service's
+    provider (None: gone), a node's presence. Names not listed did not change."""
+
+    topics: dict[str, str | None] = field(default_factory=dict)
+    publishers: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    services: dict[str, str | None] = field(default_factory=dict)
+    nodes: dict[str, bool] = field(default_factory=dict)
+
+    def __bool__(self) -> bool:
+        return bool(self.topics or self.publishers or self.services or self.nodes)
+
+
+def graph_delta(old: GraphSnapshot, new: GraphSnapshot) -> GraphDelta:
+    """The names that differ between two snapshots (for a graph that is polled rather than pushed)."""
+    delta = GraphDelta()
+    for name, msg_type in new.topics.items():
+        if old.topics.get(name) != msg_type:
+            delta.topics[name] = msg_type
+    for name in old.topics.keys() - new.topics.keys():
+        delta.topics[name] = None
+    for name in old.publishers.keys() | new.publishers.keys():
+        pubs = new.publishers.get(name, ())
+        if old.publishers.get(name, ()) != pubs:
+            delta.publishers[name] = pubs
+    for name, provider in new.services.items():
+        if old.services.get(name) != provider:
+            delta.services[name] = provider
+    for name in old.services.keys() - new.services.keys():
+        delta.services[name] = None
+    delta.nodes.update(dict.fromkeys(new.nodes - old.nodes, True))
+    delta.nodes.update(dict.fromkeys(old.nodes - new.nodes, False))
+    return delta
 
 
 def graph_changes(old: GraphSnapshot, new: GraphSnapshot) -> list[GraphChange]:

@@ -49,6 +49,25 @@ def shutdown(api: str, reason: str) -> Notification:
     return Notification(api, "shutdown", (reason,))
 
 
+class GraphJournal:
+    """The names whose registrations changed since its owner last drained it (one per in-process observer).
+
+    The registry adds a name to ``topics``, ``services`` or ``nodes`` whenever a registration of it may have
+    changed, then calls ``touched()`` (a no-op here: an owner on an event loop wakes itself there). The owner
+    reads the current state of just those names, so following the graph costs O(change), not O(graph).
+    """
+
+    __slots__ = ("nodes", "services", "topics")
+
+    def __init__(self) -> None:
+        self.topics: set[str] = set()
+        self.services: set[str] = set()
+        self.nodes: set[str] = set()
+
+    def touched(self) -> None:
+        """Called after names were added (once per registry call that changed something)."""
+
+
 @dataclass(slots=True)
 class NodeEntry:
     """One node: its XML-RPC URI and what it registered (as insertion-ordered sets)."""
@@ -95,6 +114,15 @@ class Registry:
         #: does not); replies computed from the registry stay valid while it is unchanged.
         self.version = 0
         self._system_state: tuple[int, list[list[list[Any]]]] | None = None
+        #: told the names each change touches (``GraphJournal``); usually empty
+        self.journals: list[GraphJournal] = []
+
+    def _touch(self, topics: tuple[str, ...] = (), services: tuple[str, ...] = (), nodes: tuple[str, ...] = ()) -> None:
+        for journal in self.journals:
+            journal.topics.update(topics)
+            journal.services.update(services)
+            journal.nodes.update(nodes)
+            journal.touched()
 
     # --- nodes -------------------------------------------------------------------------------
 
@@ -110,6 +138,8 @@ class Registry:
                 out.append(shutdown(node.api, f"[{name}] Reason: new node registered with same name"))
         node = NodeEntry(name, api)
         self.nodes[name] = node
+        if self.journals:
+            self._touch(nodes=(name,))
         self._api_users[api] = self._api_users.get(api, 0) + 1
         return node
 
@@ -117,6 +147,8 @@ class Registry:
         if node.is_empty() and self.nodes.get(node.name) is node:
             del self.nodes[node.name]
             self._release_api(node.api)
+            if self.journals:
+                self._touch(nodes=(node.name,))
 
     def _release_api(self, api: str) -> None:
         users = self._api_users.get(api, 0) - 1
@@ -143,6 +175,8 @@ class Registry:
                 del self.services[service]
         del self.nodes[node.name]
         self._release_api(node.api)
+        if self.journals:
+            self._touch((*node.publications, *node.subscriptions), tuple(node.services), (node.name,))
 
     def remove_node(self, name: str) -> list[Notification]:
         """Unregister everything node ``name`` registered, as ``rosnode cleanup`` does call by call.
@@ -205,6 +239,8 @@ class Registry:
         if topic_type != ANYTYPE or topic not in self.topic_types:
             self.topic_types[topic] = topic_type
         out.extend(self._publisher_updates(topic))
+        if self.journals:
+            self._touch((topic,))
         return list(self.subscribers.get(topic, {}).values()), out
 
     def unregister_publisher(self, node: str, topic: str, api: str) -> tuple[int, list[Notification]]:
@@ -217,6 +253,8 @@ class Registry:
         _remove(self.publishers, topic, node)
         entry.publications.pop(topic, None)
         self._forget_if_empty(entry)
+        if self.journals:
+            self._touch((topic,))
         return 1, self._publisher_updates(topic)
 
     def register_subscriber(
@@ -231,6 +269,8 @@ class Registry:
         self.subscribers.setdefault(topic, {})[node] = api
         if topic not in self.topic_types and topic_type != ANYTYPE:
             self.topic_types[topic] = topic_type
+        if self.journals:
+            self._touch((topic,))
         return list(self.publishers.get(topic, {}).values()), out
 
     def unregister_subscriber(self, node: str, topic: str, api: str) -> int:
@@ -242,6 +282,8 @@ class Registry:
         _remove(self.subscribers, topic, node)
         entry.subscriptions.pop(topic, None)
         self._forget_if_empty(entry)
+        if self.journals:
+            self._touch((topic,))
         return 1
 
     # --- services ----------------------------------------------------------------------------
@@ -259,6 +301,8 @@ class Registry:
                 self._forget_if_empty(old)
         entry.services[service] = None
         self.services[service] = ServiceEntry(node, api, service_api)
+        if self.journals:
+            self._touch(services=(service,))
         return out
 
     def unregister_service(self, node: str, service: str, service_api: str) -> int:
@@ -272,6 +316,8 @@ class Registry:
         if entry is not None:
             entry.services.pop(service, None)
             self._forget_if_empty(entry)
+        if self.journals:
+            self._touch(services=(service,))
         return 1
 
     def lookup_service(self, service: str) -> str | None:

@@ -9,6 +9,7 @@ dispatch ``dispatch``; the XML-RPC codec is ``mrosd.xmlrpc``.
 
 from __future__ import annotations
 
+import asyncio
 import ipaddress
 import logging
 import os
@@ -18,9 +19,11 @@ from urllib.parse import urlsplit
 
 from mrosd.master.api import READ_ONLY_METHODS, MasterApi
 from mrosd.master.cleanup import DEFAULT_CLEANUP_INTERVAL
+from mrosd.master.client import GraphDelta, GraphSnapshot
 from mrosd.master.dispatch import XmlRpcHttpHandler
 from mrosd.master.httpserver import IDLE_TIMEOUT, MAX_CONNECTIONS, MAX_CONNECTIONS_PER_HOST, HttpServer
 from mrosd.master.notifier import Notifier
+from mrosd.master.registry import ANYTYPE, GraphJournal, Registry
 from mrosd.xmlrpc import XmlRpcClient, XmlRpcServer
 
 log = logging.getLogger(__name__)
@@ -59,6 +62,58 @@ def port_from_master_uri(uri: str | None, default: int = DEFAULT_PORT) -> int:
         return urlsplit(uri).port or default
     except ValueError:
         return default
+
+
+class GraphFeed(GraphJournal):
+    """The graph's changes for an observer in the master's own process (the daemon's web hub), with no
+    XML-RPC in between: the registry records the names each change touches, and ``next_delta`` reads just
+    those names back, so a registration costs the observer O(1), not a new snapshot of the whole graph.
+
+    Use it on the master's event loop; ``close()`` detaches it.
+    """
+
+    __slots__ = ("_changed", "_registry")
+
+    def __init__(self, registry: Registry) -> None:
+        super().__init__()
+        self._registry = registry
+        self._changed = asyncio.Event()
+        registry.journals.append(self)
+
+    def touched(self) -> None:
+        self._changed.set()
+
+    def close(self) -> None:
+        if self in self._registry.journals:
+            self._registry.journals.remove(self)
+
+    def snapshot(self) -> GraphSnapshot:
+        """The whole graph now (once, at the start; later changes come from ``next_delta``)."""
+        reg = self._registry
+        topics = {t: reg.topic_types.get(t, ANYTYPE) for t in (*reg.publishers, *reg.subscribers)}
+        services = {s: e.node for s, e in reg.services.items()}
+        publishers = {t: tuple(nodes) for t, nodes in reg.publishers.items()}
+        return GraphSnapshot(frozenset(reg.nodes), topics, services, publishers)
+
+    async def next_delta(self) -> GraphDelta:
+        """Wait for the next change; returns every name changed since the last call (coalesced)."""
+        await self._changed.wait()
+        self._changed.clear()
+        reg = self._registry
+        delta = GraphDelta()
+        topics, self.topics = self.topics, set()
+        services, self.services = self.services, set()
+        nodes, self.nodes = self.nodes, set()
+        for t in topics:
+            present = t in reg.publishers or t in reg.subscribers
+            delta.topics[t] = reg.topic_types.get(t, ANYTYPE) if present else None
+            delta.publishers[t] = tuple(reg.publishers.get(t, ()))
+        for s in services:
+            entry = reg.services.get(s)
+            delta.services[s] = entry.node if entry is not None else None
+        for n in nodes:
+            delta.nodes[n] = n in reg.nodes
+        return delta
 
 
 class Master:
@@ -119,6 +174,10 @@ class Master:
         )
         self.port = 0
         self.uri = ""
+
+    def graph_feed(self) -> GraphFeed:
+        """Follow the graph's changes in this process (``GraphFeed``; close it when done)."""
+        return GraphFeed(self.api.registry)
 
     async def start(self) -> None:
         """Bind and serve; ``.port`` and ``.uri`` are set afterwards."""

@@ -614,7 +614,7 @@ class FoxgloveSession(ClientSession):
                 continue
             try:
                 schema = ch.schema if ch.schemaEncoding in (None, "ros1msg") else None
-                msg_class = self.hub.message_class(ch.schemaName, schema)
+                msg_class = await self.hub.client_class(ch.schemaName, schema)
                 publisher = await self.hub.acquire_publisher(ch.topic, msg_class)
             except MrosError as exc:
                 self.status(fg.STATUS_ERROR, f"advertise {ch.topic}: {exc}")

@@ -1,97 +1,70 @@
-"""The one ROS side of every browser client: graph watch, shared raw subscriptions, client publishers.
+"""The one ROS side of every browser client: the graph it may show, its types, and what it subscribes.
 
 Every WebSocket protocol (Foxglove, rosbridge, the page) is a thin client of one ``WebHub``:
 
-- the graph comes from ``mrosd.master.client.watch_graph`` (pushed by an mrosd master, polled against
-  rosmaster); each topic becomes a ``TopicInfo`` with the type's full message_definition, looked up where
-  ``mrosd.msg.TypeStore`` looks (mrosd's definitions, ``ROS_PACKAGE_PATH``, ``/usr/share/<pkg>``), else read
-  from a publisher's connection header (a short-lived raw subscription, as rosbridge does for unknown types);
-- a topic that any client wants is subscribed once, raw (``AnyMsg``): each message body is handed as
-  received (no decode, no copy) with its receipt time to every ``TopicSink`` holding the topic; the last
-  sink to leave closes the subscription;
+- the graph is followed name by name (``mrosd.web.graphwatch``: the daemon's own master tells the hub what
+  each registration changed; another master is long-polled or polled and diffed), so a registration costs
+  the hub O(1);
+- each topic becomes a ``TopicInfo`` with the type's full message_definition, looked up where
+  ``mrosd.msg.TypeStore`` looks (mrosd's definitions, ``ROS_PACKAGE_PATH``, ``/usr/share/<pkg>``); a type found
+  nowhere there is learnt from a publisher's connection header, and a service's type from a ``probe=1``
+  connection to its server, but only while a browser client is connected (nobody else asked: a node sees
+  no subscriber that no client wanted). Probes are bounded per peer and in all (``mrosd.web.probes``); a
+  publisher that failed one is not probed again until the topic's publishers change;
+- a topic that any client wants is subscribed once, raw, and shared by the clients' sinks
+  (``mrosd.web.shared``);
 - a topic a client publishes is advertised once per topic (shared by the clients that advertise it).
-
-No per-client buffering here: each sink owns its byte-bounded queue (``mrosd.web.queue``), so a slow client
-costs only what its own queues hold.
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import itertools
 import logging
-import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any, Protocol
+from dataclasses import dataclass
+from typing import Any
 
 from mrosd.errors import MrosError, MsgError, RemoteProtocolError
-from mrosd.master.client import GraphSnapshot, MasterClient, watch_graph
-from mrosd.msg import get_service_class, load_type
+from mrosd.lograte import RateLimitedLog
+from mrosd.master.client import MasterClient
+from mrosd.msg import get_service_class, load_type, load_type_async
 from mrosd.msg.loader import default_store
 from mrosd.tcpros import Node
-from mrosd.tcpros.subscriber import AnyMsg, RawMessage, Subscriber
 from mrosd.web.access import AccessPolicy
 from mrosd.web.assets import AssetReader
 from mrosd.web.foxglove import SystemState
+from mrosd.web.graphwatch import (
+    ClientSet,
+    GraphListener,
+    GraphSource,
+    LiveGraph,
+    ServiceInfo,
+    TopicInfo,
+    graph_deltas,
+)
+from mrosd.web.probes import Attempt, ProbePool, definition_from_publisher, service_type, split_rosrpc
 from mrosd.web.queue import Ledger
-from mrosd.wire.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header, encode_header
+from mrosd.web.shared import MAX_QUEUED_BYTES, PAUSE_BYTES, HoldingSink, Shared, SharedSubscriptions, TopicSink
 
 log = logging.getLogger(__name__)
+#: a rogue node can make every one of its hundreds of services fail a probe: a few lines, then a count
+_ratelog = RateLimitedLog(log)
 
-__all__ = ["GraphListener", "HoldingSink", "ServiceInfo", "TopicInfo", "TopicSink", "WebHub", "split_rosrpc"]
-
-#: How long a probe waits for a publisher's connection header before the topic stays unadvertised.
-PROBE_TIMEOUT = 5.0
-#: Bytes queued for all clients together (each client also has its own budget, SessionLimits.client_bytes).
-MAX_QUEUED_BYTES = 256 * 1024 * 1024
-#: Seconds before a topic whose probe found no publisher's definition is probed again.
-PROBE_RETRY = 30.0
-#: Probes in flight at once (each is one TCPROS connection to a publisher).
-MAX_PROBES = 8
-#: When every client of a topic holds at least this many bytes of it not yet sent, the hub stops reading the
-#: topic's TCPROS connections until one catches up: the bridge then receives what its fastest client takes,
-#: not everything the publisher sends (the publisher's per-subscriber queue drops the rest, as for any slow
-#: subscriber). Clients that fall further behind still drop from their own queues.
-PAUSE_BYTES = 4 * 1024 * 1024
-
-
-def split_rosrpc(uri: str) -> tuple[str, int]:
-    """``rosrpc://host:port`` -> ``(host, port)`` (IPv6 brackets removed).
-
-    Raises:
-        MrosError: not a rosrpc URI with a port.
-    """
-    if not uri.startswith("rosrpc://"):
-        raise MrosError(f"not a rosrpc URI: {uri!r}")
-    host, _, port = uri[len("rosrpc://") :].rstrip("/").rpartition(":")
-    if not host or not port.isdigit():
-        raise MrosError(f"not a rosrpc URI: {uri!r}")
-    return host.strip("[]"), int(port)
-
+__all__ = [
+    "PAUSE_BYTES",
+    "GraphListener",
+    "HoldingSink",
+    "ServiceInfo",
+    "TopicInfo",
+    "TopicSink",
+    "WebHub",
+    "split_rosrpc",
+]
 
 #: Where simulated time comes from, as in rospy and roscpp, and the parameter that turns it on.
 CLOCK_TOPIC = "/clock"
 SIM_TIME_PARAM = "/use_sim_time"
-
-
-class HoldingSink:
-    """A sink that queues nothing: it holds a topic's shared subscription open (the hub still counts its
-    messages and bytes, ``topic_stats``) and never makes the hub pause the topic. Subclasses act in ``deliver``.
-    """
-
-    def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
-        pass
-
-    def backlog(self, topic: str) -> int:
-        return 0
-
-    def queued(self) -> int:
-        return 0
-
-    def shed_oldest(self) -> None:
-        pass
 
 
 class _ClockSink(HoldingSink):
@@ -113,67 +86,6 @@ class _ClockSink(HoldingSink):
                 log.exception("web: a time listener failed")
 
 
-class TopicSink(Protocol):
-    """A client's end of a shared subscription; ``deliver`` must not block (queue and return)."""
-
-    def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None: ...
-
-    def backlog(self, topic: str) -> int:
-        """Bytes of ``topic`` this sink holds, not yet sent."""
-        ...
-
-    def queued(self) -> int:
-        """Bytes this sink holds over all its topics."""
-        ...
-
-    def shed_oldest(self) -> None:
-        """Drop the oldest message of this sink's fullest queue (counted as a drop)."""
-        ...
-
-
-class GraphListener(Protocol):
-    """Told about topics that became advertisable or went away, and about every graph change."""
-
-    def topics_changed(self, added: list[TopicInfo], removed: list[TopicInfo]) -> None: ...
-
-    def graph_changed(self, graph: GraphSnapshot) -> None: ...
-
-    def services_changed(self, added: list[ServiceInfo], removed: list[ServiceInfo]) -> None: ...
-
-
-@dataclass(frozen=True, slots=True)
-class TopicInfo:
-    """A topic a client can subscribe to: ``id`` is stable for as long as its type stays the same."""
-
-    id: int
-    name: str
-    type: str
-    definition: str
-
-
-@dataclass(frozen=True, slots=True)
-class ServiceInfo:
-    """A service a client can call: its type as the server told a probe, and both halves' definitions."""
-
-    id: int
-    name: str
-    type: str
-    request_definition: str
-    response_definition: str
-
-
-@dataclass(slots=True)
-class _Shared:
-    """One raw subscription and the sinks that share it."""
-
-    subscriber: Subscriber
-    sinks: list[TopicSink] = field(default_factory=list)
-    messages: int = 0
-    bytes: int = 0
-    #: reading from the publishers is paused: every sink is behind (see WebHub.resume)
-    paused: bool = False
-
-
 @dataclass(slots=True)
 class _SharedPublisher:
     publisher: Any
@@ -182,7 +94,11 @@ class _SharedPublisher:
 
 
 class WebHub:
-    """The ROS node behind the browser protocols (``name`` is its node name in the graph)."""
+    """The ROS node behind the browser protocols (``name`` is its node name in the graph).
+
+    ``use_master(master)`` before ``start()`` follows the graph from a master in this process (the daemon's)
+    instead of over XML-RPC.
+    """
 
     def __init__(
         self,
@@ -198,26 +114,27 @@ class WebHub:
         self.master_uri = master_uri
         #: serves fetchAsset for every client (None: the ``assets`` capability is not offered)
         self.assets = assets
-        #: every client queue of every protocol counts its bytes here; beyond max_queued_bytes the fullest
-        #: client sheds its oldest messages (per-client budgets alone let N clients hold N budgets)
-        self.ledger = Ledger()
-        self.max_queued_bytes = max_queued_bytes
         self.policy = policy or AccessPolicy()
         self.poll_interval = poll_interval
         self.node = Node(name, master_uri=master_uri, argv=[], rosout=False, logger_services=False, host=host)
-        self.graph = GraphSnapshot()
+        self.subs = SharedSubscriptions(self.node, max_queued_bytes=max_queued_bytes, before_subscribe=self._unprobe)
+        self.probes = ProbePool()
+        self.local_master: GraphSource | None = None
+        self.graph = LiveGraph()
         #: advertisable topics by name (allowed by the policy, with a known definition)
         self.topics: dict[str, TopicInfo] = {}
-        self.listeners: set[GraphListener] = set()
+        #: callable services by name (allowed by the policy, type probed, definitions found)
+        self.services: dict[str, ServiceInfo] = {}
+        self.listeners: set[GraphListener] = ClientSet(self._client_arrived)
         self._ids = itertools.count(1)
-        self._shared: dict[str, _Shared] = {}
         self._publishers: dict[str, _SharedPublisher] = {}
-        self._probing: dict[str, asyncio.Task[None]] = {}
-        self._probe_slots = asyncio.Semaphore(MAX_PROBES)
         self._unresolved: dict[str, str] = {}
-        #: topic -> when its last probe found no definition (probed again PROBE_RETRY seconds later at most:
-        #: a probe registers a subscriber, which changes the graph, which would start the next probe)
-        self._probe_failed: dict[str, float] = {}
+        #: topics whose type only a publisher can tell (name -> type), and the publishers a probe failed for
+        self._topic_wanted: dict[str, str] = {}
+        self._topic_failed: dict[str, tuple[str, ...]] = {}
+        #: services not probed yet (name -> provider), and the provider a probe failed for
+        self._service_wanted: dict[str, str] = {}
+        self._service_failed: dict[str, str] = {}
         self._watch: asyncio.Task[None] | None = None
         self._first_graph: asyncio.Future[None] | None = None
         self._lock = asyncio.Lock()
@@ -225,11 +142,6 @@ class WebHub:
         self.state_listeners: set[Callable[[SystemState], None]] = set()
         self._state_task: asyncio.Task[None] | None = None
         self._params: dict[str, set[Callable[[str, Any], None]]] = {}
-        #: callable services by name (allowed by the policy, type probed, definitions found)
-        self.services: dict[str, ServiceInfo] = {}
-        self._service_probes: dict[str, asyncio.Task[None]] = {}
-        #: services whose probe failed, with the provider it failed for (probed again when it changes)
-        self._service_failed: dict[str, str] = {}
         #: /use_sim_time is true (followed through the master's paramUpdate, as it changes): /clock is
         #: followed and its time handed out
         self.sim_time = False
@@ -243,6 +155,27 @@ class WebHub:
         #: what /use_sim_time last said, and the task bringing sim_time (and the /clock sink) in line with it
         self._want_sim_time = False
         self._sim_task: asyncio.Task[None] | None = None
+
+    @property
+    def ledger(self) -> Ledger:
+        """Every client queue of every protocol counts its bytes here (``SharedSubscriptions.ledger``)."""
+        return self.subs.ledger
+
+    @property
+    def max_queued_bytes(self) -> int:
+        return self.subs.max_queued_bytes
+
+    @max_queued_bytes.setter
+    def max_queued_bytes(self, value: int) -> None:
+        self.subs.max_queued_bytes = value
+
+    @property
+    def _shared(self) -> dict[str, Shared]:
+        return self.subs.entries
+
+    def use_master(self, master: GraphSource) -> None:
+        """Follow the graph from ``master``, running in this process (before ``start``)."""
+        self.local_master = master
 
     # --- lifecycle -------------------------------------------------------------------------------
 
@@ -274,26 +207,14 @@ class WebHub:
             raise
 
     async def aclose(self) -> None:
-        """Stop watching, close every shared subscription and publisher, and the node."""
-        tasks = [
-            t
-            for t in (
-                self._watch,
-                self._state_task,
-                self._sim_task,
-                *self._probing.values(),
-                *self._service_probes.values(),
-            )
-            if t is not None
-        ]
+        """Stop watching and probing, close every shared subscription and publisher, and the node."""
+        tasks = [t for t in (self._watch, self._state_task, self._sim_task) if t is not None]
         for task in tasks:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
+        await self.probes.aclose()
         self._watch = None
-        self._probing.clear()
-        shared, self._shared = self._shared, {}
-        for entry in shared.values():
-            entry.sinks.clear()
+        self.subs.close()
         self._publishers.clear()
         if self.assets is not None:
             self.assets.close()
@@ -335,8 +256,12 @@ class WebHub:
         client = MasterClient(self.master_uri, self.node.name, self.node.xmlrpc, timeout=5.0)
         first = self._first_graph
         try:
-            async for graph in watch_graph(client, poll_interval=self.poll_interval):
-                self._apply_graph(graph)
+            async for delta in graph_deltas(client, local=self.local_master, poll_interval=self.poll_interval):
+                self.graph.apply(delta)
+                self._topics_changed(delta.topics.keys() | delta.publishers.keys())
+                self._services_changed(set(delta.services))
+                if self.state_listeners:
+                    self.refresh_state()
                 if first is not None and not first.done():
                     first.set_result(None)
         except asyncio.CancelledError:
@@ -347,43 +272,60 @@ class WebHub:
             else:
                 log.exception("web: the graph watch ended")
 
-    def _apply_graph(self, graph: GraphSnapshot) -> None:
-        self.graph = graph
+    def _topics_changed(self, names: set[str]) -> None:
         added: list[TopicInfo] = []
         removed: list[TopicInfo] = []
-        for name, info in list(self.topics.items()):
-            if graph.topics.get(name) != info.type:
+        for name in names:
+            msg_type = self.graph.topics.get(name)
+            info = self.topics.get(name)
+            if info is not None and info.type == msg_type:
+                continue
+            if info is not None:
                 removed.append(self.topics.pop(name))
-        for name, msg_type in graph.topics.items():
-            if name in self.topics or msg_type in ("", "*") or not self.policy.allows_topic(name):
+            self._topic_wanted.pop(name, None)
+            if msg_type is None:
+                self._topic_failed.pop(name, None)
+                self.probes.discard(f"topic {name}")
+                continue
+            if msg_type in ("", "*") or not self.policy.allows_topic(name):
                 continue
             definition = self._definition(msg_type)
             if definition is None:
-                self._start_probe(name, msg_type)
+                self._topic_wanted[name] = msg_type
+                self._probe_topic(name)
                 continue
             info = TopicInfo(next(self._ids), name, msg_type, definition)
             self.topics[name] = info
             added.append(info)
         if added or removed:
             self._notify_topics(added, removed)
-        gone = [self.services.pop(n) for n in list(self.services) if n not in graph.services]
-        if gone:
-            self._notify_services([], gone)
-        for name, provider in graph.services.items():
-            if name in self.services or name in self._service_probes or not self.policy.allows_service(name):
+
+    def _services_changed(self, names: set[str]) -> None:
+        gone: list[ServiceInfo] = []
+        for name in names:
+            provider = self.graph.services.get(name)
+            if provider is None:
+                if name in self.services:
+                    gone.append(self.services.pop(name))
+                self._service_wanted.pop(name, None)
+                self._service_failed.pop(name, None)
+                self.probes.discard(f"service {name}")
+                continue
+            if name in self.services or not self.policy.allows_service(name):
                 continue
             if self._service_failed.get(name) == provider:
                 continue
-            self._service_probes[name] = asyncio.get_running_loop().create_task(
-                self._probe_service(name, provider), name=f"web probe {name}"
-            )
-        for listener in list(self.listeners):
-            try:
-                listener.graph_changed(graph)
-            except Exception:
-                log.exception("web: a graph listener failed")
-        if self.state_listeners:
-            self.refresh_state()
+            self._service_wanted[name] = provider
+            self._probe_service(name)
+        if gone:
+            self._notify_services([], gone)
+
+    def _client_arrived(self) -> None:
+        """The first client connected: learn the types that waited for one."""
+        for name in list(self._topic_wanted):
+            self._probe_topic(name)
+        for name in list(self._service_wanted):
+            self._probe_service(name)
 
     async def system_state(self) -> SystemState:
         """Publishers, subscribers and services with their nodes (one getSystemState), filtered by the policy."""
@@ -427,61 +369,44 @@ class WebHub:
             except Exception:
                 log.exception("web: a service listener failed")
 
-    async def _probe_service(self, name: str, provider: str) -> None:
-        """Ask the service its type with a ``probe=1`` connection header, as roscpp's tools do."""
-        try:
-            async with self._probe_slots:
-                srv_type = await self._service_type(name)
-                store = default_store()
-                spec = store.srv_spec(srv_type)
-                info = ServiceInfo(
-                    next(self._ids),
-                    name,
-                    srv_type,
-                    store.full_text(spec.request.full_name),
-                    store.full_text(spec.response.full_name),
-                )
-        except (MrosError, OSError, TimeoutError) as exc:
-            self._service_failed[name] = provider
-            log.info("web: service %s is not offered to clients: %s", name, exc)
+    # --- types: services -------------------------------------------------------------------------
+
+    def _probe_service(self, name: str) -> None:
+        provider = self._service_wanted.get(name)
+        if provider is None or not self.listeners:  # nobody asked yet
             return
-        finally:
-            self._service_probes.pop(name, None)
-        if self.graph.services.get(name) == provider and name not in self.services:
+
+        async def probe(attempt: Attempt) -> None:
+            srv_type = await service_type(self.node, name, attempt)
+            store = default_store()
+            spec = store.srv_spec(srv_type)
+            request, response = store.full_text(spec.request.full_name), store.full_text(spec.response.full_name)
+            if self.graph.services.get(name) != provider or name in self.services:
+                return
+            self._service_wanted.pop(name, None)
+            info = ServiceInfo(next(self._ids), name, srv_type, request, response)
             self.services[name] = info
             self._notify_services([info], [])
 
+        def failed(reason: str) -> None:
+            self._service_wanted.pop(name, None)
+            self._service_failed[name] = provider
+            _ratelog.log(logging.INFO, "service probe", "web: service %s is not offered: %s", name, reason)
+
+        self.probes.submit(provider, f"service {name}", probe, failed)
+
     async def probe_service_type(self, name: str) -> str:
         """The type of service ``name`` asked now (lookupService, then a probe), for a call that comes before
-        the graph watch has seen the service: rosbridge looks a service's type up at call time too.
+        the hub knows it: rosbridge looks a service's type up at call time too. It never waits behind other
+        probes, and fails within ``ProbePool.lookup_timeout``.
 
         Raises:
-            MrosError: the master does not know it, or its server refused the probe.
+            MrosError: the master does not know it, its server refused the probe or is quarantined, or too
+                many lookups are in flight.
             OSError, TimeoutError: its server could not be reached in time.
         """
-        async with self._probe_slots:
-            return await self._service_type(name)
-
-    async def _service_type(self, name: str) -> str:
-        uri = await self.node.master.lookup_service(name)
-        host, port = split_rosrpc(uri)
-        async with asyncio.timeout(PROBE_TIMEOUT):
-            reader, writer = await asyncio.open_connection(host, port)
-            try:
-                writer.write(
-                    encode_header(ConnectionHeader(callerid=self.node.name, service=name, md5sum="*", probe="1"))
-                )
-                size = int.from_bytes(await reader.readexactly(4), "little")
-                if size > MAX_HEADER_SIZE:
-                    raise RemoteProtocolError(f"service {name}: header of {size} bytes")
-                header = decode_connection_header(await reader.readexactly(size))
-            finally:
-                writer.close()
-        if header.error:
-            raise RemoteProtocolError(f"service {name} refused the probe: {header.error}")
-        if not header.type:
-            raise RemoteProtocolError(f"service {name} did not say its type")
-        return header.type
+        peer = self.graph.services.get(name) or name
+        return await self.probes.lookup(peer, lambda attempt: service_type(self.node, name, attempt))
 
     async def call_service(self, name: str, request: bytes | bytearray | memoryview, timeout: float = 10.0) -> bytes:
         """Call a service with a serialized request; returns the serialized response.
@@ -501,6 +426,8 @@ class WebHub:
         response = await proxy.call(req, timeout=timeout)
         return bytes(response.serialize())
 
+    # --- types: topics ---------------------------------------------------------------------------
+
     def _definition(self, msg_type: str) -> str | None:
         if msg_type in self._unresolved:
             return None
@@ -510,111 +437,43 @@ class WebHub:
             self._unresolved[msg_type] = str(exc)
             return None
 
-    def _start_probe(self, topic: str, msg_type: str) -> None:
-        loop = asyncio.get_running_loop()
-        if topic in self._probing or loop.time() - self._probe_failed.get(topic, -PROBE_RETRY) < PROBE_RETRY:
+    def _probe_topic(self, name: str) -> None:
+        """Learn a topic's definition from a publisher's connection header, once a client is there to ask."""
+        msg_type = self._topic_wanted.get(name)
+        publishers = self.graph.publishers.get(name, ())
+        if msg_type is None or not publishers or not self.listeners or self._topic_failed.get(name) == publishers:
             return
-        task = loop.create_task(self._probe(topic, msg_type), name=f"web probe {topic}")
-        self._probing[topic] = task
 
-    async def _probe(self, topic: str, msg_type: str) -> None:
-        """Read the type's message_definition from a publisher's connection header (short-lived raw subscription)."""
-        try:
-            async with self._probe_slots:
-                definition = await self._definition_from_publisher(topic)
-            if definition is None:
-                self._probe_failed[topic] = asyncio.get_running_loop().time()
-                return
-            if self.graph.topics.get(topic) != msg_type or topic in self.topics:
-                return
-            try:
-                load_type(msg_type, definition)  # refuse a definition that does not parse before advertising it
+        async def probe(_attempt: Attempt) -> None:
+            definition = await definition_from_publisher(self.subs, name, self.probes.timeout + 1.0)
+            if not definition:
+                raise RemoteProtocolError(f"no publisher of {name} sent its type's definition")
+            try:  # refuse a definition that does not parse before advertising it (built off the loop)
+                await load_type_async(msg_type, definition)
             except MsgError as exc:
-                log.warning("web: %s: the publisher's definition of %s does not parse: %s", topic, msg_type, exc)
+                raise RemoteProtocolError(f"the publisher's definition of {msg_type} does not parse: {exc}") from None
+            if self.graph.topics.get(name) != msg_type or name in self.topics:
                 return
-            info = TopicInfo(next(self._ids), topic, msg_type, definition)
-            self.topics[topic] = info
+            self._topic_wanted.pop(name, None)
+            info = TopicInfo(next(self._ids), name, msg_type, definition)
+            self.topics[name] = info
             self._notify_topics([info], [])
-        finally:
-            self._probing.pop(topic, None)
 
-    async def _definition_from_publisher(self, topic: str) -> str | None:
-        entry = self._shared.get(topic)
-        if entry is not None:
-            return await self._header_definition(entry.subscriber)
-        sub = await self._subscribe(topic)
-        try:
-            return await self._header_definition(sub)
-        finally:
-            if topic not in self._shared:
-                await sub.aclose()
+        def failed(reason: str) -> None:
+            self._topic_failed[name] = publishers  # not again until the topic's publishers change
+            _ratelog.log(logging.INFO, "topic probe", "web: topic %s is not offered to clients: %s", name, reason)
 
-    @staticmethod
-    async def _header_definition(sub: Subscriber) -> str | None:
-        try:
-            await sub.wait_for_publishers(1, timeout=PROBE_TIMEOUT)
-        except TimeoutError:
-            return None
-        for link in sub.links.values():
-            if link.header is not None and link.header.message_definition:
-                return link.header.message_definition
-        return None
+        # the probe takes the first definition any publisher sends: charge it to the newest that may be probed
+        peer = next((p for p in reversed(publishers) if not self.probes.quarantine_reason(p)), publishers[-1])
+        self.probes.submit(peer, f"topic {name}", probe, failed)
 
-    async def _subscribe(self, topic: str) -> Subscriber:
-        return await self.node.subscribe(topic, AnyMsg, callback=self._raw_callback(topic))
+    async def _unprobe(self, topic: str) -> None:
+        """Before a topic's shared subscription: wait for a probe that holds the node's subscription to it."""
+        probe = self.probes.running(f"topic {topic}")
+        if probe is not None:
+            await asyncio.gather(probe, return_exceptions=True)
 
     # --- shared subscriptions --------------------------------------------------------------------
-
-    def _raw_callback(self, topic: str) -> Callable[[RawMessage], None]:
-        def deliver(msg: RawMessage) -> None:
-            entry = self._shared.get(topic)
-            if entry is None:
-                return
-            now = time.time_ns()
-            body = msg.data
-            entry.messages += 1
-            entry.bytes += len(body)
-            behind = True
-            for sink in entry.sinks:
-                try:
-                    sink.deliver(topic, body, now)
-                    behind = behind and sink.backlog(topic) >= PAUSE_BYTES
-                except Exception:
-                    log.exception("web: a sink of %s failed", topic)
-            if behind and entry.sinks:
-                self._set_reading(entry, False)
-            if self.ledger.size > self.max_queued_bytes:
-                self._shed()
-
-        return deliver
-
-    def _shed(self) -> None:
-        """Bring the server-wide queued bytes under the bound, oldest messages of the fullest client first."""
-        sinks = {id(s): s for e in self._shared.values() for s in e.sinks}.values()
-        while self.ledger.size > self.max_queued_bytes:
-            fullest = max(sinks, key=lambda s: s.queued(), default=None)
-            if fullest is None or fullest.queued() == 0:
-                return
-            fullest.shed_oldest()
-
-    @staticmethod
-    def _set_reading(entry: _Shared, reading: bool) -> None:
-        """Pause or resume reading the topic's TCPROS connections (TCP's own backpressure)."""
-        entry.paused = not reading
-        for link in entry.subscriber.links.values():
-            proto = link.proto
-            transport = proto.transport if proto is not None else None
-            if transport is not None and not transport.is_closing():
-                if reading:
-                    transport.resume_reading()
-                else:
-                    transport.pause_reading()
-
-    def resume(self, topic: str) -> None:
-        """A sink of ``topic`` caught up: read from the publishers again (no-op unless paused)."""
-        entry = self._shared.get(topic)
-        if entry is not None and entry.paused:
-            self._set_reading(entry, True)
 
     async def add_sink(self, topic: str, sink: TopicSink, *, check: bool = True) -> None:
         """Give ``sink`` every message of ``topic`` (subscribing on the first sink).
@@ -624,51 +483,41 @@ class WebHub:
         """
         if check and not self.policy.allows_topic(topic):
             raise MrosError(f"topic {topic} is not allowed by the [web] topics allow-list")
-        async with self._lock:
-            entry = self._shared.get(topic)
-            if entry is None:
-                probe = self._probing.get(topic)
-                if probe is not None:  # a probe holds the node's subscription to this topic
-                    await asyncio.gather(probe, return_exceptions=True)
-                entry = _Shared(await self._subscribe(topic))
-                self._shared[topic] = entry
-            if sink not in entry.sinks:
-                entry.sinks.append(sink)
-            if entry.paused:
-                self._set_reading(entry, True)  # a newcomer is not behind: nothing else would wake the topic
+        await self.subs.add(topic, sink)
 
     async def remove_sink(self, topic: str, sink: TopicSink) -> None:
         """Stop giving ``sink`` the topic; the last sink closes the subscription."""
-        async with self._lock:
-            entry = self._shared.get(topic)
-            if entry is None:
-                return
-            with contextlib.suppress(ValueError):
-                entry.sinks.remove(sink)
-            if entry.paused:
-                self._set_reading(entry, True)  # the sink that left may have been the one holding it
-            if not entry.sinks:
-                del self._shared[topic]
-                await entry.subscriber.aclose()
+        await self.subs.remove(topic, sink)
+
+    def resume(self, topic: str) -> None:
+        """A sink of ``topic`` caught up: read from the publishers again (no-op unless paused)."""
+        self.subs.resume(topic)
 
     def topic_stats(self, topic: str) -> tuple[int, int] | None:
         """``(messages, bytes)`` received on a shared subscription since it opened (None: not subscribed)."""
-        entry = self._shared.get(topic)
-        return None if entry is None else (entry.messages, entry.bytes)
+        return self.subs.stats(topic)
 
     def sink_count(self, topic: str) -> int:
-        entry = self._shared.get(topic)
-        return 0 if entry is None else len(entry.sinks)
+        return self.subs.sink_count(topic)
 
     # --- client publishers -----------------------------------------------------------------------
 
-    def message_class(self, msg_type: str, definition: str | None = None) -> Any:
-        """The class of a type a client names (its own definition first, then the type search path).
+    def message_class(self, msg_type: str) -> Any:
+        """The class of a type a client names, from the type search path.
+
+        Raises:
+            MsgError: unknown type (the message names where it was looked for).
+        """
+        return load_type(msg_type, "")
+
+    async def client_class(self, msg_type: str, definition: str | None = None) -> Any:
+        """The class of a type a client names with its own definition (built off the event loop), else
+        from the type search path.
 
         Raises:
             MsgError: unknown type (the message names where it was looked for) or a malformed definition.
         """
-        return load_type(msg_type, definition or "")
+        return await load_type_async(msg_type, definition or "")
 
     async def acquire_publisher(self, topic: str, msg_class: Any) -> Any:
         """The shared publisher of ``topic`` (advertised at the first owner).

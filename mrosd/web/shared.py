@@ -1,0 +1,204 @@
+"""``SharedSubscriptions``: one raw TCPROS subscription per topic, shared by every client sink that wants it.
+
+Each message body is handed as received (``AnyMsg``: no decode, no copy) with its receipt time to every
+``TopicSink`` holding the topic; the last sink to leave closes the subscription. No per-client buffering
+here: each sink owns its byte-bounded queue (``mrosd.web.queue``), so a slow client costs only what its own
+queues hold; beyond ``max_queued_bytes`` for all clients together the fullest client sheds its oldest messages.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from mrosd.tcpros import Node
+from mrosd.tcpros.subscriber import AnyMsg, RawMessage, Subscriber
+from mrosd.web.queue import Ledger
+
+log = logging.getLogger(__name__)
+
+__all__ = ["MAX_QUEUED_BYTES", "PAUSE_BYTES", "HoldingSink", "SharedSubscriptions", "TopicSink"]
+
+#: Bytes queued for all clients together (each client also has its own budget, SessionLimits.client_bytes).
+MAX_QUEUED_BYTES = 256 * 1024 * 1024
+#: When every client of a topic holds at least this many bytes of it not yet sent, the hub stops reading the
+#: topic's TCPROS connections until one catches up: the bridge then receives what its fastest client takes,
+#: not everything the publisher sends (the publisher's per-subscriber queue drops the rest, as for any slow
+#: subscriber). Clients that fall further behind still drop from their own queues.
+PAUSE_BYTES = 4 * 1024 * 1024
+
+
+class TopicSink(Protocol):
+    """A client's end of a shared subscription; ``deliver`` must not block (queue and return)."""
+
+    def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None: ...
+
+    def backlog(self, topic: str) -> int:
+        """Bytes of ``topic`` this sink holds, not yet sent."""
+        ...
+
+    def queued(self) -> int:
+        """Bytes this sink holds over all its topics."""
+        ...
+
+    def shed_oldest(self) -> None:
+        """Drop the oldest message of this sink's fullest queue (counted as a drop)."""
+        ...
+
+
+class HoldingSink:
+    """A sink that queues nothing: it holds a topic's shared subscription open (the hub still counts its
+    messages and bytes, ``topic_stats``) and never makes the hub pause the topic. Subclasses act in ``deliver``.
+    """
+
+    def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
+        pass
+
+    def backlog(self, topic: str) -> int:
+        return 0
+
+    def queued(self) -> int:
+        return 0
+
+    def shed_oldest(self) -> None:
+        pass
+
+
+@dataclass(slots=True)
+class Shared:
+    """One raw subscription and the sinks that share it."""
+
+    subscriber: Subscriber
+    sinks: list[TopicSink] = field(default_factory=list)
+    messages: int = 0
+    bytes: int = 0
+    #: reading from the publishers is paused: every sink is behind (see ``resume``)
+    paused: bool = False
+
+
+class SharedSubscriptions:
+    """The shared raw subscriptions of one node; ``before_subscribe(topic)`` runs before a topic's first
+    subscription (the hub waits there for a probe that holds the node's subscription to it)."""
+
+    def __init__(
+        self,
+        node: Node,
+        *,
+        max_queued_bytes: int = MAX_QUEUED_BYTES,
+        before_subscribe: Callable[[str], Awaitable[None]] | None = None,
+    ) -> None:
+        self.node = node
+        #: every client queue of every protocol counts its bytes here (per-client budgets alone let N clients
+        #: hold N budgets)
+        self.ledger = Ledger()
+        self.max_queued_bytes = max_queued_bytes
+        self.entries: dict[str, Shared] = {}
+        self._before = before_subscribe
+        self._lock = asyncio.Lock()
+
+    async def subscribe(self, topic: str) -> Subscriber:
+        """A raw subscription to ``topic`` whose messages go to the topic's sinks (once it has an entry)."""
+        return await self.node.subscribe(topic, AnyMsg, callback=self._raw_callback(topic))
+
+    def _raw_callback(self, topic: str) -> Callable[[RawMessage], None]:
+        def deliver(msg: RawMessage) -> None:
+            entry = self.entries.get(topic)
+            if entry is None:
+                return
+            now = time.time_ns()
+            body = msg.data
+            entry.messages += 1
+            entry.bytes += len(body)
+            behind = True
+            for sink in entry.sinks:
+                try:
+                    sink.deliver(topic, body, now)
+                    behind = behind and sink.backlog(topic) >= PAUSE_BYTES
+                except Exception:
+                    log.exception("web: a sink of %s failed", topic)
+            if behind and entry.sinks:
+                self._set_reading(entry, False)
+            if self.ledger.size > self.max_queued_bytes:
+                self._shed()
+
+        return deliver
+
+    def _shed(self) -> None:
+        """Bring the server-wide queued bytes under the bound, oldest messages of the fullest client first."""
+        sinks = {id(s): s for e in self.entries.values() for s in e.sinks}.values()
+        while self.ledger.size > self.max_queued_bytes:
+            fullest = max(sinks, key=lambda s: s.queued(), default=None)
+            if fullest is None or fullest.queued() == 0:
+                return
+            fullest.shed_oldest()
+
+    @staticmethod
+    def _set_reading(entry: Shared, reading: bool) -> None:
+        """Pause or resume reading the topic's TCPROS connections (TCP's own backpressure)."""
+        entry.paused = not reading
+        for link in entry.subscriber.links.values():
+            proto = link.proto
+            transport = proto.transport if proto is not None else None
+            if transport is not None and not transport.is_closing():
+                if reading:
+                    transport.resume_reading()
+                else:
+                    transport.pause_reading()
+
+    def resume(self, topic: str) -> None:
+        """A sink of ``topic`` caught up: read from the publishers again (no-op unless paused)."""
+        entry = self.entries.get(topic)
+        if entry is not None and entry.paused:
+            self._set_reading(entry, True)
+
+    async def add(self, topic: str, sink: TopicSink) -> None:
+        """Give ``sink`` every message of ``topic`` (subscribing on the first sink).
+
+        Raises:
+            MrosError: the master refused the subscription.
+        """
+        async with self._lock:
+            entry = self.entries.get(topic)
+            if entry is None:
+                if self._before is not None:
+                    await self._before(topic)
+                entry = Shared(await self.subscribe(topic))
+                self.entries[topic] = entry
+            if sink not in entry.sinks:
+                entry.sinks.append(sink)
+            if entry.paused:
+                self._set_reading(entry, True)  # a newcomer is not behind: nothing else would wake the topic
+
+    async def remove(self, topic: str, sink: TopicSink) -> None:
+        """Stop giving ``sink`` the topic; the last sink closes the subscription."""
+        async with self._lock:
+            entry = self.entries.get(topic)
+            if entry is None:
+                return
+            with contextlib.suppress(ValueError):
+                entry.sinks.remove(sink)
+            if entry.paused:
+                self._set_reading(entry, True)  # the sink that left may have been the one holding it
+            if not entry.sinks:
+                del self.entries[topic]
+                await entry.subscriber.aclose()
+
+    def stats(self, topic: str) -> tuple[int, int] | None:
+        """``(messages, bytes)`` received on a shared subscription since it opened (None: not subscribed)."""
+        entry = self.entries.get(topic)
+        return None if entry is None else (entry.messages, entry.bytes)
+
+    def sink_count(self, topic: str) -> int:
+        entry = self.entries.get(topic)
+        return 0 if entry is None else len(entry.sinks)
+
+    def close(self) -> None:
+        """Forget every subscription (the node's close ends them)."""
+        entries, self.entries = self.entries, {}
+        for entry in entries.values():
+            entry.sinks.clear()
