@@ -11,7 +11,7 @@ import asyncio
 import click
 
 from mros_cli.main import master_uri, run
-from mrosd.errors import ConfigError
+from mrosd.errors import ConfigError, MrosError
 from mrosd.web.access import DEFAULT_ASSETS
 
 
@@ -71,16 +71,23 @@ def group(
         raise click.UsageError(str(exc)) from None
 
     async def serve() -> None:
-        async with WebServer(
+        server = WebServer(
             master_uri(),
             host=hosts,
             port=foxglove_port,
             policy=policy,
             node_name=name,
             rosbridge_port=rosbridge_port if rosbridge_port >= 0 else None,
-        ) as server:
+        )
+        try:
+            await server.start()
+        except OSError as exc:  # a port in use: aiohttp's message names the address and port
+            raise MrosError(f"cannot serve: {exc.strerror or exc}") from exc
+        try:
             also = f", rosbridge {' '.join(server.rosbridge_urls)}" if server.rosbridge_port is not None else ""
             click.echo(f"serving {' '.join(server.urls)}{also} (master {master_uri()}); Ctrl-C to stop", err=True)
             await asyncio.Event().wait()
+        finally:
+            await server.aclose()
 
     run(serve())
