@@ -40,14 +40,33 @@ def _pixels(image: RawImage, layout: PixelLayout, factor: int) -> np.ndarray[Any
     img = rows[:, : width * layout.channels].reshape(height, width, layout.channels)
     if factor == 1:
         return img
-    h, w = height // factor or 1, width // factor or 1
-    if height < factor or width < factor:  # smaller than one block: keep a pixel
+    return _reduce(img, factor)
+
+
+def _reduce(img: np.ndarray[Any, Any], factor: int) -> np.ndarray[Any, Any]:
+    """Box-average whole ``factor`` x ``factor`` blocks (at least one pixel is kept). Pillow's ``reduce`` when
+    installed (C, about 3x faster than the numpy sums here), else numpy with 16-bit sums."""
+    import numpy as np
+
+    height, width, channels = img.shape
+    h, w = max(1, height // factor), max(1, width // factor)
+    if height < factor or width < factor:  # smaller than one block: keep a corner
         return np.ascontiguousarray(img[:h, :w])
-    total = np.zeros((h, w, layout.channels), np.uint32)
+    img = img[: h * factor, : w * factor]
+    if importlib.util.find_spec("PIL") is not None:
+        from PIL import Image
+
+        mode = {1: "L", 3: "RGB", 4: "RGBA"}[channels]
+        plane = np.ascontiguousarray(img[..., 0] if channels == 1 else img)
+        small = np.asarray(Image.fromarray(plane, mode).reduce(factor))
+        return small.reshape(h, w, channels)
+    total = np.zeros((h, w, channels), np.uint16 if factor <= 16 else np.uint32)
     for dy in range(factor):
         for dx in range(factor):
-            total += img[dy : h * factor : factor, dx : w * factor : factor]
-    return (total // (factor * factor)).astype(np.uint8)
+            np.add(total, img[dy::factor, dx::factor], out=total)
+    total += factor * factor // 2  # round to nearest, as Pillow does
+    np.floor_divide(total, factor * factor, out=total)
+    return total.astype(np.uint8)
 
 
 class SimpleJpeg:
