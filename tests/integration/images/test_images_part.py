@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import random
 from collections.abc import Callable
 
 import pytest
@@ -82,8 +83,11 @@ async def test_a_burst_is_encoded_down_to_the_newest_image() -> None:
                 sub = await viewer.subscribe("/camera/image/compressed", CompressedImage, queue_size=200)
                 await pub.wait_for_subscribers(1, timeout=10)
                 burst = 60
+                noise = random.Random(32).randbytes(1280 * 720 * 3)  # JPEG's slowest case: encoding falls behind
                 for i in range(burst):
-                    await pub.publish(picture(i, 1280, 720))
+                    msg = Image(height=720, width=1280, encoding="rgb8", step=1280 * 3, data=noise)
+                    msg.header.frame_id = f"f{i}"
+                    await pub.publish(msg)
                 frames = []
                 while not frames or frames[-1] != f"f{burst - 1}":
                     frames.append((await sub.next(timeout=10)).header.frame_id)
