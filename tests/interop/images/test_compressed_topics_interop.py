@@ -137,7 +137,24 @@ def test_rospy_subscriber_gets_compressed_camera_topics_only_on_demand(procs: Pr
         if m:
             rates.append(float(m.group(1)))
     procs.stop(proc)
+    print(f"rostopic hz /camera/image/compressed: {rates}")
     assert rates and max(rates) >= 15.0, rates  # the camera sends 30 Hz; the machine is shared
+
+    # rosbag (C++ recorder) records it as it would record image_transport's topic.
+    bag = tmp_path / "compressed.bag"
+    record = subprocess.run(
+        ["rosbag", "record", "-O", str(bag), "--duration=2", "/camera/image/compressed"],
+        env=renv,
+        capture_output=True,
+        timeout=60,
+        check=False,
+    )
+    assert record.returncode == 0, record.stderr[-500:]
+    info = subprocess.run(
+        ["rosbag", "info", str(bag)], check=True, env=renv, capture_output=True, text=True, timeout=60
+    )
+    m = re.search(r"/camera/image/compressed\s+(\d+) msgs?\s+: sensor_msgs/CompressedImage", info.stdout)
+    assert m and int(m.group(1)) >= 5, info.stdout
 
     procs.stop(viewer)
     _wait(
