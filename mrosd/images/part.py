@@ -39,6 +39,8 @@ SUFFIX = "/compressed"
 IDLE_CHECK = 0.25
 #: How long an idle topic waits for its first subscriber before looking again (the loop also ends on close).
 WAIT_CHECK = 5.0
+#: Seconds before a subscription the master refused is tried again.
+RETRY_DELAY = 2.0
 #: Encoder threads shared by all topics: JPEG encoders release the GIL, so two use both cores of a small
 #: robot computer without starving the event loop's own thread.
 WORKERS = 2
@@ -111,7 +113,18 @@ class CompressedImages:
         self._node = node
         self._executor = ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="mrosd-images")
         self._graph_task = asyncio.create_task(self._follow_graph(), name="images-graph")
-        log.info("images: %s/compressed published on demand for %s", "T", ", ".join(self.patterns))
+        from mrosd.images.jpeg import available_encoders
+
+        # loads numpy and the libraries: off the loop, and the first image does not pay for it
+        jpeg = await asyncio.get_running_loop().run_in_executor(self._executor, available_encoders)
+        if not jpeg:
+            log.warning(
+                "images: no JPEG encoder installed: 8-bit images will not be compressed; "
+                "pip install 'mrosd[images]' (16-bit depth images are, as PNG)"
+            )
+        log.info(
+            "images: T/compressed on demand for %s (JPEG: %s)", ", ".join(self.patterns), jpeg[0] if jpeg else "none"
+        )
 
     async def aclose(self) -> None:
         """Stop every topic, close the node and the worker threads."""
@@ -178,7 +191,12 @@ class CompressedImages:
                 topic.latest = msg
                 topic.ready.set()
 
-            sub = await self._node.subscribe(topic.raw, self._image_cls, keep, queue_size=1)
+            try:
+                sub = await self._node.subscribe(topic.raw, self._image_cls, keep, queue_size=1)
+            except MrosError as exc:  # the master refused or did not answer: try again later
+                _ratelog.warning(f"subscribe {topic.raw}", "images: cannot subscribe to %s: %s", topic.raw, exc)
+                await asyncio.sleep(RETRY_DELAY)
+                continue
             topic.stats.subscribed = True
             try:
                 while pub.get_num_connections() > 0:
