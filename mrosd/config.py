@@ -184,6 +184,21 @@ class FleetConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     limits: list[FleetLimitConfig] = msgspec.field(default_factory=list)
 
 
+class ImagesConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """``[images]``: ``T/compressed`` (sensor_msgs/CompressedImage, as image_transport's ``compressed`` plugin
+    makes it) published into the ROS graph for each sensor_msgs/Image topic ``T`` matching a ``compressed``
+    glob, encoded only while someone subscribes (``mrosd.images``, docs/images.md). Empty list: off.
+    ``MROSD_IMAGES_COMPRESSED`` (comma-separated globs) overrides the list."""
+
+    compressed: list[str] = msgspec.field(default_factory=list)
+    #: JPEG quality 1..100 (the plugin's default, 80)
+    quality: Annotated[int, msgspec.Meta(ge=1, le=100)] = 80
+    #: wider images are scaled down by a whole factor to fit (0: never)
+    max_width: Annotated[int, msgspec.Meta(ge=0)] = 0
+    #: zlib level of 16-bit PNGs (the plugin's default is 9; 1 keeps up with a live depth camera)
+    png_level: Annotated[int, msgspec.Meta(ge=0, le=9)] = 1
+
+
 class LogConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """``[log]``: the daemon's own log verbosity, and the log files roscore users look for.
 
@@ -209,6 +224,7 @@ class Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     web: WebConfig = msgspec.field(default_factory=WebConfig)
     log: LogConfig = msgspec.field(default_factory=LogConfig)
     fleet: FleetConfig = msgspec.field(default_factory=FleetConfig)
+    images: ImagesConfig = msgspec.field(default_factory=ImagesConfig)
     #: the file this came from, or "" for defaults only (not a TOML key).
     source: str = ""
 
@@ -292,6 +308,11 @@ def _validate(cfg: Config) -> None:
         except ValueError as exc:
             raise ConfigError(f"{where}: master.allow[{i}] is not a network: {net!r}") from exc
     _validate_web(cfg.web, where)
+    for i, pattern in enumerate(cfg.images.compressed):
+        if not pattern.startswith("/"):
+            raise ConfigError(
+                f"{where}: images.compressed[{i}] must be a global name glob (/camera/*), got {pattern!r}"
+            )
 
 
 def _validate_web(web: WebConfig, where: str) -> None:
@@ -366,6 +387,14 @@ def apply_environment(cfg: Config, environ: Mapping[str, str]) -> Config:
         cfg.web.rosbridge_port = _int("MROSD_WEB_ROSBRIDGE_PORT", environ["MROSD_WEB_ROSBRIDGE_PORT"])
     if "MROSD_WEB_TOKEN" in environ:
         cfg.web.token = environ["MROSD_WEB_TOKEN"]
+    if "MROSD_IMAGES_COMPRESSED" in environ:
+        globs = [g.strip() for g in environ["MROSD_IMAGES_COMPRESSED"].split(",") if g.strip()]
+        bad = [g for g in globs if not g.startswith("/")]
+        if bad:
+            raise ConfigError(
+                f"environment: MROSD_IMAGES_COMPRESSED needs global name globs (/camera/*), got {bad[0]!r}"
+            )
+        cfg.images.compressed = globs
     if "MROSD_LOG_LEVEL" in environ:
         level = environ["MROSD_LOG_LEVEL"].strip().lower()
         if level not in ("debug", "info", "warning", "error"):

@@ -130,6 +130,8 @@ class Daemon:
                 await self._optional("web", self._start_web)
             if not self.master_only and self.cfg.fleet.enabled:
                 await self._optional("fleet", self._start_fleet)
+            if not self.master_only and self.cfg.images.compressed:
+                await self._optional("images", self._start_images)
         except BaseException:
             await self.aclose()
             raise
@@ -304,6 +306,16 @@ class Daemon:
         self._parts.append(("fleet", fleet))
         log.info("fleet: robot %s linked over Zenoh", self.cfg.fleet.robot)
 
+    async def _start_images(self) -> None:
+        from mrosd.images.encoding import EncodeSettings
+        from mrosd.images.part import CompressedImages
+
+        cfg = self.cfg.images
+        settings = EncodeSettings(quality=cfg.quality, max_width=cfg.max_width, png_level=cfg.png_level)
+        part = CompressedImages(self.master_uri, cfg.compressed, settings, admission=self._tcpros_admission())
+        await part.start()
+        self._parts.append(("images", part))
+
     def status_line(self) -> str:
         """The one-line status for ``systemctl status``: ``running: ...`` or ``degraded: ...; ixm failed: why``."""
         parts = [f"master {self.master_uri}"]
@@ -469,6 +481,8 @@ class Daemon:
             await self._optional("web", self._start_web)
         if "fleet" in retry:
             await self._optional("fleet", self._start_fleet)
+        if "images" in retry:
+            await self._optional("images", self._start_images)
 
     async def aclose(self, timeout: float = SHUTDOWN_TIMEOUT) -> bool:
         """Close the parts in reverse start order within ``timeout`` seconds in all; True when all closed.

@@ -21,6 +21,8 @@ from typing import Annotated, Any
 import msgspec
 
 from mrosd.errors import RemoteProtocolError
+from mrosd.images.png import PNG_SIGNATURE as _PNG_SIGNATURE
+from mrosd.images.png import png_chunk as _png_chunk
 from mrosd.web.queue import Ledger
 
 __all__ = [
@@ -226,17 +228,12 @@ def fragments(text: str, fragment_size: int, message_id: str) -> list[bytes]:
 #: wins back what base64 added, and base64 adds it again); text and numbers shrink several times. The session
 #: compresses off the event loop, so the level costs a thread's CPU, not other clients' latency.
 PNG_LEVEL = 6
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 #: Text compressed per step of the PNG encoder: each step's zlib call lets go of the GIL, and what a step does
 #: holding it (joining its rows, base64 of its output) takes about 0.1 ms, so the event loop's thread is never
 #: kept waiting long by an encode running in another thread.
 PNG_STEP = 64 * 1024
-
-
-def _png_chunk(kind: bytes, data: bytes) -> bytes:
-    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(data, zlib.crc32(kind)))
 
 
 def _png_parts(text: bytes | bytearray | memoryview, level: int) -> Iterator[bytes]:

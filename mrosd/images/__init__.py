@@ -1,0 +1,17 @@
+"""Compressed camera topics as image_transport's ``compressed`` plugin makes them (docs/images.md).
+
+``encoding`` (the pure core: Image fields -> CompressedImage ``format``/``data``), ``jpeg`` (the optional
+libjpeg-turbo encoders), ``png`` (the one PNG writer), ``part`` (the daemon's ``[images]`` node, which
+publishes ``T/compressed`` into the ROS graph while someone subscribes).
+"""
+
+from mrosd.images.encoding import (
+    CompressedFrame,
+    EncodeSettings,
+    ImageError,
+    RawImage,
+    compressed_format,
+    encode_image,
+)
+
+__all__ = ["CompressedFrame", "EncodeSettings", "ImageError", "RawImage", "compressed_format", "encode_image"]
