@@ -22,7 +22,8 @@ from typing import Any
 
 from mrosd.errors import MrosError
 from mrosd.fleet.keys import glob_match
-from mrosd.images.encoding import EncodeSettings, ImageError, RawImage, encode_image
+from mrosd.images.compress import encode_image
+from mrosd.images.encoding import EncodeSettings, ImageError, RawImage
 from mrosd.lograte import RateLimitedLog
 from mrosd.master.client import watch_graph
 from mrosd.tcpros.node import Node
