@@ -41,6 +41,7 @@ SUBCOMMANDS = {
     "bridge": "mros_cli.bridge",
     "fleet": "mros_cli.fleet",
     "web": "mros_cli.web",
+    "action": "mros_cli.action",
 }
 
 EXIT_OK = 0
