@@ -42,6 +42,7 @@ SUBCOMMANDS = {
     "fleet": "mros_cli.fleet",
     "web": "mros_cli.web",
     "action": "mros_cli.action",
+    "tf": "mros_cli.tf",
 }
 
 EXIT_OK = 0
