@@ -43,6 +43,7 @@ SUBCOMMANDS = {
     "web": "mros_cli.web",
     "action": "mros_cli.action",
     "tf": "mros_cli.tf",
+    "reconfigure": "mros_cli.reconfigure",
 }
 
 EXIT_OK = 0
