@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import json
 import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,7 @@ from mrosd.reconfigure import (
     ReconfigureServer,
 )
 from tests.interop.cli.cliutil import mros
-from tests.rosenv import ROS_PYTHON, Processes, iter_lines_until, needs_ros, ros_env
+from tests.rosenv import PROJECT_ROOT, ROS_PYTHON, Processes, iter_lines_until, needs_ros, ros_env
 
 SCRIPT = str(Path(__file__).resolve().parents[2] / "data" / "reconfigure" / "dr_node.py")
 
@@ -140,3 +141,16 @@ async def test_debian_client_drives_our_server_and_sees_its_adjustments(procs: P
         assert (config["gain"], config["steps"], config["offset"]) == (10.0, 6, 0.0)
         assert await node.get_param("/our_dr/steps") == 6
     assert levels[0] == 0xFFFFFFFF and levels[1] == 1 | 2
+
+
+async def test_the_example_server_answers_debian_client_with_its_adjusted_value(
+    procs: Processes, rosmaster: str
+) -> None:
+    example = procs.start(
+        [sys.executable, str(PROJECT_ROOT / "examples" / "reconfigure_server.py")],
+        ros_env(rosmaster, procs.tmp),
+        stderr=subprocess.DEVNULL,
+    )
+    await asyncio.to_thread(lambda: list(iter_lines_until(example, 1, 30.0)))  # the first callback's line
+    config = await debian_client(procs, rosmaster, "set", "/camera", json.dumps({"exposure": 22, "mode": "Roi"}))
+    assert (config["exposure"], config["mode"], config["name"]) == (20, 2, "camera")
