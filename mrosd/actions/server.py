@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from mrosd.actions.spec import ActionSpec
 from mrosd.actions.status import (
+    MAX_STATUS_ENTRIES,
     PREEMPTED_BY_NEW_GOAL,
     STATUS_FREQUENCY,
     STATUS_LIST_TIMEOUT,
@@ -85,6 +86,7 @@ class ActionServer:
         simple: bool = True,
         status_frequency: float = STATUS_FREQUENCY,
         status_list_timeout: float = STATUS_LIST_TIMEOUT,
+        max_goals: int = MAX_STATUS_ENTRIES,
     ) -> None:
         self.node = node
         self.ns = node.resolve_name(name)
@@ -92,7 +94,7 @@ class ActionServer:
         self.execute = execute
         self.simple = simple
         self.status_frequency = status_frequency
-        self.status = StatusList(timeout=status_list_timeout)
+        self.status = StatusList(timeout=status_list_timeout, max_entries=max_goals)
         self.tasks: dict[str, asyncio.Task[None]] = {}
         self._current: Entry | None = None
         self._next: tuple[Entry, Any] | None = None

@@ -266,7 +266,8 @@ class BufferCore:
             return cache.latest()[0] if cache is not None else 0
         up_source = self._chain(source, target)
         up_target = self._chain(target, None)
-        common = next((f for f in up_source if f in set(up_target)), None)
+        on_target = set(up_target)
+        common = next((f for f in up_source if f in on_target), None)
         if common is None:
             raise ConnectivityError(self._unconnected(target, source))
         stamps = []
