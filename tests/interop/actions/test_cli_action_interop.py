@@ -56,3 +56,16 @@ async def test_ctrl_c_on_mros_action_send_cancels_the_goal(procs: Processes, ros
             async for msg in sub:
                 if [st.status for st in msg.status_list] == [Status.PREEMPTED]:
                     break
+
+
+async def test_mros_action_cancel_ends_a_debian_clients_goal(procs: Processes, rosmaster: str) -> None:
+    server = rospy_action(procs, rosmaster, "server")
+    assert await lines(server, 1) == ["up"]
+    client = rospy_action(procs, rosmaster, "client", "100")
+    assert await lines(client, 2) == ["up", "feedback 1"]
+    done = await asyncio.to_thread(mros, rosmaster, procs.tmp, "action", "cancel", "/test_action")
+    assert done.returncode == 0, done
+    rest = await lines(client, 1)
+    while not rest[-1].startswith("done"):
+        rest += await lines(client, 1)
+    assert rest[-1].startswith("done PREEMPTED"), rest

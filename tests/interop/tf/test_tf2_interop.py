@@ -139,6 +139,20 @@ async def test_mros_tf_echo_and_the_example_print_what_tf2_ros_broadcasts(procs:
     want = expected_world_base(secs, nsecs)
     assert max(abs(a - b) for a, b in zip((x, y, z, qx, qy, qz, qw), want, strict=True)) < 1e-6, echo.stdout
 
+    tree = await asyncio.to_thread(
+        subprocess.run,
+        [sys.executable, "-m", "mros_cli.main", "tf", "tree", "--listen", "1"],
+        env=mros_env(rosmaster, procs.tmp),
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    lines = tree.stdout.splitlines()
+    assert lines[0] == "world", tree
+    assert lines[1] == "  map  broadcaster: /tf2_broadcaster  static", tree
+    assert re.match(r"    base  broadcaster: /tf2_broadcaster  rate: \d+\.\d{3} Hz  most recent: ", lines[2]), tree
+
     listener = procs.start(
         [sys.executable, str(PROJECT_ROOT / "examples" / "tf_listener.py"), "world", "base"],
         mros_env(rosmaster, procs.tmp),
