@@ -6,7 +6,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from mrosd.errors import MsgNotFoundError
-from mrosd.msg import TypeStore, get_message_class
+from mrosd.msg import TypeStore, get_message_class, load_type
+from mrosd.msg.action import action_definition, generate_action
 
 #: Suffixes genaction gives the types it generates from ``<Name>.action``.
 ACTION_SUFFIXES = ("ActionGoal", "ActionResult", "ActionFeedback", "Goal", "Result", "Feedback")
@@ -24,6 +25,18 @@ class ActionSpec:
     goal: Any
     result: Any
     feedback: Any
+
+    @classmethod
+    def from_action(cls, action_type: str, text: str) -> ActionSpec:
+        """Classes from a ``.action`` file's text by genaction's rules (no generated .msg files needed).
+
+        Raises:
+            MsgParseError: the text is not an action definition.
+        """
+        base = action_type.removesuffix("Action")
+        generated = generate_action(base, text)
+        classes = [load_type(base + s, action_definition(generated, base + s)) for s in ACTION_SUFFIXES]
+        return cls(base + "Action", *classes)
 
     @classmethod
     def load(cls, action_type: str, store: TypeStore | None = None) -> ActionSpec:
