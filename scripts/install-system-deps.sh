@@ -19,6 +19,7 @@ $SUDO apt-get install -y -q \
     ros-std-msgs ros-geometry-msgs ros-sensor-msgs ros-rosgraph-msgs ros-actionlib-msgs ros-diagnostic-msgs \
     ros-nav-msgs ros-shape-msgs ros-stereo-msgs ros-trajectory-msgs ros-visualization-msgs ros-tf2-msgs \
     ros-map-msgs ros-std-srvs python3-std-srvs \
+    python3-actionlib python3-tf2-ros python3-dynamic-reconfigure \
     g++ cmake pkg-config iproute2 procps \
     nodejs $NPM chromium
 # The real WebSocket clients the tests drive (@foxglove/ws-protocol, ...), exactly as locked.

@@ -41,6 +41,9 @@ SUBCOMMANDS = {
     "bridge": "mros_cli.bridge",
     "fleet": "mros_cli.fleet",
     "web": "mros_cli.web",
+    "action": "mros_cli.action",
+    "tf": "mros_cli.tf",
+    "reconfigure": "mros_cli.reconfigure",
 }
 
 EXIT_OK = 0
