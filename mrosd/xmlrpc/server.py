@@ -122,7 +122,7 @@ class XmlRpcServer:
         try:
             method, params = await decode_call_async(body)
         except RemoteProtocolError as exc:
-            log.warning("%s: %s", self._name, exc)
+            _ratelog.warning("parse", "%s: %s", self._name, exc)  # any peer can send these: bounded
             return encode_fault(FAULT_PARSE_ERROR, str(exc))
         try:
             result = await self.call(method, params)
