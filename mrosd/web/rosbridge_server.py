@@ -26,6 +26,7 @@ import os
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -165,13 +166,14 @@ class RosbridgeSession(ClientSession):
             data = rb.publish_json(sub.topic, msg)
             if sub.compression == "png":
                 data = await png_op_off_loop(data)
-            if sub.fragment_size and len(data) > sub.fragment_size:
-                pieces = rb.fragments(
+            if sub.fragment_size and len(data) > max(sub.fragment_size, rb.MIN_FRAGMENT_SIZE):
+                # Made one at a time as the sender takes them (ahead of anything else), from the one text:
+                # the client holds this message, not its fragments, until the last is sent.
+                pieces = rb.iter_fragments(
                     data.decode(), sub.fragment_size, f"publish:{sub.topic}:{next(self._request_ids)}"
                 )
-                # The rest go first in the next turns, ahead of anything else (uncounted: see ControlQueue).
-                self._control.push_front([(False, piece) for piece in pieces[1:]])
-                return False, pieces[0]
+                self._fragment_rest: Iterator[bytes] | None = pieces
+                return False, next(pieces)
             return False, data
         return None
 
@@ -181,7 +183,14 @@ class RosbridgeSession(ClientSession):
             await self._wake.wait()
             self._wake.clear()
             while not self._closed:
-                if self._control:
+                rest: Iterator[bytes] | None = getattr(self, "_fragment_rest", None)
+                piece = next(rest, None) if rest is not None else None
+                if piece is not None:
+                    binary, data = False, piece
+                elif rest is not None:
+                    self._fragment_rest = None
+                    continue
+                elif self._control:
                     binary, data = self._control.pop()
                 else:
                     frame = await self._next_message()
@@ -553,7 +562,7 @@ class RosbridgeSession(ClientSession):
             return {"exists": await master.has_param(name)}
         if method == "set_param":
             try:
-                value = json.loads(str(args.get("value", "null")))
+                value = rb.decode_value(str(args.get("value", "null")))
             except ValueError as exc:
                 raise MrosError(f"set_param {name}: value is not JSON: {exc}") from None
             await master.set_param(name, value)

@@ -17,8 +17,8 @@ from mrosd.web.queue import ControlQueue
 if TYPE_CHECKING:
     from aiohttp import web
 
-    from mrosd.web.foxglove_server import SessionLimits
     from mrosd.web.hub import WebHub
+    from mrosd.web.limits import SessionLimits
 
 log = logging.getLogger(__name__)
 #: a client can make these at will (connect, ask, never read): at most a few lines per period
