@@ -173,6 +173,11 @@ class RosbridgeSession(ClientSession):
                     data.decode(), sub.fragment_size, f"publish:{sub.topic}:{next(self._request_ids)}"
                 )
                 self._fragment_rest: Iterator[bytes] | None = pieces
+                # The text is this client's until its last piece is sent: counted in the server's budget, and
+                # its queues make room for it within the client's own.
+                self._hold(len(data))
+                budget = max(0, self.limits.client_bytes - self.held)
+                trim_to_budget([s.queue for s in self.subs.values()], budget, sub.queue)
                 return False, next(pieces)
             return False, data
         return None
@@ -189,6 +194,7 @@ class RosbridgeSession(ClientSession):
                     binary, data = False, piece
                 elif rest is not None:
                     self._fragment_rest = None
+                    self._unhold()
                     continue
                 elif self._control:
                     binary, data = self._control.pop()
@@ -226,6 +232,8 @@ class RosbridgeSession(ClientSession):
             for task in (sender, *self._calls):
                 task.cancel()
             await asyncio.gather(sender, *self._calls, return_exceptions=True)
+            self._fragment_rest = None
+            self._unhold()
             await self._release()
 
     async def _release(self) -> None:
