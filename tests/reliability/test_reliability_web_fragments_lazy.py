@@ -1,7 +1,7 @@
 """rosbridge fragments are made one at a time and counted while sent; ``fragment_size`` has a floor.
 
-In process (the server's state is read): a 16 MB message (more than loopback's socket buffers) to a client with ``fragment_size: 1`` that reads a
-few pieces and stops.
+In process (the server's state is read): a 16 MB message (more than loopback's socket buffers) to a client
+with ``fragment_size: 1`` that reads a few pieces and stops.
 """
 
 from __future__ import annotations
