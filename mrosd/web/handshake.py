@@ -53,31 +53,75 @@ def gate_middleware(gate: OriginGate, page_port: Callable[[], int]) -> Any:
     return middleware
 
 
+class _AuthReader(reader_py.WebSocketReader):
+    """aiohttp's pure-Python frame reader, which lifts its own frame limit at the frame that authenticates.
+
+    It must be the reader, not the handler reading its messages: a client may send a big op right behind its
+    auth op, in the same TCP segment, and the reader parses both before the handler sees the first.
+    """
+
+    #: (the limit to lift to, the token check) until a frame authenticates; None after
+    lift: tuple[int, Callable[[str], bool]] | None = None
+
+    def _handle_frame(self, fin: bool, opcode: int, payload: bytes | bytearray, compressed: int) -> None:
+        super()._handle_frame(fin, opcode, payload, compressed)
+        if self.lift is None or not fin or opcode != 0x1 or len(payload) > AUTH_FRAME:
+            return
+        max_frame, token_ok = self.lift
+        try:
+            op = rb.decode_auth(bytes(payload))
+        except rb.RosbridgeRefusal:
+            return
+        if op.op == "auth" and token_ok(op.mac):
+            self.lift = None
+            self._max_msg_size = max_frame
+            self._max_fragments = max(1024, max_frame // 256) if max_frame else 0
+
+
 class AuthFirstResponse(web.WebSocketResponse):
-    """A WebSocket whose frame limit starts small (``AUTH_FRAME``) and is raised once the client authenticated.
+    """A WebSocket whose frame limit is ``AUTH_FRAME`` until the client's ``auth`` op, then ``max_frame``.
 
     aiohttp's compiled frame reader fixes its limit when the socket opens; this response reads with aiohttp's
-    pure-Python reader (the same parser, the limit an attribute) so that ``raise_frame_limit`` can lift it.
+    pure-Python reader (the same parser, its limit an attribute), which lifts the limit itself at the frame
+    that authenticates (``_AuthReader``).
     """
+
+    def __init__(self, *, max_frame: int, token_ok: Callable[[str], bool], **kwargs: Any) -> None:
+        super().__init__(max_msg_size=AUTH_FRAME, **kwargs)
+        self._lift = (max_frame, token_ok)
+        #: the reader lifts its limit (False: an aiohttp whose internals differ; the limit then stays)
+        self.liftable = False
 
     def _post_start(self, request: Any, protocol: str | None, writer: Any) -> None:
         super()._post_start(request, protocol, writer)
-        queue = reader_py.WebSocketDataQueue(request._protocol, 2**16, loop=asyncio.get_running_loop())
+        try:
+            queue = reader_py.WebSocketDataQueue(request._protocol, 2**16, loop=asyncio.get_running_loop())
+            parser = _AuthReader(
+                queue,  # type: ignore[arg-type]
+                self._max_msg_size,
+                compress=bool(self._compress),
+                decode_text=self._decode_text,
+            )
+            if request.protocol._payload_parser is not self._parser:
+                return
+        except (AttributeError, TypeError):
+            return
+        parser.lift = self._lift
         self._reader = queue  # type: ignore[assignment]
-        parser = reader_py.WebSocketReader(
-            self._reader,  # type: ignore[arg-type]
-            self._max_msg_size,
-            compress=bool(self._compress),
-            decode_text=self._decode_text,
-        )
         self._parser = parser  # type: ignore[assignment]
         # the one aiohttp just installed has read nothing yet (the handshake reply is not even sent)
         request.protocol._payload_parser = parser
+        self.liftable = True
 
-    def raise_frame_limit(self, max_frame: int) -> None:
-        parser: Any = self._parser
-        parser._max_msg_size = max_frame
-        parser._max_fragments = max(1024, max_frame // 256) if max_frame else 0
+    def check_lifted(self) -> None:
+        """After the auth op: warn when this aiohttp could not lift the limit."""
+        if not self.liftable:
+            _ratelog.warning(
+                "lift",
+                "web: this aiohttp's WebSocket reader keeps the %d-byte limit after an auth op; "
+                "clients that send big ops should give the token in the URL",
+                AUTH_FRAME,
+            )
 
 
 #: Ops a client may send before its ``auth`` op, each answered with a status (roslibjs may queue a subscribe

@@ -24,7 +24,7 @@ from mrosd.web.access import AccessPolicy
 from mrosd.web.admission import Admission, OriginGate
 from mrosd.web.assets import MAX_ASSET_BYTES, AssetReader
 from mrosd.web.foxglove_server import FoxgloveSession
-from mrosd.web.handshake import AUTH_FRAME, AuthFirstResponse, gate_middleware, read_auth, refuse_later
+from mrosd.web.handshake import AuthFirstResponse, gate_middleware, read_auth, refuse_later
 from mrosd.web.hub import WebHub
 from mrosd.web.limits import SessionLimits
 from mrosd.web.page import index, page_routes
@@ -216,7 +216,9 @@ class WebServer:
             if why is not None:
                 raise web.HTTPServiceUnavailable(text=why + "\n")
         else:
-            pending = AuthFirstResponse(compress=False, max_msg_size=AUTH_FRAME, heartbeat=30.0)
+            pending = AuthFirstResponse(
+                max_frame=self.max_frame, token_ok=self.policy.token_ok, compress=False, heartbeat=30.0
+            )
             await pending.prepare(request)
             for old in self.admission.pend(pending, address):
                 refuse_later(old, "too many connections waiting to authenticate")  # type: ignore[arg-type]
@@ -230,7 +232,7 @@ class WebServer:
             if why is not None:
                 await pending.close(code=1013, message=why.encode())
                 return pending
-            pending.raise_frame_limit(self.max_frame)
+            pending.check_lifted()
             ws = pending
         try:
             if not ws.prepared:

@@ -109,3 +109,31 @@ def test_a_silent_client_is_closed_at_its_auth_deadline(daemon: WebDaemon) -> No
             assert msg.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED), msg
 
     asyncio.run(main())
+
+
+async def test_after_the_auth_op_frames_get_the_normal_limit() -> None:
+    """Before auth a frame over AUTH_FRAME closes the connection (1009); after it, a big op is served."""
+    from mrosd.master import Master
+    from mrosd.web.access import AccessPolicy
+    from mrosd.web.handshake import AUTH_FRAME
+    from mrosd.web.server import WebServer
+
+    big = {"op": "call_service", "id": "big", "service": "/rosapi/get_param", "args": {"name": "/x" * AUTH_FRAME}}
+    async with (
+        Master(host="127.0.0.1", port=0) as master,
+        WebServer(
+            master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1", policy=AccessPolicy(token=TOKEN)
+        ) as server,
+        aiohttp.ClientSession() as http,
+    ):
+        ws = await http.ws_connect(server.rosbridge_url)
+        await ws.send_str(json.dumps(big))
+        assert (await ws.receive(timeout=10)).type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED)
+        assert ws.close_code == 1009
+        ws = await http.ws_connect(server.rosbridge_url)
+        await ws.send_str(json.dumps({"op": "auth", "mac": TOKEN}))
+        await ws.send_str(json.dumps(big))
+        reply = json.loads((await ws.receive(timeout=10)).data)
+        assert reply["op"] == "service_response" and reply["id"] == "big", reply
+        assert server.admission.clients == 1 and server.admission.pending == 0
+        await ws.close()
