@@ -117,6 +117,12 @@ class WebConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     rosbridge_port: int = 9090
     #: clients pass it as ``?token=`` in the URL or ``Authorization: Bearer``; empty: none (loopback only)
     token: str = ""
+    #: names the web ports answer to besides IP literals and ``localhost`` (any other ``Host`` is refused:
+    #: DNS rebinding), e.g. ``["robot.local"]``
+    hostnames: list[str] = msgspec.field(default_factory=list)
+    #: pages of other sites allowed to open the WebSockets (``https://app.foxglove.dev``); the page mrosd
+    #: serves itself and clients that send no ``Origin`` (scripts, Foxglove desktop) need no entry
+    allowed_origins: list[str] = msgspec.field(default_factory=list)
     #: shell-style globs of the topics, services and parameters clients may use
     topics: list[str] = msgspec.field(default_factory=lambda: ["*"])
     services: list[str] = msgspec.field(default_factory=lambda: ["*"])
@@ -395,6 +401,10 @@ def apply_environment(cfg: Config, environ: Mapping[str, str]) -> Config:
                 f"environment: MROSD_IMAGES_COMPRESSED needs global name globs (/camera/*), got {bad[0]!r}"
             )
         cfg.images.compressed = globs
+    if "MROSD_WEB_HOSTNAMES" in environ:
+        cfg.web.hostnames = [n.strip() for n in environ["MROSD_WEB_HOSTNAMES"].split(",") if n.strip()]
+    if "MROSD_WEB_ALLOWED_ORIGINS" in environ:
+        cfg.web.allowed_origins = [o.strip() for o in environ["MROSD_WEB_ALLOWED_ORIGINS"].split(",") if o.strip()]
     if "MROSD_LOG_LEVEL" in environ:
         level = environ["MROSD_LOG_LEVEL"].strip().lower()
         if level not in ("debug", "info", "warning", "error"):

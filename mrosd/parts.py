@@ -269,7 +269,13 @@ class Daemon:
 
         web = self.cfg.web
         policy = AccessPolicy(
-            topics=web.topics, services=web.services, params=web.params, assets=web.assets, token=web.token
+            topics=web.topics,
+            services=web.services,
+            params=web.params,
+            assets=web.assets,
+            token=web.token,
+            hostnames=web.hostnames,
+            allowed_origins=web.allowed_origins,
         )
         caps = {"queue_bytes": web.queue_bytes, "client_bytes": web.client_bytes}
         limits = SessionLimits(**{k: v for k, v in caps.items() if v is not None})

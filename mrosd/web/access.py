@@ -55,12 +55,18 @@ class AccessPolicy:
         params: Sequence[str] = ("*",),
         token: str = "",
         assets: Sequence[str] = DEFAULT_ASSETS,
+        hostnames: Sequence[str] = (),
+        allowed_origins: Sequence[str] = (),
     ) -> None:
         self.topics = list(topics)
         self.assets = list(assets)
         self.services = list(services)
         self.params = list(params)
         self.token = token
+        #: names the web ports answer to besides IP literals and localhost, and other pages allowed to
+        #: connect (``mrosd.web.admission.OriginGate``)
+        self.hostnames = list(hostnames)
+        self.allowed_origins = list(allowed_origins)
         self._topics = _compile(topics)
         self._services = _compile(services)
         self._params = _compile(params)

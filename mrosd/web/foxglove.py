@@ -24,6 +24,7 @@ from typing import Annotated, Any, Final, Literal
 import msgspec
 
 from mrosd.errors import RemoteProtocolError
+from mrosd.web.jsonvalue import TooDeep, check_depth, decode_bounded
 
 __all__ = [
     "SUBPROTOCOLS",
@@ -251,21 +252,36 @@ _op_peek = msgspec.json.Decoder(_OpOnly)
 
 
 def decode_client_text(data: str | bytes) -> ClientOp:
-    """One client JSON op.
+    """One client JSON op; a parameter value may nest at most ``jsonvalue.MAX_DEPTH`` levels.
 
     Raises:
-        ProtocolRefusal: not JSON, an unknown op, or fields of the wrong shape (the message says which).
+        ProtocolRefusal: not JSON, an unknown op, fields of the wrong shape (the message says which), or
+            nested too deep (whatever the decoder would otherwise raise: never RecursionError).
     """
     try:
-        return _op_decoder.decode(data)
+        op = decode_bounded(_op_decoder.decode, data)
     except (msgspec.DecodeError, msgspec.ValidationError) as exc:
         try:
-            op = _op_peek.decode(data).op
-        except (msgspec.DecodeError, msgspec.ValidationError):
+            name = decode_bounded(_op_peek.decode, data).op
+        except (msgspec.DecodeError, msgspec.ValidationError, ValueError):
             raise ProtocolRefusal(f"not a JSON object: {exc}") from None
-        if not isinstance(op, str) or op not in _OP_NAMES:
-            raise ProtocolRefusal(f"unknown op {op!r:.80}") from None
-        raise ProtocolRefusal(f"malformed {op}: {exc}") from None
+        if not isinstance(name, str) or name not in _OP_NAMES:
+            raise ProtocolRefusal(f"unknown op {_shown(name)}") from None
+        raise ProtocolRefusal(f"malformed {name}: {exc}") from None
+    except ValueError as exc:  # TooDeep, or more than memory holds
+        raise ProtocolRefusal(f"not accepted: {exc}") from None
+    if isinstance(op, SetParameters):
+        for param in op.parameters:
+            try:
+                check_depth(param.value)
+            except TooDeep as exc:
+                raise ProtocolRefusal(f"setParameters {param.name}: the value is {exc}") from None
+    return op
+
+
+def _shown(op: object) -> str:
+    """An op name for a refusal: a string (cut short), else only its JSON type (a nested value's repr recurses)."""
+    return repr(op[:80]) if isinstance(op, str) else f"of type {type(op).__name__}"
 
 
 # --- client binary frames ---------------------------------------------------------------------------

@@ -24,6 +24,7 @@ import msgspec
 
 from mrosd.errors import MasterError, MrosError
 from mrosd.msg import get_service_class
+from mrosd.web import rosbridge as rb
 
 if TYPE_CHECKING:
     from mrosd.msg.spec import MsgSpec
@@ -384,7 +385,7 @@ async def _get_param(hub: WebHub, args: dict[str, Any]) -> dict[str, Any]:
 async def _set_param(hub: WebHub, args: dict[str, Any]) -> dict[str, Any]:
     name = _param_name(hub, args)
     try:
-        value = json.loads(str(args.get("value", "null")))
+        value = rb.decode_value(str(args.get("value", "null")))  # depth-bounded: a client's text
     except ValueError as exc:
         raise MrosError(f"set_param {name}: value is not JSON: {exc}") from None
     await hub.node.master.set_param(name, value)

@@ -27,6 +27,7 @@ import os
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -168,13 +169,19 @@ class RosbridgeSession(ClientSession):
             data = rb.publish_json(sub.topic, msg)
             if sub.compression == "png":
                 data = await png_op_off_loop(data)
-            if sub.fragment_size and len(data) > sub.fragment_size:
-                pieces = rb.fragments(
+            if sub.fragment_size and len(data) > max(sub.fragment_size, rb.MIN_FRAGMENT_SIZE):
+                # Made one at a time as the sender takes them (ahead of anything else), from the one text:
+                # the client holds this message, not its fragments, until the last is sent.
+                pieces = rb.iter_fragments(
                     data.decode(), sub.fragment_size, f"publish:{sub.topic}:{next(self._request_ids)}"
                 )
-                # The rest go first in the next turns, ahead of anything else (uncounted: see ControlQueue).
-                self._control.push_front([(False, piece) for piece in pieces[1:]])
-                return False, pieces[0]
+                self._fragment_rest: Iterator[bytes] | None = pieces
+                # The text is this client's until its last piece is sent: counted in the server's budget, and
+                # its queues make room for it within the client's own.
+                self._hold(len(data))
+                budget = max(0, self.limits.client_bytes - self.held)
+                trim_to_budget([s.queue for s in self.subs.values()], budget, sub.queue)
+                return False, next(pieces)
             return False, data
         return None
 
@@ -184,7 +191,15 @@ class RosbridgeSession(ClientSession):
             await self._wake.wait()
             self._wake.clear()
             while not self._closed:
-                if self._control:
+                rest: Iterator[bytes] | None = getattr(self, "_fragment_rest", None)
+                piece = next(rest, None) if rest is not None else None
+                if piece is not None:
+                    binary, data = False, piece
+                elif rest is not None:
+                    self._fragment_rest = None
+                    self._unhold()
+                    continue
+                elif self._control:
                     binary, data = self._control.pop()
                 else:
                     frame = await self._next_message()
@@ -220,6 +235,8 @@ class RosbridgeSession(ClientSession):
             for task in (sender, *self._calls):
                 task.cancel()
             await asyncio.gather(sender, *self._calls, return_exceptions=True)
+            self._fragment_rest = None
+            self._unhold()
             await self._release()
 
     async def _release(self) -> None:

@@ -21,9 +21,12 @@ from mrosd.errors import ConfigError
 from mrosd.msg.typestore import TypeStore
 from mrosd.web import foxglove as fg
 from mrosd.web.access import AccessPolicy
+from mrosd.web.admission import Admission, OriginGate
 from mrosd.web.assets import MAX_ASSET_BYTES, AssetReader
-from mrosd.web.foxglove_server import FoxgloveSession, SessionLimits
+from mrosd.web.foxglove_server import FoxgloveSession
+from mrosd.web.handshake import AuthFirstResponse, gate_middleware, read_auth, refuse_later
 from mrosd.web.hub import WebHub
+from mrosd.web.limits import SessionLimits
 from mrosd.web.page import index, page_routes
 from mrosd.web.queue import Ledger
 
@@ -35,8 +38,12 @@ __all__ = ["WebServer"]
 MAX_CLIENT_FRAME = 64 * 1024 * 1024
 #: Seconds a closing server waits for its clients to take their close frame.
 CLOSE_TIMEOUT = 1.0
-#: Most WebSocket clients at once.
+#: Most WebSocket clients at once (authenticated; see ``mrosd.web.admission``).
 MAX_CLIENTS = 64
+#: rosbridge connections waiting for their ``auth`` op: in all, and from one remote address. Beyond either the
+#: oldest is closed for the new one (``Admission.pend``), so a stranger never keeps the operator out.
+MAX_PENDING = 256
+MAX_PENDING_PER_ADDRESS = 32
 #: Bytes of unfinished fragmented messages (rosbridge ``fragment`` ops) held for all clients together.
 MAX_FRAGMENT_BYTES = 256 * 1024 * 1024
 
@@ -80,7 +87,10 @@ class WebServer:
         self.host = self.hosts[0]
         self.port = port
         self.limits = limits or SessionLimits()
-        self.max_clients = max_clients
+        self.admission = Admission(
+            max_clients=max_clients, max_pending=MAX_PENDING, pending_per_address=MAX_PENDING_PER_ADDRESS
+        )
+        self.gate = OriginGate(self.policy.hostnames, self.policy.allowed_origins)
         self.max_frame = max_frame
         #: fetchAsset: package:// URIs found where the type search finds packages (``asset_store``, default the
         #: process's own), none at all when the policy's asset allow-list is empty
@@ -101,6 +111,14 @@ class WebServer:
         self.max_fragment_bytes = max_fragment_bytes
         self._runner: web.AppRunner | None = None
         self._rosbridge_runner: web.AppRunner | None = None
+
+    @property
+    def max_clients(self) -> int:
+        return self.admission.max_clients
+
+    @max_clients.setter
+    def max_clients(self, value: int) -> None:
+        self.admission.max_clients = value
 
     @property
     def url(self) -> str:
@@ -150,7 +168,7 @@ class WebServer:
             log.info("web: rosbridge v2 on %s", " ".join(self.rosbridge_urls))
 
     async def _listen(self, handler: Any, port: int, *, page: bool = False) -> tuple[web.AppRunner, int]:
-        app = web.Application()
+        app = web.Application(middlewares=[gate_middleware(self.gate, lambda: self.port)])
         app.router.add_get("/", handler)
         if page:
             page_routes(app)
@@ -190,29 +208,54 @@ class WebServer:
         return port
 
     async def _rosbridge(self, request: web.Request) -> web.StreamResponse:
+        """A rosbridge client: with the token in its URL (or none configured) it takes a slot at once; else it is
+        pending, with a small frame limit and a deadline, until its first op authenticates it."""
         from mrosd.web.rosbridge_server import RosbridgeSession
 
-        if len(self.sessions) + len(self.rosbridge_sessions) >= self.max_clients:
-            raise web.HTTPServiceUnavailable(text=f"at most {self.max_clients} clients\n")
-        ws = web.WebSocketResponse(compress=False, max_msg_size=self.max_frame, heartbeat=30.0)
-        await ws.prepare(request)
-        # The token may come in the URL; else the client sends the auth op first.
-        token = "" if self.policy.token_ok(self._token(request)) else self.policy.token
-        session = RosbridgeSession(
-            self.hub,
-            ws,
-            self.limits,
-            token=token,
-            peer=str(request.remote),
-            fragments=(self.rosbridge_fragments, self.max_fragment_bytes),
-        )
-        self.rosbridge_sessions.add(session)
+        address = str(request.remote)
+        if self.policy.token_ok(self._token(request)):
+            ws = web.WebSocketResponse(compress=False, max_msg_size=self.max_frame, heartbeat=30.0)
+            why = self.admission.admit(address)
+            if why is not None:
+                raise web.HTTPServiceUnavailable(text=why + "\n")
+        else:
+            pending = AuthFirstResponse(
+                max_frame=self.max_frame, token_ok=self.policy.token_ok, compress=False, heartbeat=30.0
+            )
+            await pending.prepare(request)
+            for old in self.admission.pend(pending, address):
+                refuse_later(old, "too many connections waiting to authenticate")  # type: ignore[arg-type]
+            try:
+                authed = await read_auth(pending, self.policy.token_ok)
+            finally:
+                self.admission.settle(pending)
+            if not authed:
+                return pending
+            why = self.admission.admit(address)
+            if why is not None:
+                await pending.close(code=1013, message=why.encode())
+                return pending
+            pending.check_lifted()
+            ws = pending
         try:
-            await session.run()
+            if not ws.prepared:
+                await ws.prepare(request)
+            session = RosbridgeSession(
+                self.hub,
+                ws,
+                self.limits,
+                peer=address,
+                fragments=(self.rosbridge_fragments, self.max_fragment_bytes),
+            )
+            self.rosbridge_sessions.add(session)
+            try:
+                await session.run()
+            finally:
+                self.rosbridge_sessions.discard(session)
+                if not ws.closed:
+                    await ws.close()
         finally:
-            self.rosbridge_sessions.discard(session)
-            if not ws.closed:
-                await ws.close()
+            self.admission.release(address)
         return ws
 
     def _token(self, request: web.Request) -> str | None:
@@ -227,23 +270,28 @@ class WebServer:
             return index()  # a browser opening the port: the page (it then connects back with the token)
         if not self.policy.token_ok(self._token(request)):
             raise web.HTTPUnauthorized(text="token required: add ?token=... to the URL\n")
-        if len(self.sessions) + len(self.rosbridge_sessions) >= self.max_clients:
-            raise web.HTTPServiceUnavailable(text=f"at most {self.max_clients} clients\n")
         offered = [p.strip() for p in request.headers.get("Sec-WebSocket-Protocol", "").split(",") if p.strip()]
         if fg.choose_subprotocol(offered) is None:
             raise web.HTTPBadRequest(text=f"offer one of the subprotocols {', '.join(fg.SUBPROTOCOLS)}\n")
-        ws = web.WebSocketResponse(
-            protocols=fg.SUBPROTOCOLS, compress=False, max_msg_size=self.max_frame, heartbeat=30.0
-        )
-        writer = await ws.prepare(request)
-        session = FoxgloveSession(self.hub, ws, writer, self.limits, peer=str(request.remote))
-        self.sessions.add(session)
+        address = str(request.remote)
+        why = self.admission.admit(address)
+        if why is not None:
+            raise web.HTTPServiceUnavailable(text=why + "\n")
         try:
-            await session.run()
+            ws = web.WebSocketResponse(
+                protocols=fg.SUBPROTOCOLS, compress=False, max_msg_size=self.max_frame, heartbeat=30.0
+            )
+            writer = await ws.prepare(request)
+            session = FoxgloveSession(self.hub, ws, writer, self.limits, peer=address)
+            self.sessions.add(session)
+            try:
+                await session.run()
+            finally:
+                self.sessions.discard(session)
+                if not ws.closed:
+                    await ws.close()
         finally:
-            self.sessions.discard(session)
-            if not ws.closed:
-                await ws.close()
+            self.admission.release(address)
         return ws
 
     async def aclose(self) -> None:
@@ -251,8 +299,9 @@ class WebServer:
         runners = [r for r in (self._runner, self._rosbridge_runner) if r is not None]
         self._runner = self._rosbridge_runner = None
         # Clients first (aiohttp's cleanup would otherwise wait for each open WebSocket handler to end).
-        sessions = [*self.sessions, *self.rosbridge_sessions]
-        closing = [s.ws.close(code=1001, message=b"server shutdown") for s in sessions]
+        sockets: list[Any] = [s.ws for s in (*self.sessions, *self.rosbridge_sessions)]
+        sockets += self.admission.pending_keys()  # connections still to authenticate
+        closing = [ws.close(code=1001, message=b"server shutdown") for ws in sockets]
         if closing:
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(CLOSE_TIMEOUT):

@@ -17,8 +17,8 @@ from mrosd.web.queue import ControlQueue
 if TYPE_CHECKING:
     from aiohttp import web
 
-    from mrosd.web.foxglove_server import SessionLimits
     from mrosd.web.hub import WebHub
+    from mrosd.web.limits import SessionLimits
 
 log = logging.getLogger(__name__)
 #: a client can make these at will (connect, ask, never read): at most a few lines per period
@@ -44,6 +44,9 @@ class ClientSession:
         self._closed = False
         self._calls: set[asyncio.Task[None]] = set()
         self._close_task: asyncio.Task[bool] | None = None
+        #: bytes of a message taken off its queue but still being sent in pieces (rosbridge fragments): counted
+        #: in the hub's ledger (the server-wide budget) until the last piece is sent
+        self.held = 0
 
     # --- what the hub asks of every client (never blocks) ------------------------------------------
 
@@ -56,6 +59,16 @@ class ClientSession:
         fullest = max(self.subs.values(), key=lambda s: s.queue.size, default=None)
         if fullest is not None and len(fullest.queue):
             fullest.queue.drop_oldest()
+
+    def _hold(self, size: int) -> None:
+        """Count ``size`` bytes being sent in pieces in the server-wide budget (one message at a time)."""
+        self._unhold()
+        self.held = size
+        self.hub.ledger.size += size
+
+    def _unhold(self) -> None:
+        self.hub.ledger.size -= self.held
+        self.held = 0
 
     def _queue_control(self, flag: bool, data: bytes) -> None:
         """Queue a frame for the sender; a client past its control budget is not reading what it asked for

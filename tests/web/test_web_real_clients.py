@@ -309,6 +309,8 @@ async def roslib_in_chromium(server: WebServer) -> AsyncIterator[NodeClient]:
         site = web.TCPSite(runner, "127.0.0.1", 0)
         await site.start()
         page_port = site._server.sockets[0].getsockname()[1]  # type: ignore[union-attr]
+        # this page is another origin than the server's own: allowed as [web] allowed_origins would
+        server.gate.allowed_origins |= {f"http://127.0.0.1:{page_port}"}
         assert NODE is not None
         proc = await asyncio.create_subprocess_exec(
             NODE,

@@ -1,0 +1,183 @@
+"""Issue 31 case 1 in real headless Chromium: a page from another site tries both WebSocket ports of a daemon
+with the default configuration (loopback, no token) and publishes Twists on /cmd_vel; a real subscriber counts
+what arrives. The page's own origin and clients without an ``Origin`` (Python here) still connect and publish.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import http.server
+import json
+import os
+import shutil
+import subprocess
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import pytest
+
+from tests.rosenv import Processes
+from tests.web.webdaemon import CmdVelCounter, WebDaemon
+
+HERE = Path(__file__).resolve().parent
+NODE = shutil.which("node")
+CHROMIUM = Path(os.environ.get("CHROMIUM", "/usr/bin/chromium"))
+
+pytestmark = pytest.mark.skipif(
+    NODE is None or not (HERE / "node_modules" / "playwright-core").is_dir() or not CHROMIUM.exists(),
+    reason="node, chromium or playwright-core missing: scripts/install-system-deps.sh, "
+    "then `npm ci --prefix tests/web`",
+)
+
+#: Opens one socket from the page it runs in and, if it opens, publishes ``n`` Twists on /cmd_vel over it
+#: (rosbridge: advertise + publish ops; Foxglove: a client channel + messageData frames), 50 ms apart.
+ATTACK = """async (attempts) => {
+  const results = [];
+  for (const attempt of attempts) results.push(await one(attempt));
+  return results;
+  async function one({url, protocol, n}) {
+  const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+  const ws = await new Promise((resolve) => {
+    let s;
+    try { s = protocol === "foxglove" ? new WebSocket(url, ["foxglove.websocket.v1"]) : new WebSocket(url); }
+    catch (e) { resolve(null); return; }
+    const t = setTimeout(() => resolve(null), 5000);
+    s.onopen = () => { clearTimeout(t); resolve(s); };
+    s.onclose = () => { clearTimeout(t); resolve(null); };
+  });
+  if (ws === null) return { open: false, sent: 0 };
+  let sent = 0;
+  if (protocol === "foxglove") {
+    ws.send(JSON.stringify({ op: "advertise", channels: [
+      { id: 7, topic: "/cmd_vel", encoding: "ros1", schemaName: "geometry_msgs/Twist", schema: "" }] }));
+    await sleep(300);
+    for (let i = 0; i < n && ws.readyState === 1; i++) {
+      const frame = new Uint8Array(5 + 48);
+      const view = new DataView(frame.buffer);
+      frame[0] = 1;
+      view.setUint32(1, 7, true);
+      view.setFloat64(5, 0.5, true);
+      ws.send(frame); sent++; await sleep(50);
+    }
+  } else {
+    ws.send(JSON.stringify({ op: "advertise", topic: "/cmd_vel", type: "geometry_msgs/Twist" }));
+    await sleep(300);
+    for (let i = 0; i < n && ws.readyState === 1; i++) {
+      ws.send(JSON.stringify({ op: "publish", topic: "/cmd_vel", msg: { linear: { x: 0.5 } } }));
+      sent++; await sleep(50);
+    }
+  }
+  ws.close();
+  return { open: true, sent };
+  }
+}"""
+
+
+class _Page(http.server.BaseHTTPRequestHandler):
+    def do_GET(self) -> None:
+        body = b"<!doctype html><title>cat pictures</title><p>nothing to see here</p>"
+        self.send_response(200)
+        self.send_header("Content-Type", "text/html")
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+    def log_message(self, *args: Any) -> None:
+        pass
+
+
+@pytest.fixture
+def foreign_site() -> Iterator[int]:
+    """Another web site on this machine (another port; reached as attacker.test too): its port."""
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _Page)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    yield int(server.server_address[1])
+    server.shutdown()
+    server.server_close()
+
+
+@pytest.fixture
+def daemon(tmp_path: Path) -> Iterator[WebDaemon]:
+    procs = Processes(tmp_path)
+    run = WebDaemon(procs, tmp_path)
+    yield run
+    run.close()
+    procs.close()
+
+
+def browse(page: str, attempts: list[tuple[str, str, int]]) -> tuple[int, list[dict[str, Any]]]:
+    """Open ``page`` in Chromium and run ``ATTACK`` for each (socket URL, protocol, Twists) from it: the
+    page's HTTP status and each attempt's result."""
+    assert NODE is not None
+    arg = json.dumps([{"url": url, "protocol": protocol, "n": n} for url, protocol, n in attempts])
+    out = subprocess.run(
+        [NODE, str(HERE / "origin_browser.mjs"), page, ATTACK, arg],
+        capture_output=True,
+        timeout=90,
+        check=True,
+        cwd=HERE,
+    )
+    reply: dict[str, Any] = json.loads(out.stdout.decode().strip().splitlines()[-1])
+    assert "error" not in reply, reply
+    return reply["status"], reply["result"]
+
+
+def test_a_foreign_page_cannot_open_either_socket_and_nothing_reaches_cmd_vel(
+    daemon: WebDaemon, foreign_site: int
+) -> None:
+    fox, ros = daemon.foxglove_port, daemon.rosbridge_port
+    refused = {"open": False, "sent": 0}
+    with CmdVelCounter(daemon.uri) as counter:
+        for page, host in (
+            (f"http://attacker.test:{foreign_site}/", "attacker.test"),
+            (f"http://127.0.0.1:{foreign_site}/", "127.0.0.1"),
+        ):
+            attempts = [
+                (f"ws://{target}:{port}/", protocol, 5)
+                for protocol, port in (("rosbridge", ros), ("foxglove", fox))
+                for target in (host, "127.0.0.1", "localhost")
+            ]
+            _, results = browse(page, attempts)
+            assert results == [refused] * len(attempts), (page, list(zip(attempts, results, strict=True)))
+        # DNS rebinding: attacker.test now resolves to the robot, so the attacker's page shares the daemon's
+        # port; the Host it sends names the attacker's domain.
+        status, results = browse(
+            f"http://attacker.test:{fox}/",
+            [(f"ws://attacker.test:{ros}/", "rosbridge", 5), (f"ws://attacker.test:{fox}/", "foxglove", 5)],
+        )
+        assert status == 403 and results == [refused, refused], (status, results)
+        assert counter.count == 0
+
+        # The page's own origin, on each name it is reached by: both sockets open and the Twists arrive.
+        for host in ("127.0.0.1", "localhost"):
+            for protocol, port in (("rosbridge", ros), ("foxglove", fox)):
+                before = counter.count
+                status, results = browse(f"http://{host}:{fox}/", [(f"ws://{host}:{port}/", protocol, 30)])
+                assert status == 200 and results[0]["open"], (host, protocol, results)
+                assert counter.wait_for(before + 1, 10), (host, protocol, counter.count)
+
+
+def test_clients_without_an_origin_still_connect(daemon: WebDaemon) -> None:
+    """node, Python and Foxglove desktop send no Origin: they connect to both ports and publish."""
+
+    async def main() -> None:
+        async with aiohttp.ClientSession() as http:
+            ws = await http.ws_connect(daemon.rosbridge_url)
+            await ws.send_str(json.dumps({"op": "advertise", "topic": "/cmd_vel", "type": "geometry_msgs/Twist"}))
+            for _ in range(40):
+                await ws.send_str(json.dumps({"op": "publish", "topic": "/cmd_vel", "msg": {"linear": {"x": 1}}}))
+                await asyncio.sleep(0.05)
+                if counter.count:
+                    break
+            await ws.close()
+            ws = await http.ws_connect(daemon.foxglove_url, protocols=["foxglove.websocket.v1"])
+            assert json.loads((await ws.receive(timeout=10)).data)["op"] == "serverInfo"
+            await ws.close()
+
+    with CmdVelCounter(daemon.uri) as counter:
+        asyncio.run(main())
+        assert counter.count > 0
