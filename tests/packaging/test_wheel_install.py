@@ -26,9 +26,14 @@ from tests.rosenv import Processes, free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 
-pytestmark = pytest.mark.skipif(
-    importlib.util.find_spec("build") is None, reason="needs the 'build' package ([dev] installs it)"
-)
+pytestmark = [
+    pytest.mark.skipif(
+        importlib.util.find_spec("build") is None, reason="needs the 'build' package ([dev] installs it)"
+    ),
+    # building twice (sdist, then the wheel from it) and installing the dependencies into a fresh venv take
+    # about 80 s on an idle machine, longer than the suite's 120 s per test on a busy one
+    pytest.mark.timeout(900),
+]
 
 
 class Dist:
