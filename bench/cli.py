@@ -1,5 +1,11 @@
-"""``mros topic echo`` against ``rostopic echo``: messages shown per second, same publisher, same run.
+"""The ``mros`` CLI against rostopic/rosmsg, in the same run: start-up, then ``mros topic echo``'s throughput.
 
+``startup``: with Debian's ``/usr/share`` on ``ROS_PACKAGE_PATH`` (as on a machine with ROS), the time from
+starting ``mros topic pub`` / ``rostopic pub`` to their publisher's registration at a Debian rosmaster (seen by
+polling ``getSystemState`` every 2 ms), and the wall time of ``mros msg show`` / ``rosmsg show``; the two tools
+alternate, each round, and the medians are printed.
+
+``mros topic echo`` against ``rostopic echo``: messages shown per second, same publisher, same run.
 Two scenarios, each with a rospy publisher on a real Debian rosmaster and both echo processes subscribed at
 once (so they see the same stream on the same machine):
   * ``string``: std_msgs/String at 10,000 msgs/s, then flat out (a roscpp publisher with no pacing), which
@@ -8,7 +14,7 @@ once (so they see the same stream on the same machine):
 Each echo's stdout is drained by a thread that counts rostopic's ``---`` separators; the rate is measured
 over a window after a warm-up. Prints msgs/s for both tools, the publisher's actual rate, and the ratio.
 
-Run: ``python -m bench.cli [--seconds S] [--scenario string|image]``.
+Run: ``python -m bench.cli [--seconds S] [--scenario startup|string|image] [--rounds N]``.
 """
 
 from __future__ import annotations
@@ -16,10 +22,12 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
+import statistics
 import subprocess
 import sys
 import threading
 import time
+import xmlrpc.client
 from pathlib import Path
 from tempfile import TemporaryDirectory
 
@@ -197,11 +205,75 @@ def scenario(kind: str, seconds: float, warmup: float, cpp: Path | None, rate: f
             procs.close()
 
 
+def registered_after(argv: list[str], env: dict[str, str], master: str, topic: str, limit: float = 30.0) -> float:
+    """Seconds from starting ``argv`` to ``topic`` having a publisher at ``master``; the process is then killed."""
+    proxy = xmlrpc.client.ServerProxy(master)
+    start = time.monotonic()
+    proc = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        while time.monotonic() - start < limit:
+            publishers = proxy.getSystemState("/bench")[2][0]
+            if any(name == topic for name, _ in publishers):
+                return time.monotonic() - start
+            if proc.poll() is not None:
+                raise RuntimeError(f"{argv[0]} exited with {proc.returncode} before registering {topic}")
+            time.sleep(0.002)
+        raise RuntimeError(f"{argv[0]} did not register {topic} within {limit} s")
+    finally:
+        proxy("close")()
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def wall_time(argv: list[str], env: dict[str, str]) -> float:
+    """Seconds ``argv`` runs to completion (it must succeed)."""
+    start = time.monotonic()
+    subprocess.run(argv, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, timeout=60, check=True)
+    return time.monotonic() - start
+
+
+def startup(rounds: int) -> None:
+    """Start-up rows: ``pub`` to registration and ``msg show``, mros and the ROS tool alternating each round."""
+    with TemporaryDirectory() as tmp:
+        procs = Processes(Path(tmp))
+        try:
+            master = start_rosmaster(procs)
+            env = ros_env(master, Path(tmp), ROS_PACKAGE_PATH="/usr/share")
+            mros = [os.path.join(os.path.dirname(sys.executable), "mros")]
+            times: dict[str, list[float]] = {"mros pub": [], "rostopic pub": [], "mros show": [], "rosmsg show": []}
+            for i in range(rounds):
+                pub = ["topic", "pub", "-r", "1"]
+                args = ["std_msgs/String", "data: hi"]
+                times["mros pub"].append(registered_after([*mros, *pub, f"/m{i}", *args], env, master, f"/m{i}"))
+                times["rostopic pub"].append(
+                    registered_after(["rostopic", "pub", "-r", "1", f"/r{i}", *args], env, master, f"/r{i}")
+                )
+                times["mros show"].append(wall_time([*mros, "msg", "show", "std_msgs/String"], env))
+                times["rosmsg show"].append(wall_time(["rosmsg", "show", "std_msgs/String"], env))
+        finally:
+            procs.close()
+    med = {name: statistics.median(values) for name, values in times.items()}
+    for what, ours, theirs in (
+        ("pub to registration", "mros pub", "rostopic pub"),
+        ("msg show", "mros show", "rosmsg show"),
+    ):
+        print(
+            f"startup {what:22s} mros {med[ours]:6.3f} s  {theirs.split()[0]} {med[theirs]:6.3f} s"
+            f"  ratio {med[theirs] / med[ours]:5.2f}x  (median of {rounds}, ROS_PACKAGE_PATH=/usr/share)",
+            flush=True,
+        )
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.cli", description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=8.0, help="measurement window per scenario")
     parser.add_argument("--warmup", type=float, default=2.0)
-    parser.add_argument("--scenario", choices=["string", "image"], action="append")
+    parser.add_argument("--scenario", choices=["startup", "string", "image"], action="append")
+    parser.add_argument("--rounds", type=int, default=5, help="start-up rounds (each tool, alternating)")
     parser.add_argument(
         "--string-rate",
         type=float,
@@ -218,10 +290,16 @@ def main(argv: list[str]) -> int:
     if not ros_available():
         print("cli: skipped, Debian ROS (rostopic, rospy) is not installed")
         return 0
+    scenarios = args.scenario or ["startup", "string", "image"]
+    if "startup" in scenarios:
+        startup(args.rounds)
+    scenarios = [kind for kind in scenarios if kind != "startup"]
+    if not scenarios:
+        return 0
     with TemporaryDirectory() as build:
         cpp = build_cpp_publisher(Path(build))
         print(f"publisher: {'roscpp' if cpp else 'rospy (g++ or roscpp headers missing)'}", flush=True)
-        for kind in args.scenario or ["string", "image"]:
+        for kind in scenarios:
             # 0 = flat out: the publisher offers more than either tool shows, so the ratio is capacity
             rates = (args.string_rate or [10000.0, 0.0]) if kind == "string" else (args.image_rate or [30.0, 0.0])
             if cpp is None:

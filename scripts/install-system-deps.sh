@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
-# Debian packages the tests and benchmarks use: real ROS 1 (ros_comm 1.15) as interop partner and golden
-# reference, a C++ toolchain for the roscpp test node, iproute2 for network-namespace tests, node and
-# chromium for the browser-side clients of mrosd.web (their npm packages come from tests/web/package-lock.json).
-# mrosd itself needs none of these.
+# python3-venv: Debian's python3 installs packages only into a venv (PEP 668), and its venv module is a package
+# of its own; the README's set-up makes one. Then the Debian packages the tests and benchmarks use: real ROS 1
+# (ros_comm 1.15) as interop partner and golden reference, a C++ toolchain for the roscpp test node, iproute2
+# for network-namespace tests, node and chromium for the browser-side clients of mrosd.web (their npm packages
+# come from tests/web/package-lock.json).
+# mrosd itself needs none of these (python3-venv only to be installed into a venv).
 set -euo pipefail
 SUDO=""
 [ "$(id -u)" -eq 0 ] || SUDO="sudo"
@@ -13,6 +15,7 @@ NPM=""
 command -v npm >/dev/null 2>&1 || NPM="npm"
 $SUDO apt-get update -q
 $SUDO apt-get install -y -q \
+    python3-venv \
     python3-rospy python3-rostopic python3-rosnode python3-rosparam python3-rosmaster python3-rosservice \
     python3-genmsg python3-genpy python3-std-msgs python3-sensor-msgs python3-geometry-msgs python3-nav-msgs \
     ros-core libroscpp-dev libstd-msgs-dev libsensor-msgs-dev libgeometry-msgs-dev \

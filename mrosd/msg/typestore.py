@@ -71,16 +71,49 @@ class TypeStore:
         self._srvs: dict[str, SrvSpec] = {}
         self._md5: dict[str, str] = {}
         self._packages: dict[str, list[Path]] | None = None
+        self._walked: dict[str, dict[str, list[Path]]] = {}
 
     # ----------------------------------------------------------------------------------------- search
     def _rpp_packages(self) -> dict[str, list[Path]]:
+        """Every package on ``ROS_PACKAGE_PATH``: name -> directories, in search order (walks every root)."""
         if self._packages is None:
             found: dict[str, list[Path]] = {}
             for root in filter(None, self.ros_package_path.split(os.pathsep)):
-                for pkg, path in _walk_packages(Path(root)):
-                    found.setdefault(pkg, []).append(path)
+                for pkg, paths in self._root_packages(root).items():
+                    found.setdefault(pkg, []).extend(paths)
             self._packages = found
         return self._packages
+
+    def _root_packages(self, root: str) -> dict[str, list[Path]]:
+        """The packages under one ``ROS_PACKAGE_PATH`` root (walked once per store)."""
+        packages = self._walked.get(root)
+        if packages is None:
+            packages = {}
+            for pkg, path in _walk_packages(Path(root)):
+                packages.setdefault(pkg, []).append(path)
+            self._walked[root] = packages
+        return packages
+
+    def _lazy_dirs(self, package: str, kind: str) -> Iterable[Path]:
+        """``package_dirs`` as a generator that walks as little as it can: per ``ROS_PACKAGE_PATH`` root, a
+        package directory right under it that declares ``package`` stands for the walk of that root (Debian's
+        ``/usr/share``, catkin's ``share`` and most workspaces keep packages there); a root without one is
+        walked (once). A package found early costs no walk at all."""
+        if self.builtin:
+            yield BUILTIN_DIR / package / kind
+        for pkg, directory in self.includes:
+            if pkg == package:
+                yield directory / kind if (directory / kind).is_dir() else directory
+        for root in filter(None, self.ros_package_path.split(os.pathsep)):
+            direct = Path(root) / package
+            if root not in self._walked and _package_name(direct / "package.xml") == package:
+                yield direct / kind
+                continue
+            for path in self._root_packages(root).get(package, []):
+                yield path / kind
+        for pattern in self.system_dirs:
+            for system_root in sorted(_glob(pattern)):
+                yield Path(system_root) / package / kind
 
     def package_dirs(self, package: str, kind: str) -> list[Path]:
         """Directories that may hold ``<Type>.<kind>`` for ``package``, in search order."""
@@ -105,12 +138,16 @@ class TypeStore:
     def find(self, name: str, kind: str) -> Path:
         """The file defining ``pkg/Type`` (kind ``msg`` or ``srv``).
 
+        The order of ``package_dirs``, found lazily (``_lazy_dirs``): the standard types never walk
+        ``ROS_PACKAGE_PATH``, which with Debian's ``/usr/share`` on it reads thousands of directories.
+
         Raises:
             MsgNotFoundError: no search directory has it.
         """
         pkg, _, short = name.partition("/")
-        for directory in self.package_dirs(pkg, kind):
-            candidate = directory / f"{short}.{kind}"
+        filename = f"{short}.{kind}"
+        for directory in self._lazy_dirs(pkg, kind):
+            candidate = directory / filename
             if candidate.is_file():
                 return candidate
         where = ["mrosd's builtin definitions"] if self.builtin else []
@@ -214,13 +251,22 @@ def _glob(pattern: str) -> Iterable[str]:
     return glob.glob(pattern)
 
 
+def _package_name(manifest: Path) -> str | None:
+    """The ``<name>`` a package.xml declares; None when there is no readable manifest or it names nothing."""
+    try:
+        text = manifest.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return None
+    match = _PACKAGE_NAME.search(text)
+    return match.group(1) if match else None
+
+
 def _walk_packages(root: Path, depth: int = 0) -> Iterable[tuple[str, Path]]:
     """(name, dir) of every ROS package under ``root`` (a dir with package.xml; not below another one)."""
     manifest = root / "package.xml"
     try:
         if manifest.is_file():
-            match = _PACKAGE_NAME.search(manifest.read_text(encoding="utf-8", errors="replace"))
-            yield (match.group(1) if match else root.name), root
+            yield (_package_name(manifest) or root.name), root
             return
         if depth >= MAX_PACKAGE_DEPTH or (root / "CATKIN_IGNORE").exists():
             return
