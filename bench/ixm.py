@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.stats import histogram, latency_summary
+from mrosd import backports
 from mrosd.ixm.client import IxmClient
 from mrosd.ixm.server import IxmServer
 
@@ -152,13 +153,13 @@ def _node_reader(uri: str, n: int, place: Placement, out: Any) -> None:
             first: Any = None
             while first is None:
                 try:
-                    first = await asyncio.wait_for(it.__anext__(), 0.2)
+                    first = await backports.wait_for(it.__anext__(), 0.2)
                 except TimeoutError:
                     await ack.publish(Int64(data=-1))
             msg = first
             for i in range(n):
                 if i:
-                    msg = await asyncio.wait_for(it.__anext__(), 10)
+                    msg = await backports.wait_for(it.__anext__(), 10)
                 t1 = _now()
                 lat.append(t1 - int(msg.data))
                 await ack.publish(Int64(data=i))
@@ -181,14 +182,14 @@ def _node_writer(uri: str, n: int, place: Placement) -> None:
             sub = await node.subscribe("/bench_ixm/ack", Int64)
             it = sub.__aiter__()
             while True:  # ready handshake: the reader answers -1 until it sees values
-                msg = await asyncio.wait_for(it.__anext__(), 20)
+                msg = await backports.wait_for(it.__anext__(), 20)
                 if msg.data == -1:
                     break
             i = 0
             while i < n:
                 await pub.publish(Float64(data=float(_now())))
                 while True:
-                    msg = await asyncio.wait_for(it.__anext__(), 10)
+                    msg = await backports.wait_for(it.__anext__(), 10)
                     if msg.data == i:
                         break
                 i += 1

@@ -30,6 +30,7 @@ from typing import Any
 
 import aiohttp
 
+from mrosd import backports
 from tests.rosenv import Processes, free_port, ros_available, ros_env, start_rosmaster, wait_for_xmlrpc
 
 DEAD_API = "http://127.0.0.1:{port}/"
@@ -194,7 +195,7 @@ async def worker(uri: str, concurrency: int, duration: float, tag: str) -> tuple
     stop_at = time.perf_counter() + duration
     for client in clients:
         client.start(stop_at)
-    counts = await asyncio.wait_for(asyncio.gather(*futures), duration + 30)
+    counts = await backports.wait_for(asyncio.gather(*futures), duration + 30)
     return sum(counts), _cpu_now() - cpu0
 
 

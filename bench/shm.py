@@ -43,6 +43,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from mrosd import backports
+
 COUNTS = {1: 30, 8: 10}  # messages per run, by size in MB
 #: Messages sent before the measurement, for both transports: the shared-memory ring grows, and every one of its
 #: slots (a ring of 1 MB messages has 3) gets its pages, outside the measured run (fresh shared memory costs
@@ -169,7 +171,7 @@ async def _sub(args: argparse.Namespace) -> None:
             zero_copy=True,
             max_leased=1,
         )
-        await asyncio.wait_for(done.wait(), 120)
+        await backports.wait_for(done.wait(), 120)
         dropped = sum(row[3] for row in sub.stats()[1])
         await node.aclose()
     elif args.transport == "shm":
@@ -181,7 +183,7 @@ async def _sub(args: argparse.Namespace) -> None:
         assert answer is not None
         header = ConnectionHeader(callerid=f"/bench_sub{os.getpid()}", topic=TOPIC, md5sum="*", type="*")
         conn = await ShmSubscriberConnection.attach(answer, header, on_frame=on_body)
-        await asyncio.wait_for(done.wait(), 120)
+        await backports.wait_for(done.wait(), 120)
         dropped = conn.dropped
         await conn.aclose()
     else:
@@ -191,7 +193,7 @@ async def _sub(args: argparse.Namespace) -> None:
         node = Node(f"bench_sub{os.getpid()}", master_uri=args.master, argv=[], rosout=False, logger_services=False)
         await node.start()
         await node.subscribe(TOPIC, AnyMsg, on_body, queue_size=args.count + WARMUP)
-        await asyncio.wait_for(done.wait(), 120)
+        await backports.wait_for(done.wait(), 120)
         dropped = 0
         await node.aclose()
     _say("sub", json.dumps({"last": last, "got": got, "dropped": dropped}))
@@ -282,7 +284,7 @@ async def _lat_sub(args: argparse.Namespace) -> None:
         await node.start()
         image = get_message_class("sensor_msgs/Image")
         await node.subscribe(TOPIC, image, on_view, queue_size=4, zero_copy=True, max_leased=1)
-        await asyncio.wait_for(done.wait(), 120)
+        await backports.wait_for(done.wait(), 120)
         await node.aclose()
     elif args.mode in ("copy", "pool"):
         from mrosd.shm import ShmSubscriberConnection, parse_answer
@@ -293,7 +295,7 @@ async def _lat_sub(args: argparse.Namespace) -> None:
         assert answer is not None
         header = ConnectionHeader(callerid=f"/bench_sub{os.getpid()}", topic=TOPIC, md5sum="*", type="*")
         conn = await ShmSubscriberConnection.attach(answer, header, on_frame=on_body)
-        await asyncio.wait_for(done.wait(), 120)
+        await backports.wait_for(done.wait(), 120)
         await conn.aclose()
     else:
         from mrosd import Node
@@ -302,7 +304,7 @@ async def _lat_sub(args: argparse.Namespace) -> None:
         node = Node(f"bench_sub{os.getpid()}", master_uri=args.master, argv=[], rosout=False, logger_services=False)
         await node.start()
         await node.subscribe(TOPIC, AnyMsg, lambda raw: on_body(raw.data), queue_size=4)
-        await asyncio.wait_for(done.wait(), 120)
+        await backports.wait_for(done.wait(), 120)
         await node.aclose()
     cpu, wall = time.process_time() - cpu_from[0], time.monotonic() - cpu_from[1]
     _say("lat", json.dumps({"lat": lat, "cpu": cpu / wall}))

@@ -38,6 +38,8 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
+from mrosd import backports
+
 ROOT = Path(__file__).resolve().parent.parent
 MB = 1e6
 #: What the publisher offers in the throughput rows (bytes/s): above what any consumer here can take, so the
@@ -136,7 +138,7 @@ async def role_tcpros_sub(args: argparse.Namespace) -> None:
 
 
 async def _measure(stats: dict[str, Any], seconds: float) -> None:
-    async with asyncio.timeout(30):
+    async with backports.timeout(30):
         while not stats["first"]:  # noqa: ASYNC110 - set by the message callback
             await asyncio.sleep(0.01)
     start_msgs, start_bytes, start = stats["msgs"], stats["bytes"], time.monotonic()

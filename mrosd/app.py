@@ -37,6 +37,7 @@ import time
 from collections.abc import Awaitable, Callable, Coroutine, Iterator
 from typing import Any, TypeVar
 
+from mrosd import backports
 from mrosd.loop import event_loop_factory
 
 __all__ = ["CLOSE_TIMEOUT", "ESCAPE_AFTER", "STOP_SIGNALS", "Interrupted", "on_stop_signal", "run", "run_until_signal"]
@@ -99,7 +100,7 @@ def run_until_signal(main: Coroutine[Any, Any, T] | Callable[[], Awaitable[T]], 
     A ``main`` that returned normally although a signal came (one ``on_stop_signal`` gave to a callback)
     returns its result.
     """
-    with asyncio.Runner(loop_factory=event_loop_factory(use_uvloop=use_uvloop)) as runner:
+    with backports.Runner(loop_factory=event_loop_factory(use_uvloop=use_uvloop)) as runner:
         loop = runner.get_loop()
         before = set(_open_nodes())
         stopped: list[tuple[int, float]] = []
@@ -163,5 +164,5 @@ async def _close_left_open(before: set[Any]) -> None:
     if not left:
         return
     with contextlib.suppress(TimeoutError):
-        async with asyncio.timeout(CLOSE_TIMEOUT):
+        async with backports.timeout(CLOSE_TIMEOUT):
             await asyncio.gather(*(node.aclose() for node in left), return_exceptions=True)

@@ -33,6 +33,7 @@ import signal
 import sys
 from collections.abc import Callable, Sequence
 
+from mrosd import backports
 from mrosd.config import Config, load_config
 from mrosd.errors import ConfigError, MrosError
 from mrosd.loop import event_loop_factory
@@ -275,7 +276,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # Blocked before any thread exists, so that every thread inherits the mask and only SignalThread gets them.
     mask = signal.pthread_sigmask(signal.SIG_BLOCK, SignalThread.SIGNALS)
     try:
-        with asyncio.Runner(loop_factory=event_loop_factory()) as runner:
+        with backports.Runner(loop_factory=event_loop_factory()) as runner:
             daemon = run(
                 cfg,
                 config_path=args.config,

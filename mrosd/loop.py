@@ -14,6 +14,8 @@ from asyncio.selector_events import BaseSelectorEventLoop
 from collections.abc import Callable, Coroutine, Mapping
 from typing import Any, TypeVar
 
+from mrosd import backports
+
 __all__ = ["close_server", "event_loop_factory", "run"]
 
 T = TypeVar("T")
@@ -40,7 +42,7 @@ def event_loop_factory(
 
 def run(main: Coroutine[Any, Any, T], *, use_uvloop: bool = True) -> T:
     """Run ``main`` to completion on a fresh loop from ``event_loop_factory()`` and close the loop."""
-    with asyncio.Runner(loop_factory=event_loop_factory(use_uvloop=use_uvloop)) as runner:
+    with backports.Runner(loop_factory=event_loop_factory(use_uvloop=use_uvloop)) as runner:
         return runner.run(main)
 
 

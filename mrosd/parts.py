@@ -17,6 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from mrosd import backports
 from mrosd.config import Config, FleetConfig, LogConfig, part_options
 from mrosd.errors import MrosError
 from mrosd.fdbudget import FdBudgets, fd_budgets
@@ -462,7 +463,7 @@ class Daemon:
                 continue
             del self._parts[i]
             try:
-                async with asyncio.timeout(SHUTDOWN_TIMEOUT):
+                async with backports.timeout(SHUTDOWN_TIMEOUT):
                     await part.aclose()
             except TimeoutError:
                 log.error("closing %s took longer than %.1f s; left behind", name, SHUTDOWN_TIMEOUT)
@@ -508,7 +509,7 @@ class Daemon:
             name, part = self._parts.pop()
             budget = max((deadline - loop.time()) / (len(self._parts) + 1), 0.05)
             try:
-                async with asyncio.timeout(budget):
+                async with backports.timeout(budget):
                     await part.aclose()
             except TimeoutError:
                 log.error("closing %s took longer than %.1f s; left behind", name, budget)

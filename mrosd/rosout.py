@@ -31,6 +31,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from mrosd import backports
 from mrosd.logfiles import RosoutLogFile
 from mrosd.msg import get_message_class
 from mrosd.tcpros import Node, Publisher
@@ -83,7 +84,7 @@ async def rosdistro(environ: Mapping[str, str] | None = None) -> str:
         log.debug("rosversion -d did not start: %s", exc)
         return DEFAULT_ROSDISTRO
     try:
-        async with asyncio.timeout(ROSVERSION_TIMEOUT):
+        async with backports.timeout(ROSVERSION_TIMEOUT):
             out, _ = await proc.communicate()
     except BaseException:
         proc.kill()

@@ -15,6 +15,7 @@ import click
 
 from mros_cli.main import EXIT_ERROR, EXIT_INTERRUPTED, anonymous, fail, master_client, resolve_name, run
 from mros_cli.values import build_message, load_document
+from mrosd import backports
 
 if TYPE_CHECKING:
     from mrosd.master.client import MasterClient
@@ -167,7 +168,7 @@ def send(name: str, args: tuple[str, ...], timeout: float) -> None:
                 result = await goal
             except asyncio.CancelledError:
                 with contextlib.suppress(Exception):
-                    async with asyncio.timeout(CANCEL_TIMEOUT):
+                    async with backports.timeout(CANCEL_TIMEOUT):
                         await goal.cancel()
                         await goal.wait(CANCEL_TIMEOUT)  # the server's answer, or the bound
                 outcome["interrupted"] = True

@@ -13,6 +13,7 @@ from collections import deque
 from collections.abc import AsyncIterator, Generator
 from typing import TYPE_CHECKING, Any
 
+from mrosd import backports
 from mrosd.actions.spec import ActionSpec
 from mrosd.actions.status import TERMINAL, GoalIdGenerator, Status
 from mrosd.msg import Time, get_message_class
@@ -79,7 +80,7 @@ class ClientGoal:
         Raises:
             TimeoutError: not ended within ``timeout`` seconds.
         """
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             await self.done.wait()
         return self.result
 
@@ -139,7 +140,7 @@ class ActionClient:
         Raises:
             TimeoutError: the server did not appear within ``timeout`` seconds.
         """
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             await self._pubs["goal"].wait_for_subscribers(1, timeout)
             await self._pubs["cancel"].wait_for_subscribers(1, timeout)
             for sub in self._subs.values():

@@ -17,6 +17,7 @@ import sys
 from collections.abc import Callable, Iterator, Sequence
 from typing import TYPE_CHECKING, Any, TextIO
 
+from mrosd import backports
 from mrosd.bag.files import BagReader
 from mrosd.bag.model import DEFAULT_CLOCK_HZ, BagError, ConnectionInfo, ReplaySchedule
 from mrosd.errors import MrosError
@@ -250,7 +251,7 @@ class Player:
             )
 
         try:
-            async with asyncio.timeout(timeout):
+            async with backports.timeout(timeout):
                 # No event exists for "write buffer empty" (drain() stops at the low-water mark): poll.
                 while True:
                     if not pending():

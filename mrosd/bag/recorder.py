@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
+from mrosd import backports
 from mrosd.bag.files import BagFileWriter
 from mrosd.bag.model import BagError, ConnectionInfo, SplitPolicy
 from mrosd.errors import MrosError
@@ -356,7 +357,7 @@ class Recorder:
                 await stop.wait()
             else:
                 try:
-                    await asyncio.wait_for(stop.wait(), duration)
+                    await backports.wait_for(stop.wait(), duration)
                 except TimeoutError:
                     pass
         finally:

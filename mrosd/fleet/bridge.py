@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from mrosd import backports
 from mrosd.errors import ConfigError, MrosError
 from mrosd.fleet.discovery import Discovery
 from mrosd.fleet.handoff import Inbox, Outbox
@@ -216,7 +217,7 @@ class FleetBridge:
             TimeoutError: it did not hold within ``timeout`` seconds.
         """
         changed = self.link.changed
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             while not predicate():
                 changed.clear()
                 await changed.wait()

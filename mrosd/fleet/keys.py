@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from enum import StrEnum
 from functools import lru_cache
 
+from mrosd.backports import StrEnum
 from mrosd.errors import RemoteProtocolError
 from mrosd.names import canonicalize, is_valid_name
 

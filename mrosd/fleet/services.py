@@ -19,6 +19,7 @@ import contextlib
 from collections import Counter
 from typing import Any
 
+from mrosd import backports
 from mrosd.errors import MrosError, ServiceError
 from mrosd.fleet.keys import Item, ItemKind, data_key, discovery_key
 from mrosd.fleet.link import QUERY_TIMEOUT, FleetLink, ReceivedService, SentService, ratelog
@@ -257,7 +258,7 @@ class Services:
             allowed_destination=zenoh.Locality.REMOTE,
         )
         try:
-            async with asyncio.timeout(QUERY_TIMEOUT + 1.0):
+            async with backports.timeout(QUERY_TIMEOUT + 1.0):
                 return await done
         except TimeoutError:
             raise ServiceError(f"no answer from {key} within {QUERY_TIMEOUT:.0f} s") from None

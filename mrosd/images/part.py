@@ -20,6 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
+from mrosd import backports
 from mrosd.errors import MrosError
 from mrosd.fleet.keys import glob_match
 from mrosd.images.compress import encode_image
@@ -202,7 +203,7 @@ class CompressedImages:
             try:
                 while pub.get_num_connections() > 0:
                     try:
-                        async with asyncio.timeout(IDLE_CHECK):
+                        async with backports.timeout(IDLE_CHECK):
                             await topic.ready.wait()
                     except TimeoutError:
                         continue

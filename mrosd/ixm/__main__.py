@@ -14,9 +14,9 @@ import logging
 import resource
 import signal
 import sys
-import tomllib
 from typing import Any
 
+from mrosd.backports import tomllib
 from mrosd.errors import ConfigError, MrosError
 from mrosd.ixm.rules import AccessRules, parse_rules
 from mrosd.ixm.server import IxmServer

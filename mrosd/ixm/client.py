@@ -40,6 +40,7 @@ import time
 from collections.abc import AsyncIterator, Iterable, Iterator
 from typing import Any, Literal
 
+from mrosd import backports
 from mrosd.errors import IxmError, RemoteProtocolError
 from mrosd.ixm.channel import recv_with_fds, send_frame
 from mrosd.ixm.connection import ClientConnection, check_daemon, close_all, error_from, open_request, trusted_uids
@@ -398,7 +399,7 @@ class AsyncIxmKey(KeyBase):
         st = self._state
         if st.wake_fd is None:
             raise IxmError(f"{st.key} is open for writing only; open it with mode 'r' or 'rw' to wait")
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             while True:
                 if st.closed:  # the client lost its daemon (it closes every key then) or the key was closed
                     raise self._client._failure or IxmError(f"{st.key} is closed")
@@ -465,7 +466,7 @@ class AsyncIxmClient:
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         sock.setblocking(False)
         try:
-            async with asyncio.timeout(self.timeout):
+            async with backports.timeout(self.timeout):
                 await self._loop.sock_connect(sock, self.socket_path)
             check_daemon(sock, self.socket_path, self._trusted)
         except (OSError, TimeoutError) as exc:
@@ -530,7 +531,7 @@ class AsyncIxmClient:
                 sent = send_frame(self._sock, frame, fds or [])
                 if sent < len(frame):
                     await self._loop.sock_sendall(self._sock, frame[sent:])
-                async with asyncio.timeout(self.timeout):
+                async with backports.timeout(self.timeout):
                     return await self._pending
             except TimeoutError as exc:
                 raise IxmError(f"the IXM daemon did not answer within {self.timeout} s") from exc

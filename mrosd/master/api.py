@@ -16,6 +16,7 @@ import os
 from collections.abc import Awaitable, Callable
 from typing import Any
 
+from mrosd import backports
 from mrosd.errors import InvalidArgument
 from mrosd.master.cleanup import DEFAULT_CLEANUP_INTERVAL, GraphCleaner
 from mrosd.master.notifier import Notifier
@@ -403,7 +404,7 @@ class MasterApi:
                 return -1, "too many waitSystemStateChange calls in progress: poll getSystemState", []
             self._watchers[caller_id] = self._watchers.get(caller_id, 0) + 1
             try:
-                async with asyncio.timeout(min(float(timeout), WATCH_MAX_TIMEOUT)):
+                async with backports.timeout(min(float(timeout), WATCH_MAX_TIMEOUT)):
                     while self.registry.version & 0x7FFFFFFF == since:
                         if self._graph_changed is None:
                             self._graph_changed = asyncio.get_running_loop().create_future()

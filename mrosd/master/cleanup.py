@@ -24,6 +24,7 @@ import socket
 from collections.abc import Callable
 from urllib.parse import urlsplit
 
+from mrosd import backports
 from mrosd.errors import XmlRpcError
 from mrosd.master.registry import NodeEntry, Notification, Registry
 from mrosd.xmlrpc import XmlRpcClient
@@ -82,14 +83,14 @@ async def probe_connect(api: str, timeout: float) -> Probe:
         return Probe.NO_ANSWER
     loop = asyncio.get_running_loop()
     try:
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             infos = await loop.getaddrinfo(host, port, type=socket.SOCK_STREAM)
     except (OSError, TimeoutError):
         return Probe.NO_ANSWER
     refused = 0
     for _family, _type, _proto, _name, address in infos:
         try:
-            async with asyncio.timeout(timeout):
+            async with backports.timeout(timeout):
                 _reader, writer = await asyncio.open_connection(str(address[0]), port)
         except ConnectionRefusedError:
             refused += 1

@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from mrosd import backports
 from mrosd.errors import XmlRpcError
 from mrosd.master.registry import Notification
 from mrosd.xmlrpc import XmlRpcClient
@@ -120,7 +121,7 @@ class Notifier:
 
     async def drain(self, timeout: float = 10.0) -> None:
         """Wait until every queue is empty and no call is in flight (tests, shutdown)."""
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             while any(t.queue or t.busy for t in self._targets.values()):
                 self._progress.clear()
                 await self._progress.wait()
@@ -131,7 +132,7 @@ class Notifier:
                 if not target.queue:
                     target.wakeup.clear()
                     try:
-                        async with asyncio.timeout(self._idle):
+                        async with backports.timeout(self._idle):
                             await target.wakeup.wait()
                     except TimeoutError:
                         if not target.queue:

@@ -19,6 +19,7 @@ import concurrent.futures
 import threading
 from typing import Any
 
+from mrosd import backports
 from mrosd.errors import MsgTooComplexError
 from mrosd.msg import bounds
 from mrosd.msg.loader import cached_definition, load_type
@@ -101,6 +102,6 @@ async def load_type_async(
                 _PENDING.pop(key, None)
             raise
     try:
-        return await asyncio.wait_for(asyncio.shield(asyncio.wrap_future(future)), timeout)
+        return await backports.wait_for(asyncio.shield(asyncio.wrap_future(future)), timeout)
     except TimeoutError:
         raise MsgTooComplexError(f"{name}: message definition not loaded within {timeout:g} s (refused)") from None

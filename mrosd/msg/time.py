@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import math
 import time as _time
-from typing import Any, Self
+from typing import Any
 
 import msgspec
+
+from mrosd.backports import Self
 
 NSEC_PER_SEC = 1_000_000_000
 

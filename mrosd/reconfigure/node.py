@@ -9,6 +9,7 @@ import logging
 from collections.abc import Awaitable, Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
+from mrosd import backports
 from mrosd.errors import MrosError
 from mrosd.lograte import RateLimitedLog
 from mrosd.msg import get_service_class
@@ -166,7 +167,7 @@ class ReconfigureClient:
             ReconfigureError: none within ``timeout`` seconds.
         """
         try:
-            async with asyncio.timeout(timeout):
+            async with backports.timeout(timeout):
                 await self._described.wait()
         except TimeoutError:
             raise ReconfigureError(
@@ -182,7 +183,7 @@ class ReconfigureClient:
             ReconfigureError: none within ``timeout`` seconds.
         """
         try:
-            async with asyncio.timeout(timeout):
+            async with backports.timeout(timeout):
                 await self._updated.wait()
         except TimeoutError:
             raise ReconfigureError(f"no config from {self.ns}/parameter_updates within {timeout:g} s") from None
@@ -199,7 +200,7 @@ class ReconfigureClient:
         checked = {name: description.check(name, value) for name, value in changes.items()}
         proxy = self.node.service_proxy(f"{self.ns}/set_parameters", Reconfigure)
         try:
-            async with asyncio.timeout(timeout):
+            async with backports.timeout(timeout):
                 response = await proxy.call(Reconfigure._request_class(config=encode_config(checked)))
         except (MrosError, TimeoutError) as exc:
             raise ReconfigureError(f"{self.ns}/set_parameters failed: {exc}") from exc

@@ -22,6 +22,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from mrosd import backports
 from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
 from mrosd.ixm.channel import drain_socket, is_wake_socket, small_send_buffer, wake_socket
 from mrosd.msg.runtime import FramePool
@@ -156,7 +157,7 @@ class ShmSubscriberConnection:
         self._max_map = max_map_bytes
         self.max_leased = max(0, max_leased) if zero_copy else 0
         try:
-            async with asyncio.timeout(timeout):
+            async with backports.timeout(timeout):
                 await self._handshake(answer, header, trusted_uids() if trusted is None else trusted)
         except BaseException:
             self._release()

@@ -19,6 +19,7 @@ import itertools
 import logging
 from typing import TYPE_CHECKING, Any
 
+from mrosd import backports
 from mrosd.errors import HandshakeError, LocalProtocolError
 from mrosd.msg.runtime import is_immutable
 from mrosd.spin import loop_spinner
@@ -370,7 +371,7 @@ class Publisher:
         Raises:
             TimeoutError: they did not connect within ``timeout`` seconds.
         """
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             while self.get_num_connections() < count:
                 self._subscriber_change.clear()
                 await self._subscriber_change.wait()

@@ -14,6 +14,7 @@ import inspect
 import logging
 from typing import TYPE_CHECKING, Any, NamedTuple
 
+from mrosd import backports
 from mrosd.errors import (
     HandshakeError,
     LocalProtocolError,
@@ -225,7 +226,7 @@ class ServiceProxy:
         Raises:
             TimeoutError: it did not appear in time.
         """
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             while True:
                 try:
                     await self._lookup()
@@ -244,7 +245,7 @@ class ServiceProxy:
         if not isinstance(request, self.request_class):
             raise LocalProtocolError(f"{self.name} takes {self.request_class._type}, got {type(request).__name__}")
         body = request.serialize()
-        async with self._lock, asyncio.timeout(timeout):
+        async with self._lock, backports.timeout(timeout):
             conn = self._conn
             try:
                 if conn is None:
@@ -351,7 +352,7 @@ async def probe_service(
         raise ServiceError(f"service {service}: the master gave an unusable URI {uri!r}")
     header = encode_header({"callerid": callerid, "service": service, "md5sum": "*", "probe": "1"})
     try:
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             reader, writer = await asyncio.open_connection(parsed.hostname, parsed.port)
             try:
                 writer.write(header)

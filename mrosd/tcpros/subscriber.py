@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import msgspec
 
+from mrosd import backports
 from mrosd.errors import HandshakeError, LocalProtocolError, MrosError, XmlRpcError
 from mrosd.lograte import RateLimitedLog
 from mrosd.shm.views import decode_view as _decode_view
@@ -230,7 +231,7 @@ class PublisherLink:
         node = sub.node
         from mrosd.shm import topic as shm_topic  # lazy: only subscribers load the shared-memory transport
 
-        async with asyncio.timeout(CONNECT_TIMEOUT):
+        async with backports.timeout(CONNECT_TIMEOUT):
             protocols = shm_topic.request_protocols(allow_shm=not self.shm_failed)
             reply = await node.xmlrpc.call(self.uri, "requestTopic", node.name, sub.topic, protocols)
             if not isinstance(reply, list) or len(reply) != 3 or reply[0] != 1:
@@ -380,7 +381,7 @@ class Subscriber:
         Raises:
             TimeoutError: not connected within ``timeout`` seconds.
         """
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             while self.get_num_connections() < count:
                 self._changed.clear()
                 await self._changed.wait()
@@ -469,7 +470,7 @@ class Subscriber:
         Raises:
             TimeoutError: nothing arrived in time.
         """
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             return await self._next()
 
     # --- introspection ---------------------------------------------------------------------------

@@ -10,6 +10,7 @@ import asyncio
 import logging
 from typing import TYPE_CHECKING, Any
 
+from mrosd import backports
 from mrosd.errors import MrosError
 from mrosd.lograte import RateLimitedLog
 from mrosd.msg import Time, get_message_class
@@ -147,7 +148,7 @@ class Buffer:
                 if remaining <= 0:
                     raise
                 try:
-                    async with asyncio.timeout(remaining):
+                    async with backports.timeout(remaining):
                         await self._changed.wait()
                 except TimeoutError:
                     pass

@@ -36,6 +36,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Final
 
+from mrosd import backports
 from mrosd.errors import RequestRefused
 from mrosd.msg.typestore import TypeStore
 
@@ -172,7 +173,7 @@ class _Budget:
 
     async def acquire(self, size: int, timeout: float) -> None:
         try:
-            async with asyncio.timeout(timeout):
+            async with backports.timeout(timeout):
                 while self.held + size > self.limit:
                     self._freed.clear()
                     await self._freed.wait()

@@ -25,6 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from mrosd import backports
 from mrosd.errors import MrosError, MsgError, RemoteProtocolError
 from mrosd.lograte import RateLimitedLog
 from mrosd.master.client import MasterClient
@@ -191,7 +192,7 @@ class WebHub:
         self._first_graph = loop.create_future()
         self._watch = loop.create_task(self._watch_graph(), name="web graph watch")
         try:
-            async with asyncio.timeout(timeout):
+            async with backports.timeout(timeout):
                 await asyncio.shield(self._first_graph)
                 # its value comes with the subscription: the first clients already see the right capabilities
                 try:

@@ -26,6 +26,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import TypeVar
 
+from mrosd import backports
 from mrosd.errors import MrosError, RemoteProtocolError
 from mrosd.lograte import RateLimitedLog
 from mrosd.tcpros import Node
@@ -177,7 +178,7 @@ class ProbePool:
     async def _run(self, job: _Job) -> None:
         attempt = Attempt(self)
         try:
-            async with asyncio.timeout(self.timeout):
+            async with backports.timeout(self.timeout):
                 await job.run(attempt)
         except TimeoutError:
             self._quarantine(job.peer, *attempt.addresses)
@@ -249,7 +250,7 @@ class ProbePool:
         self._lookups[peer] += 1
         attempt = Attempt(self)
         try:
-            async with asyncio.timeout(self.lookup_timeout):
+            async with backports.timeout(self.lookup_timeout):
                 return await run(attempt)
         except TimeoutError:
             self._quarantine(peer, *attempt.addresses)

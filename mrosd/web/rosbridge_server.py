@@ -34,6 +34,7 @@ from typing import Any
 import msgspec
 from aiohttp import WSMsgType, web
 
+from mrosd import backports
 from mrosd.errors import MrosError
 from mrosd.master.client import GraphSnapshot
 from mrosd.msg import get_service_class, load_type_async
@@ -447,7 +448,7 @@ class RosbridgeSession(ClientSession):
             args = msgspec.to_builtins(request)
             self._send(rb.op_json("call_service", id=call_id, service=name, args=args))
             try:
-                async with asyncio.timeout(self.limits.call_timeout):
+                async with backports.timeout(self.limits.call_timeout):
                     ok, values = await future
             except TimeoutError:
                 raise MrosError(f"the rosbridge client did not answer within {self.limits.call_timeout} s") from None

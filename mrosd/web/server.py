@@ -17,6 +17,7 @@ from typing import Any
 
 from aiohttp import web
 
+from mrosd import backports
 from mrosd.errors import ConfigError
 from mrosd.msg.typestore import TypeStore
 from mrosd.web import foxglove as fg
@@ -304,7 +305,7 @@ class WebServer:
         closing = [ws.close(code=1001, message=b"server shutdown") for ws in sockets]
         if closing:
             with contextlib.suppress(TimeoutError):
-                async with asyncio.timeout(CLOSE_TIMEOUT):
+                async with backports.timeout(CLOSE_TIMEOUT):
                     await asyncio.gather(*closing, return_exceptions=True)
         for runner in runners:
             await runner.cleanup()

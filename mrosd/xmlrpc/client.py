@@ -7,12 +7,12 @@ naming the method and the URI. Must not know what is called; the bytes are ``mro
 
 from __future__ import annotations
 
-import asyncio
 import io
 from typing import Any
 
 import aiohttp
 
+from mrosd import backports
 from mrosd.errors import RemoteProtocolError, XmlRpcError
 from mrosd.xmlrpc.codec import MAX_REPLY_SIZE, decode_response, encode_call
 
@@ -71,21 +71,20 @@ class XmlRpcClient:
         # aiohttp warns that big bytes bodies block the loop; a BytesIO is written in chunks instead.
         data_out: bytes | io.BytesIO = body if len(body) < _LARGE_REQUEST else io.BytesIO(body)
         try:
-            async with asyncio.timeout(limit):
-                async with session.post(uri, data=data_out) as resp:
-                    if resp.status != 200:
-                        raise XmlRpcError(f"{method} at {uri}: HTTP status {resp.status}")
-                    if resp.content_length is not None and resp.content_length > MAX_REPLY_SIZE:
-                        raise XmlRpcError(
-                            f"{method} at {uri}: response of {resp.content_length} bytes exceeds the"
-                            f" {MAX_REPLY_SIZE >> 20} MiB any mrosd master sends (MAX_REPLY_SIZE)"
-                        )
-                    data = await _read_body(resp.content)
-                    if data is None:
-                        raise XmlRpcError(
-                            f"{method} at {uri}: response exceeds the {MAX_REPLY_SIZE >> 20} MiB any mrosd master"
-                            " sends (MAX_REPLY_SIZE)"
-                        )
+            async with backports.timeout(limit), session.post(uri, data=data_out) as resp:
+                if resp.status != 200:
+                    raise XmlRpcError(f"{method} at {uri}: HTTP status {resp.status}")
+                if resp.content_length is not None and resp.content_length > MAX_REPLY_SIZE:
+                    raise XmlRpcError(
+                        f"{method} at {uri}: response of {resp.content_length} bytes exceeds the"
+                        f" {MAX_REPLY_SIZE >> 20} MiB any mrosd master sends (MAX_REPLY_SIZE)"
+                    )
+                data = await _read_body(resp.content)
+                if data is None:
+                    raise XmlRpcError(
+                        f"{method} at {uri}: response exceeds the {MAX_REPLY_SIZE >> 20} MiB any mrosd master"
+                        " sends (MAX_REPLY_SIZE)"
+                    )
         except TimeoutError as exc:
             raise XmlRpcError(f"{method} at {uri}: no answer within {limit:g} s") from exc
         except (aiohttp.ClientError, OSError, ValueError) as exc:

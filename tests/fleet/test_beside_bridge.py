@@ -12,6 +12,7 @@ import struct
 import time
 
 import mrosd
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.wire.header import decode_header, encode_header
@@ -56,7 +57,7 @@ async def test_a_wildcard_subscriber_gets_the_real_type_and_the_messages() -> No
             assert (header["type"], header["md5sum"]) == ("std_msgs/String", String._md5sum)
             await pub.wait_for_subscribers(1, 10)
             pub.publish_nowait(String(data="hi"))
-            (length,) = struct.unpack("<I", await asyncio.wait_for(reader.readexactly(4), 10))
+            (length,) = struct.unpack("<I", await backports.wait_for(reader.readexactly(4), 10))
             assert await reader.readexactly(length) == b"\x02\x00\x00\x00hi"
         finally:
             writer.close()

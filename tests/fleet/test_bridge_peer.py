@@ -13,6 +13,7 @@ import threading
 
 import pytest
 
+from mrosd import backports
 from mrosd.fleet.keys import RenameRule
 from mrosd.msg import get_message_class, get_service_class
 from tests.fleet.fleetenv import bare_peer, fleet
@@ -81,7 +82,7 @@ async def test_a_bridge_robots_topic_and_service_reach_mrosd() -> None:
             sub = await b.subscribe("/legacy/chatter", String)
             assert (await sub.next(timeout=10)).data == "hello"
             # it asks for the topic the way a bridge would hear it: under the bridge's namespace '*'
-            await asyncio.wait_for(asked.wait(), 5)
+            await backports.wait_for(asked.wait(), 5)
             proxy = b.service_proxy("/legacy/set", SetBool)
             await proxy.wait_for_service(timeout=15)
             resp = await proxy.call(SetBool._request_class(data=True))
@@ -112,7 +113,7 @@ async def test_mrosd_topic_and_service_reach_a_bridge_robot() -> None:
         # the bridge's ZenohToRos1 subscribes under its own namespace '*', which matches every robot's
         data = peer.declare_subscriber(f"{STRING_KEY}/*/chatter", lambda s: bodies.append(s.payload.to_bytes()))  # type: ignore[attr-defined]
         try:
-            async with asyncio.timeout(15):
+            async with backports.timeout(15):
                 while f"ros1_discovery_info/*/pub/{STRING_KEY}/robot1/chatter" not in heard or not bodies:
                     pub.publish_nowait(String(data="hello"))
                     await asyncio.sleep(0.05)

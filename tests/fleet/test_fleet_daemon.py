@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.msg import get_message_class
 from tests.integration.daemon.daemonproc import DaemonRun
 from tests.rosenv import Processes, free_port
@@ -68,7 +69,7 @@ async def test_two_daemons_and_mros_fleet_status(procs: Processes, tmp_path: Pat
 
             talking = asyncio.create_task(talk())
             try:
-                async with asyncio.timeout(20):
+                async with backports.timeout(20):
                     while True:  # the remote topic appears at robot2's master once announced
                         state = await b.master_call("getSystemState")
                         if any(t == "/robot1/chatter" for t, _ in state[0]):

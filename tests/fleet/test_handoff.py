@@ -7,6 +7,7 @@ import threading
 
 import pytest
 
+from mrosd import backports
 from mrosd.fleet.handoff import Inbox, Outbox
 
 
@@ -61,7 +62,7 @@ async def test_outbox_sends_round_robin_and_announces() -> None:
         for i in range(100):
             outbox.put("t/a", pubs["t/a"], b"%d" % i)
         outbox.put("t/b", pubs["t/b"], b"b")
-        await asyncio.wait_for(seen_both.wait(), 5)
+        await backports.wait_for(seen_both.wait(), 5)
         await asyncio.sleep(0.2)  # what is still queued for t/a goes out (at most maxlen bodies)
         await asyncio.to_thread(outbox.close)
         assert got.count("t/a") + outbox.dropped("t/a") == 100

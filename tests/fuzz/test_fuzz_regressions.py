@@ -14,6 +14,7 @@ from pathlib import Path
 import aiohttp
 import pytest
 
+from mrosd import backports
 from mrosd.errors import RemoteProtocolError
 from mrosd.xmlrpc import XmlRpcServer, decode_call, decode_response, encode_call, encode_fault
 
@@ -78,7 +79,7 @@ async def test_the_ixm_daemon_disconnects_a_client_sending_invalid_utf8(tmp_path
             bad.setblocking(False)
             await loop.sock_connect(bad, path)
             await loop.sock_sendall(bad, struct.pack("<I", len(IXM_BAD_UTF8_TAG)) + IXM_BAD_UTF8_TAG)
-            assert await asyncio.wait_for(loop.sock_recv(bad, 100), 2.0) == b""
+            assert await backports.wait_for(loop.sock_recv(bad, 100), 2.0) == b""
 
 
 def test_a_message_definition_with_an_infinite_or_nan_float_constant_loads() -> None:

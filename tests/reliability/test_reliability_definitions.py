@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+from mrosd import backports
 from mrosd.errors import MsgTooComplexError
 from mrosd.msg import bounds, load_type, load_type_async, loader, loading
 from tests.integration.daemon.daemonproc import DaemonRun
@@ -360,7 +361,7 @@ def test_a_foxglove_client_advertising_exploding_schemas_never_stalls_the_master
                         statuses.append(msg.data)
 
     with Prober(daemon.uri) as prober:
-        asyncio.run(asyncio.wait_for(attack(), 60))
+        asyncio.run(backports.wait_for(attack(), 60))
         time.sleep(1)
     grown = _rss(pid) - rss_before
     print(f"Foxglove attack: {prober.calls} getPid calls, worst {prober.worst:.3f} s, RSS +{grown / MiB:.1f} MiB")

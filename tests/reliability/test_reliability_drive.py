@@ -11,6 +11,7 @@ from typing import Any
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.actions import ActionClient, ActionServer, ServerGoal, Status
 from mrosd.master import Master
 from mrosd.msg import Time, get_message_class
@@ -37,7 +38,7 @@ def node(name: str, master: str) -> mrosd.Node:
 async def ended(results: Any, goal_id: str, status: Status) -> None:
     """Until the result of ``goal_id`` arrives with ``status`` (bounded; the server's result queue drops the
     oldest of a burst, never the newest)."""
-    async with asyncio.timeout(15):
+    async with backports.timeout(15):
         async for msg in results:
             if msg.status.goal_id.id == goal_id:
                 assert msg.status.status == status

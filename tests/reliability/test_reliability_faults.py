@@ -8,6 +8,7 @@ import subprocess
 from pathlib import Path
 
 import mrosd
+from mrosd import backports
 from mrosd.msg import get_message_class
 from mrosd.wire.header import decode_header, encode_header
 from mrosd.xmlrpc import XmlRpcClient, XmlRpcServer
@@ -109,7 +110,7 @@ async def test_a_publisher_dying_in_the_middle_of_a_frame_delivers_only_whole_me
         async with mrosd.Node("victim_sub", master_uri=uri, host="127.0.0.1") as node:
             received: list[str] = []
             sub = await node.subscribe("/cut", String, callback=lambda m: received.append(m.data))
-            await asyncio.wait_for(cut.wait(), 10)
+            await backports.wait_for(cut.wait(), 10)
             # then a real publisher appears: the subscriber is still healthy and follows it
             pub = await node.advertise("/cut", String)
             await rpc.call(uri, "unregisterPublisher", "/liar", "/cut", liar_api, timeout=5)
@@ -160,7 +161,7 @@ async def test_a_publisher_process_killed_while_streaming_2_mb_images_never_deli
         await node.subscribe("/images", image, callback=on_image)
         talker = procs.our_python(["-c", BIG_TALKER], env)
         assert await asyncio.to_thread(lambda: next(iter_lines_until(talker, 1, 20.0))) == "ready"
-        await asyncio.wait_for(first.wait(), 20)
+        await backports.wait_for(first.wait(), 20)
         await asyncio.sleep(0.3)
         kill9(talker)  # at a random point of a 2 MiB frame, most likely
         await asyncio.sleep(0.5)
@@ -170,5 +171,5 @@ async def test_a_publisher_process_killed_while_streaming_2_mb_images_never_deli
         # a new publisher process on the same topic is followed
         first.clear()
         talker = procs.our_python(["-c", BIG_TALKER], env)
-        await asyncio.wait_for(first.wait(), 20)
+        await backports.wait_for(first.wait(), 20)
         assert len(got) > count

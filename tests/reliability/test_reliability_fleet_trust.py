@@ -19,6 +19,7 @@ from typing import Any
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.config import FleetConfig
 from mrosd.fleet.bridge import FleetBridge
 from mrosd.fleet.keys import ItemKind, NameFilter, RenameRule, data_key, discovery_key
@@ -96,7 +97,7 @@ async def _matched(publisher: Any, timeout: float) -> None:
     try:
         if publisher.matching_status.matching:
             matched.set()
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             await matched.wait()
     finally:
         listener.undeclare()

@@ -15,6 +15,7 @@ import struct
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.msg import get_message_class
 from mrosd.wire.header import ConnectionHeader, encode_header
 from tests.reliability.relnodes import start_master
@@ -26,7 +27,7 @@ COUNT = 12
 
 
 async def _read_exact(reader: asyncio.StreamReader, count: int) -> bytes:
-    return await asyncio.wait_for(reader.readexactly(count), 10)
+    return await backports.wait_for(reader.readexactly(count), 10)
 
 
 async def _stalled_subscriber(node: mrosd.Node, topic: str) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:

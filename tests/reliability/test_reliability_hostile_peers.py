@@ -13,6 +13,7 @@ import struct
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.msg import get_message_class
 from tests.reliability.relnodes import start_master
 from tests.rosenv import Processes
@@ -41,7 +42,7 @@ async def test_hostile_connections_are_closed_and_the_publisher_keeps_serving(pr
             writer.write(payload)
             await writer.drain()
             # either an error header then EOF, or EOF at once; never a hang
-            rest = await asyncio.wait_for(reader.read(), 5.0)
+            rest = await backports.wait_for(reader.read(), 5.0)
             assert b"md5sum=" not in rest
             writer.close()
         for _ in range(20):  # connections that never send a byte must not stop anyone else
@@ -76,7 +77,7 @@ async def test_connections_that_never_send_a_header_are_closed_with_the_node(pro
         await node.aclose()
     for reader, writer in idle:
         try:
-            assert await asyncio.wait_for(reader.read(), 5.0) == b""  # EOF: the node closed its end
+            assert await backports.wait_for(reader.read(), 5.0) == b""  # EOF: the node closed its end
         except ConnectionResetError:
             pass  # or a reset: closed all the same
         finally:
@@ -119,7 +120,7 @@ async def _connect_while_the_node_closes(uri: str) -> None:
         assert len(socks) > 20
         for sock in socks:  # EOF, or a reset or refusal, at once: the node closed its end of every one
             with contextlib.suppress(ConnectionError):
-                assert await asyncio.wait_for(loop.sock_recv(sock, 1), 5.0) == b"", "a connection was left open"
+                assert await backports.wait_for(loop.sock_recv(sock, 1), 5.0) == b"", "a connection was left open"
     finally:
         for sock in socks:
             sock.close()

@@ -21,6 +21,7 @@ from typing import Any
 import pytest
 
 import mrosd.master.httpconn as httpconn
+from mrosd import backports
 from mrosd.master import Master, MasterClient
 from mrosd.master.dispatch import BIG_REPLY, FAULT_REPLY_BUDGET
 from mrosd.xmlrpc import Fault, XmlRpcClient, decode_response, encode_call
@@ -215,7 +216,7 @@ async def test_over_budget_a_caller_gets_a_fault_it_can_act_on_and_a_stalled_rea
         assert (await client.call(master.uri, "getPid", "/t"))[2] == os.getpid()  # the master goes on
         await asyncio.sleep(1.5)  # more than REQUEST_TIMEOUT without reading
         for reader, _ in stalled:  # closed for not reading: the connection ends before the reply does
-            data = await asyncio.wait_for(reader.read(), 5)
+            data = await backports.wait_for(reader.read(), 5)
             assert len(data) < 16 * MIB
         await client.call(master.uri, "setParam", "/t", "/x", 1)  # a change drops the cached bodies
         await client.call(master.uri, "getPid", "/t")

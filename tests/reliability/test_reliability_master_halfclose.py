@@ -14,6 +14,7 @@ import socket
 
 import pytest
 
+from mrosd import backports
 from mrosd.xmlrpc import XmlRpcServer, decode_response, encode_call
 from tests.reliability.test_reliability_master_http import MasterProcess, get_pid
 from tests.rosenv import Processes, needs_ros, start_rosmaster
@@ -107,7 +108,7 @@ async def test_a_slave_api_server_closes_a_request_cut_short_by_eof(caplog: pyte
 
     async with XmlRpcServer({"store": store}, "127.0.0.1", 0) as server:
         whole = request("store", "y" * 100_000)
-        reply = await asyncio.wait_for(asyncio.to_thread(half_closed, server.port, whole[:50_000]), 10)
+        reply = await backports.wait_for(asyncio.to_thread(half_closed, server.port, whole[:50_000]), 10)
         assert reply == b"" and called == []
         _, body = split_response(await asyncio.to_thread(half_closed, server.port, request("store", "z")))
         assert decode_response(body) == 1

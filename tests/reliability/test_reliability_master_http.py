@@ -19,6 +19,7 @@ from typing import Any, cast
 
 import pytest
 
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.xmlrpc import Fault, XmlRpcClient, decode_response, encode_call
 from tests.rosenv import Processes, free_port
@@ -172,11 +173,11 @@ async def answered(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -
     body = encode_call("getPid", ("/c",))
     try:
         writer.write(b"POST / HTTP/1.1\r\nContent-Length: %d\r\n\r\n%s" % (len(body), body))
-        head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), 5)
+        head = await backports.wait_for(reader.readuntil(b"\r\n\r\n"), 5)
     except (asyncio.IncompleteReadError, ConnectionError):
         return b""
     length = next(int(h.split(b":")[1]) for h in head.split(b"\r\n") if h.lower().startswith(b"content-length"))
-    await asyncio.wait_for(reader.readexactly(length), 5)
+    await backports.wait_for(reader.readexactly(length), 5)
     return head.split(b"\r\n", 1)[0]
 
 
@@ -190,8 +191,8 @@ async def test_idle_keep_alive_connections_are_closed_and_busy_ones_kept(master:
         while time.monotonic() < deadline:
             assert (await answered(*busy)).endswith(b"200 OK")
             await asyncio.sleep(0.05)
-        assert await asyncio.wait_for(used[0].read(), 2) == b""
-        assert await asyncio.wait_for(silent[0].read(), 2) == b""
+        assert await backports.wait_for(used[0].read(), 2) == b""
+        assert await backports.wait_for(silent[0].read(), 2) == b""
         assert (await answered(*busy)).endswith(b"200 OK")
     finally:
         for _, w in (used, silent, busy):

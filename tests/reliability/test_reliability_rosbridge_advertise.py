@@ -8,7 +8,6 @@ the master stays responsive throughout. Real sockets, a real master, the server 
 
 from __future__ import annotations
 
-import asyncio
 import json
 import time
 from collections.abc import AsyncIterator
@@ -16,6 +15,7 @@ from collections.abc import AsyncIterator
 import aiohttp
 import pytest
 
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.web.foxglove_server import SessionLimits
 from mrosd.web.server import WebServer
@@ -46,7 +46,7 @@ async def test_one_clients_advertise_flood_is_capped_and_the_master_answers(mast
             await ws.send_str(json.dumps({"op": "advertise", "topic": f"/flood/t{i}", "type": "std_msgs/String"}))
             if i % 200 == 0:  # the master answers while the ops are handled
                 t0 = time.monotonic()
-                async with asyncio.timeout(1.0):
+                async with backports.timeout(1.0):
                     await probe.master.call("getPid")
                 slowest = max(slowest, time.monotonic() - t0)
         refused = await barrier(ws, timeout=20)

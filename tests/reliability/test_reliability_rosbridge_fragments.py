@@ -8,7 +8,6 @@ sockets and a real master; the server runs in the test's loop so that its state 
 
 from __future__ import annotations
 
-import asyncio
 import json
 import tracemalloc
 from collections.abc import AsyncIterator
@@ -18,6 +17,7 @@ import aiohttp
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.web.foxglove_server import SessionLimits
@@ -41,7 +41,7 @@ def fragment(message_id: Any, num: int, total: Any, data: str) -> str:
 
 async def statuses(ws: aiohttp.ClientWebSocketResponse, count: int, timeout: float = 10.0) -> list[dict[str, Any]]:
     found: list[dict[str, Any]] = []
-    async with asyncio.timeout(timeout):
+    async with backports.timeout(timeout):
         while len(found) < count:
             msg = json.loads((await ws.receive()).data)
             if msg["op"] == "status":
@@ -54,7 +54,7 @@ async def barrier(ws: aiohttp.ClientWebSocketResponse, timeout: float = 10.0) ->
     answered after them); the statuses that came meanwhile."""
     await ws.send_str(json.dumps({"op": "call_service", "service": "/rosapi/get_time", "id": "barrier"}))
     found: list[dict[str, Any]] = []
-    async with asyncio.timeout(timeout):
+    async with backports.timeout(timeout):
         while True:
             msg = json.loads((await ws.receive()).data)
             if msg["op"] == "status":

@@ -24,6 +24,7 @@ from collections.abc import Callable
 
 import pytest
 
+from mrosd import backports
 from mrosd.errors import RemoteProtocolError
 from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection, control
 from mrosd.shm import door as shm_door
@@ -213,7 +214,7 @@ async def test_a_publisher_that_lies_about_the_ring_ends_only_its_connection(
     got: list[bytes] = []
     with caplog.at_level(logging.WARNING):
         conn = await ShmSubscriberConnection.attach(answer, HEADER, on_frame=got.append)
-        await asyncio.wait_for(asyncio.shield(conn.closed), 5)
+        await backports.wait_for(asyncio.shield(conn.closed), 5)
     assert why in conn.error and not got
     assert any(why in r.getMessage() for r in caplog.records)
     await stop(task)
@@ -271,7 +272,7 @@ async def raw_client(ep: ShmPublisherEndpoint) -> socket.socket:
 async def closed_by_peer(sock: socket.socket) -> bytes:
     loop = asyncio.get_running_loop()
     data = b""
-    async with asyncio.timeout(5):
+    async with backports.timeout(5):
         while chunk := await loop.sock_recv(sock, 65536):
             data += chunk
     return data
@@ -288,7 +289,7 @@ async def test_hostile_subscribers_are_closed_and_the_others_served(monkeypatch:
         pipe_sock = await raw_client(ep)
         r, w = os.pipe()
         send(pipe_sock, attach, [w])
-        async with asyncio.timeout(5):
+        async with backports.timeout(5):
             assert b"attached" in await asyncio.get_running_loop().sock_recv(pipe_sock, 65536)
         os.set_blocking(r, False)
         assert os.read(r, 1) == b""  # nobody holds the write end any more: the publisher closed it
@@ -312,10 +313,10 @@ async def test_hostile_subscribers_are_closed_and_the_others_served(monkeypatch:
         await asyncio.sleep(0.05)
         assert max(s["dropped"] for s in ep.stats()) == 1 << 62
         liar._channel.sock.send(b"\x01\x00\x00\x00\xc1")
-        await asyncio.wait_for(asyncio.shield(liar.closed), 5)
+        await backports.wait_for(asyncio.shield(liar.closed), 5)
         assert len(ep.links) == 1
         ep.publish(b"still served")
-        assert await asyncio.wait_for(anext(good), 5) == b"still served"
+        assert await backports.wait_for(anext(good), 5) == b"still served"
         assert not ep.door._pending
     finally:
         await good.aclose()
@@ -334,7 +335,7 @@ async def test_a_publisher_that_floods_replacement_rings_is_cut_off() -> None:
     except RemoteProtocolError as exc:
         assert "before we were attached" in str(exc)
     else:
-        await asyncio.wait_for(asyncio.shield(conn.closed), 5)
+        await backports.wait_for(asyncio.shield(conn.closed), 5)
         assert "too often" in conn.error
     await stop(task)
 
@@ -364,7 +365,7 @@ async def test_a_subscriber_that_lies_in_its_acknowledgement_page_costs_only_its
             ep.publish(body)
             assert len(ep.backlog) <= 1000
             await asyncio.sleep(0.0005)
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while len(got) < len(sent):  # noqa: ASYNC110 - filled by the connection's callback
                 await asyncio.sleep(0.01)
         assert got == sent and honest.dropped == 0
@@ -411,7 +412,7 @@ async def test_a_subscriber_that_steals_wake_ups_from_its_descriptor_takes_only_
         for body in sent:  # a burst far longer than the ring: it waits in the publisher's queue
             ep.publish(body)
         assert ep.backlog
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while len(got) < len(sent):  # noqa: ASYNC110 - filled by the connection's callback
                 await asyncio.sleep(0.01)
         assert got == sent and honest.dropped == 0

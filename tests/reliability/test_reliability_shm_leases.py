@@ -21,6 +21,7 @@ from typing import Any
 
 import pytest
 
+from mrosd import backports
 from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection
 from mrosd.shm.negotiate import VERSION, ShmAnswer
 from mrosd.shm.segment import MAX_LEASES
@@ -62,7 +63,7 @@ def answer(ep: ShmPublisherEndpoint) -> ShmAnswer:
 async def line(proc: subprocess.Popen[bytes], prefix: str) -> str:
     assert proc.stdout is not None
     loop = asyncio.get_running_loop()
-    async with asyncio.timeout(20):
+    async with backports.timeout(20):
         while True:
             got = (await loop.run_in_executor(None, proc.stdout.readline)).decode()
             if not got:
@@ -105,7 +106,7 @@ async def test_a_subscriber_killed_with_leases_held_frees_its_slots_and_the_rate
         assert sorted(n for n in (layout.held(s) for s in range(slots)) if n in held) == held
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(10)
-        async with asyncio.timeout(5):
+        async with backports.timeout(5):
             while any(lk.callerid == "/holder" for lk in ep.links):  # noqa: ASYNC110 - the socket closing
                 await asyncio.sleep(0.005)
         before = layout.head
@@ -115,7 +116,7 @@ async def test_a_subscriber_killed_with_leases_held_frees_its_slots_and_the_rate
         assert all(layout.held(s) > before for s in range(slots))  # every slot came back and was written
         assert worst < 0.05  # no publish call waited for anyone (256 KiB copies: well under a millisecond)
         assert rate > 100  # one every 2 ms asked for: the holder's death does not slow the publisher
-        async with asyncio.timeout(5):
+        async with backports.timeout(5):
             while len(got) < sent:  # noqa: ASYNC110 - filled by the connection's callback
                 await asyncio.sleep(0.005)
         assert got == [i % 251 for i in range(sent)] and honest.dropped == 0
@@ -154,7 +155,7 @@ async def test_a_hostile_subscriber_keeps_at_most_its_grant_of_slots() -> None:
             kept = {n for n in (layout.held(s) for s in range(layout.slots)) if n and n <= head - layout.slots}
             assert len(kept) <= 3  # older than a whole ring and still there: only what its grant protects
             await asyncio.sleep(0.001)
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while len(got) < len(sent):  # noqa: ASYNC110 - filled by the connection's callback
                 await asyncio.sleep(0.01)
         assert got == sent and honest.dropped == 0

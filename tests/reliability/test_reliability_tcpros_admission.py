@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.msg import get_message_class, get_service_class
 from tests.integration.ixm.hostile import cpu_seconds, rss_kib
 from tests.integration.ixm.hostile import fd_count as open_fds
@@ -49,7 +50,7 @@ async def _receives(uri: str, topic: str, name: str, count: int, timeout: float)
     async with mrosd.Node(name, master_uri=uri, host="127.0.0.1", argv=[], rosout=False) as node:
         await node.subscribe(topic, String, callback=on_message)
         try:
-            await asyncio.wait_for(done.wait(), timeout)
+            await backports.wait_for(done.wait(), timeout)
         except TimeoutError:
             pass
     return len(got)
@@ -108,7 +109,7 @@ async def test_a_partial_header_is_dropped_at_its_deadline(procs: Processes, tmp
     await writer.drain()
     started = time.monotonic()
     try:
-        assert await asyncio.wait_for(reader.read(), 15.0) == b""
+        assert await backports.wait_for(reader.read(), 15.0) == b""
     except ConnectionResetError:
         pass
     held = time.monotonic() - started

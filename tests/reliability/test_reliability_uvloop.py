@@ -24,7 +24,7 @@ SELF_TALK = textwrap.dedent(
                     await pub.publish(String(data="hi"))
                     await asyncio.sleep(0.05)
             sender = asyncio.create_task(send())
-            print((await asyncio.wait_for(sub.__anext__(), 2)).data, flush=True)
+            print((await backports.wait_for(sub.__anext__(), 2)).data, flush=True)
             sender.cancel()
     uvloop.install()
     asyncio.run(main())

@@ -13,6 +13,7 @@ import aiohttp
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.web.foxglove_server import SessionLimits
@@ -23,7 +24,7 @@ MiB = 1024 * 1024
 
 
 async def until(cond: Callable[[], object], timeout: float = 10.0) -> None:
-    async with asyncio.timeout(timeout):
+    async with backports.timeout(timeout):
         while not cond():  # noqa: ASYNC110 - the state lives in the server's callbacks
             await asyncio.sleep(0.005)
 
@@ -40,7 +41,7 @@ def node(name: str, master: str) -> mrosd.Node:
 
 async def channels_of(ws: aiohttp.ClientWebSocketResponse, topics: set[str]) -> dict[str, int]:
     found: dict[str, int] = {}
-    async with asyncio.timeout(10):
+    async with backports.timeout(10):
         while set(found) != topics:
             msg = json.loads((await ws.receive()).data)
             if msg["op"] == "advertise":
@@ -89,11 +90,11 @@ async def test_an_oversized_client_frame_closes_only_that_client(master: Master)
         bad = await http.ws_connect(server.url, protocols=["foxglove.websocket.v1"])
         good = await http.ws_connect(server.url, protocols=["foxglove.websocket.v1"])
         await bad.send_bytes(b"\x01" + bytes(200 * 1024))
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while (await bad.receive()).type not in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED):
                 pass
         await good.send_str(json.dumps({"op": "getParameters", "parameterNames": ["/nope"], "id": "x"}))
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while True:
                 msg = json.loads((await good.receive()).data)
                 if msg["op"] == "parameterValues":
@@ -128,7 +129,7 @@ async def test_a_client_joining_a_topic_that_a_stalled_client_paused_gets_messag
         await pub.wait_for_subscribers(1, timeout=10)
         img = Image(height=1000, width=1000, encoding="mono8", step=1000, data=bytes(1000 * 1000))
         entry = server.hub._shared["/image"]
-        async with asyncio.timeout(30):
+        async with backports.timeout(30):
             steady = 0
             while steady < 50:  # paused, and staying paused: the stalled client's socket is full
                 await pub.publish(img)
@@ -138,11 +139,11 @@ async def test_a_client_joining_a_topic_that_a_stalled_client_paused_gets_messag
         await channels_of(live, {"/image"})
         await live.send_str(subscribe)
         await until(lambda: server.hub.sink_count("/image") == 2)
-        async with asyncio.timeout(20):
+        async with backports.timeout(20):
             while True:
                 await pub.publish(img)
                 try:
-                    msg = await asyncio.wait_for(live.receive(), 0.2)
+                    msg = await backports.wait_for(live.receive(), 0.2)
                 except TimeoutError:
                     continue
                 if msg.type == aiohttp.WSMsgType.BINARY:
@@ -270,7 +271,7 @@ async def test_stats_hold_topics_open_only_while_asked_and_never_pause_them(mast
         for _ in range(20):
             await pub.publish(String(data="x" * 1000))
         await until(lambda: (server.hub.topic_stats("/chatter") or (0, 0))[0] == 20)
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while True:
                 msg = json.loads((await ws.receive()).data)
                 if msg["op"] == "x-mrosd.topicStats":
@@ -299,14 +300,14 @@ async def test_node_details_of_a_dead_node_is_bounded_and_says_so(master: Master
             await ghost.register_publisher("/ghost_topic", "std_msgs/String", dead_uri)
         ws = await http.ws_connect(server.url, protocols=["foxglove.websocket.v1"])
         await ws.send_str(json.dumps({"op": "x-mrosd.nodeDetails", "node": "/ghost", "id": "g"}))
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while True:
                 msg = json.loads((await ws.receive()).data)
                 if msg["op"] == "x-mrosd.nodeDetails":
                     break
         assert msg["alive"] is False and msg["uri"] == dead_uri and msg["publishing"] == ["/ghost_topic"]
         await ws.send_str(json.dumps({"op": "x-mrosd.nodeDetails", "node": "/nobody", "id": "n"}))
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while True:
                 msg = json.loads((await ws.receive()).data)
                 if msg["op"] == "x-mrosd.nodeDetails":

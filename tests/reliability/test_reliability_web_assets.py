@@ -22,6 +22,7 @@ from pathlib import Path
 import aiohttp
 import pytest
 
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg.typestore import TypeStore
 from mrosd.web.access import AccessPolicy
@@ -81,7 +82,7 @@ class AssetClient:
 
     async def responses(self, count: int, timeout: float = 10.0) -> dict[int, tuple[int, str, bytes]]:
         got: dict[int, tuple[int, str, bytes]] = {}
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             while len(got) < count:
                 msg = await self.ws.receive()
                 if msg.type == aiohttp.WSMsgType.TEXT:
@@ -351,7 +352,7 @@ async def test_clients_that_leave_mid_fetch_give_back_every_descriptor_and_byte(
                 await client.fetch("package://robot_pkg/meshes/big.stl", rid)
             await asyncio.sleep(0.001 * attempt)  # leave at a different point of the fetch each time
             await client.ws.close()
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while server.sessions or assets.budget.held or open_descriptors_of(big):  # noqa: ASYNC110 - server state
                 await asyncio.sleep(0.01)
         other = await AssetClient.connect(http, server)

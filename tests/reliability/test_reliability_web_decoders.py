@@ -15,6 +15,7 @@ from pathlib import Path
 import aiohttp
 import pytest
 
+from mrosd import backports
 from tests.rosenv import Processes
 from tests.web.webdaemon import MiB, Watch, WebDaemon
 
@@ -105,7 +106,7 @@ def test_a_deep_parameter_set_by_a_client_cannot_break_the_master(daemon: WebDae
             ws = await http.ws_connect(daemon.foxglove_url, protocols=["foxglove.websocket.v1"])
             await ws.send_str('{"op":"setParameters","parameters":[{"name":"/deep","value":' + nested(900) + "}]}")
             await ws.send_str('{"op":"getParameters","parameterNames":["/deep"],"id":"r"}')
-            async with asyncio.timeout(10):
+            async with backports.timeout(10):
                 while True:
                     reply = json.loads((await ws.receive()).data)
                     if reply["op"] == "parameterValues" or reply["op"] == "status":
@@ -160,7 +161,7 @@ def test_fragment_size_one_on_a_2mb_topic_costs_neither_memory_nor_the_master(
                     clients.append(ws)
                 # one reads a little, slowly; the others never read
                 got = 0
-                async with asyncio.timeout(30):
+                async with backports.timeout(30):
                     while got < 2000:
                         msg = await clients[0].receive()
                         assert msg.type == aiohttp.WSMsgType.TEXT, msg

@@ -14,6 +14,7 @@ import aiohttp
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.web import rosbridge as rb
@@ -23,7 +24,7 @@ UInt8MultiArray = get_message_class("std_msgs/UInt8MultiArray")
 
 
 async def until(cond: Callable[[], object], timeout: float = 10.0) -> None:
-    async with asyncio.timeout(timeout):
+    async with backports.timeout(timeout):
         while not cond():  # noqa: ASYNC110 - the state lives in the server's callbacks
             await asyncio.sleep(0.005)
 

@@ -22,6 +22,7 @@ import aiohttp
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.master.client import MasterClient
 from mrosd.msg import get_service_class, load_type
@@ -33,7 +34,7 @@ ROGUE_SERVICES = 400
 
 
 async def until(cond: Callable[[], object], timeout: float = 10.0) -> None:
-    async with asyncio.timeout(timeout):
+    async with backports.timeout(timeout):
         while not cond():  # noqa: ASYNC110 - the state lives in the server's callbacks
             await asyncio.sleep(0.005)
 
@@ -114,7 +115,7 @@ async def get_pid_worst(master_uri: str, stop: asyncio.Event) -> float:
             await client.call("getPid")
             worst = max(worst, time.monotonic() - t0)
             try:
-                await asyncio.wait_for(stop.wait(), 0.05)
+                await backports.wait_for(stop.wait(), 0.05)
             except TimeoutError:
                 pass
     return worst

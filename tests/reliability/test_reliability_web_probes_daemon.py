@@ -13,6 +13,7 @@ from pathlib import Path
 
 import aiohttp
 
+from mrosd import backports
 from tests.integration.daemon.daemonproc import DaemonRun
 from tests.rosenv import Processes, iter_lines_until, needs_ros, ros_env
 
@@ -44,7 +45,7 @@ async def advertised(url: str, topic: str, timeout: float = 15.0) -> dict[str, o
     async with (
         aiohttp.ClientSession() as http,
         http.ws_connect(url, protocols=["foxglove.websocket.v1"]) as ws,
-        asyncio.timeout(timeout),
+        backports.timeout(timeout),
     ):
         while True:
             msg = json.loads((await ws.receive()).data)

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mrosd import spin
+from mrosd import backports, spin
 from mrosd.spin import (
     AFTER_NS,
     DEFAULT_SPIN_US,
@@ -96,7 +96,7 @@ def no_pressure() -> float:
 
 async def wait_idle(spinner: LoopSpinner, timeout: float = 5.0) -> None:
     if spinner._task is not None:
-        await asyncio.wait_for(spinner._task, timeout)  # the spin ends by itself at the window's end
+        await backports.wait_for(spinner._task, timeout)  # the spin ends by itself at the window's end
 
 
 async def test_the_loop_spinner_spins_after_close_events_and_stops_by_itself() -> None:
@@ -220,7 +220,7 @@ async def test_an_anticipated_window_spins_the_loop_through_it_then_stops() -> N
     assert timer is not None and spinner.anticipated == 0
     await asyncio.sleep(0.015)
     assert spinner.anticipated == 1 and spinner._task is not None  # inside the window: spinning
-    async with asyncio.timeout(2):
+    async with backports.timeout(2):
         while spinner._task is not None:  # noqa: ASYNC110 - the spin task ends itself at the window's end
             await asyncio.sleep(0.005)
     assert time.monotonic_ns() >= now + 25 * MS
@@ -244,12 +244,12 @@ async def test_a_probe_runs_at_each_spin_step_of_its_window_until_it_says_done()
     now = time.monotonic_ns()
     spinner.anticipate((now + 2 * MS, now + 30 * MS), probe)
     spinner.anticipate((now + 2 * MS, now + 30 * MS), broken)
-    async with asyncio.timeout(2):
+    async with backports.timeout(2):
         while len(calls) < 3:  # noqa: ASYNC110 - called by the spin task
             await asyncio.sleep(0.001)
     assert min(calls) >= now + 2 * MS  # not before the window opened
     await asyncio.sleep(0.005)
     assert len(calls) == 3 and spinner._task is not None  # done: not called again, though the window lasts
-    async with asyncio.timeout(2):
+    async with backports.timeout(2):
         while spinner._task is not None:  # noqa: ASYNC110 - ends itself at the window's end
             await asyncio.sleep(0.005)

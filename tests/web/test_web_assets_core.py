@@ -14,6 +14,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from mrosd import backports
 from mrosd.msg.typestore import TypeStore
 from mrosd.web import foxglove as fg
 from mrosd.web.access import DEFAULT_ASSETS, AccessPolicy
@@ -101,7 +102,7 @@ async def test_the_budget_waits_for_room_then_refuses_as_busy() -> None:
     await asyncio.sleep(0.01)
     assert not waiter.done()
     budget.release(80)
-    await asyncio.wait_for(waiter, 1.0)
+    await backports.wait_for(waiter, 1.0)
     assert budget.held == 30
     with pytest.raises(AssetRefused, match="busy"):
         await budget.acquire(80, 0.05)

@@ -14,6 +14,7 @@ from pathlib import Path
 import aiohttp
 import pytest
 
+from mrosd import backports
 from mrosd.msg import get_message_class, get_service_class
 from tests.rosenv import Processes, needs_ros, ros_env
 
@@ -66,7 +67,7 @@ async def _check(url: str) -> None:
     async with aiohttp.ClientSession() as http, http.ws_connect(url, protocols=["foxglove.websocket.v1"]) as ws:
         channel = None
         service = None
-        async with asyncio.timeout(20):
+        async with backports.timeout(20):
             while channel is None or service is None:
                 msg = json.loads((await ws.receive()).data)
                 if msg["op"] == "advertise":
@@ -78,7 +79,7 @@ async def _check(url: str) -> None:
         await ws.send_str(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": channel["id"]}]}))
         await ws.send_bytes(struct.pack("<BIII", 2, service["id"], 9, 4) + b"ros1")
         got_message = got_response = False
-        async with asyncio.timeout(20):
+        async with backports.timeout(20):
             while not (got_message and got_response):
                 msg = await ws.receive()
                 if msg.type != aiohttp.WSMsgType.BINARY:
@@ -110,7 +111,7 @@ async def test_a_rosbridge_call_right_after_a_service_registers_finds_it_as_rosb
         assert "/enable" not in server.hub.services  # the next poll has not come yet
         call = {"op": "call_service", "service": "/enable", "args": {"data": True}, "id": "c1"}
         await ws.send_str(json.dumps(call))
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while (reply := json.loads((await ws.receive()).data))["op"] != "service_response":
                 pass
         assert reply["result"] is True, reply

@@ -12,6 +12,7 @@ import aiohttp
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.web.foxglove_server import SessionLimits
@@ -50,20 +51,20 @@ class Client:
         return bytes(msg.data)
 
     async def until_json(self, op: str, timeout: float = 10.0, **match: Any) -> dict[str, Any]:
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             while True:
                 got = await self.receive(timeout)
                 if isinstance(got, dict) and got["op"] == op and all(got.get(k) == v for k, v in match.items()):
                     return got
 
     async def until_channel(self, topic: str, timeout: float = 10.0) -> dict[str, Any]:
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             while topic not in self.channels:
                 await self.receive(timeout)
             return self.channels[topic]
 
     async def until_binary(self, timeout: float = 10.0) -> bytes:
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             while True:
                 got = await self.receive(timeout)
                 if isinstance(got, bytes):
@@ -72,7 +73,7 @@ class Client:
 
 async def until(cond: Callable[[], object], timeout: float = 10.0) -> None:
     """Re-check ``cond`` at each turn of the loop (the server runs in this loop too), bounded."""
-    async with asyncio.timeout(timeout):
+    async with backports.timeout(timeout):
         while not cond():  # noqa: ASYNC110 - the state lives in the server's callbacks
             await asyncio.sleep(0.005)
 
@@ -186,7 +187,7 @@ async def test_parameters_get_set_and_subscribe(server: WebServer, master: Maste
         await client.send(op="setParameters", parameters=[{"name": "/robot/speed", "value": 2.5}], id="b")
         assert (await client.until_json("parameterValues", id="b"))["parameters"][0]["value"] == 2.5
         await setter.set_param("/robot/speed", 3.5)
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while True:
                 update = await client.until_json("parameterValues")
                 if update.get("id") is None and update["parameters"][0]["value"] == 3.5:
@@ -198,7 +199,7 @@ async def test_connection_graph_lists_publishers(server: WebServer, master: Mast
         await talker.advertise("/graph_topic", String)
         client = await connect(http, server)
         await client.send(op="subscribeConnectionGraph")
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while True:
                 update = await client.until_json("connectionGraphUpdate")
                 names = {t["name"]: t["publisherIds"] for t in update["publishedTopics"]}
@@ -226,7 +227,7 @@ async def test_a_stalled_client_costs_a_bounded_queue_and_gets_a_drop_report(mas
         (session,) = server.sessions
         await until(lambda: sum(s.queue.dropped for s in session.subs.values()) > 0)
         assert all(s.queue.size <= limits.queue_bytes + 1_000_100 for s in session.subs.values())
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while True:
                 status = await client.until_json("status")
                 if "dropped" in status["message"]:
@@ -242,7 +243,7 @@ async def test_service_calls_with_the_probed_type(server: WebServer, master: Mas
             "/enable", set_bool, lambda r: set_bool._response_class(success=r.data, message="ok")
         )
         client = await connect(http, server)
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             svc: dict[str, Any] = {}
             while not svc:
                 adv = await client.until_json("advertiseServices")
@@ -320,11 +321,11 @@ async def test_the_hub_stops_reading_when_every_client_is_behind_and_resumes(
         await pub.wait_for_subscribers(1, timeout=10)
         entry = server.hub._shared["/image"]
         img = Image(height=1000, width=1000, encoding="mono8", step=1000, data=bytes(1000 * 1000))
-        async with asyncio.timeout(20):
+        async with backports.timeout(20):
             while not entry.paused:  # the client reads nothing meanwhile
                 await pub.publish(img)
                 await asyncio.sleep(0.01)
-        async with asyncio.timeout(20):
+        async with backports.timeout(20):
             while entry.paused:  # reading again once the client takes its messages
                 await client.until_binary()
 

@@ -25,6 +25,7 @@ from typing import Any
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class, get_service_class
 from mrosd.web.server import WebServer
@@ -101,7 +102,7 @@ class NodeClient:
                 if ev["event"] == event and all(ev.get(k) == v for k, v in match.items()):
                     return ev
         try:
-            async with asyncio.timeout(timeout):
+            async with backports.timeout(timeout):
                 return await self._until(event, match)
         except TimeoutError:
             raise AssertionError(f"no {event} {match} within {timeout} s; last events {self.events[-5:]}") from None
@@ -209,7 +210,7 @@ async def test_foxglove_client_gets_rospys_8mb_image_byte_identical(
             # Every hash rospy printed up to now: the one received must be among them.
             assert rospy_proc.stdout is not None
             published: set[str] = set()
-            async with asyncio.timeout(20):
+            async with backports.timeout(20):
                 while got["sha256"] not in published:
                     published.add((await rospy_proc.stdout.readline()).decode().strip())
     finally:
@@ -250,7 +251,7 @@ async def exercise_rosbridge_client(
     await listener.wait_for_publishers(1, timeout=10)
     await client.send(cmd="publish", data=label)
     assert (await listener.next(timeout=10)).data == label
-    async with asyncio.timeout(10):
+    async with backports.timeout(10):
         while "/enable" not in server.hub.services:  # noqa: ASYNC110 - the hub probes the type
             await asyncio.sleep(0.01)
     await client.send(cmd="call")
@@ -389,7 +390,7 @@ async def test_a_foxglove_client_that_never_reads_costs_a_bound_and_the_other_ke
         await cam.wait_for_subscribers(1, timeout=10)
         img = Image(height=1000, width=1000, encoding="mono8", step=1000, data=bytes(1000 * 1000))
         received = 0
-        async with asyncio.timeout(60):
+        async with backports.timeout(60):
             for _ in range(60):  # 60 MB published; the live client reads them as they come
                 await cam.publish(img)
                 await live.until("message", topic="/image")
@@ -500,7 +501,7 @@ async def test_sim_time_follows_use_sim_time_as_it_changes(master: Master, clien
         await sim.set_param("/use_sim_time", False)
         status = await simulated.until("status", timeout=10)
         assert "/use_sim_time is now false" in status["message"]
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while clock.get_num_connections():  # noqa: ASYNC110 - the server leaves /clock
                 await asyncio.sleep(0.01)
         assert not server.hub.time_listeners

@@ -17,6 +17,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import mrosd
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class, get_service_class
 from mrosd.web import rosbridge as rb
@@ -187,7 +188,7 @@ async def master() -> AsyncIterator[Master]:
 
 
 async def receive(ws: aiohttp.ClientWebSocketResponse, op: str, timeout: float = 10.0, **match: Any) -> dict[str, Any]:
-    async with asyncio.timeout(timeout):
+    async with backports.timeout(timeout):
         while True:
             msg = json.loads((await ws.receive()).data)
             if msg["op"] == op and all(msg.get(k) == v for k, v in match.items()):
@@ -217,7 +218,7 @@ async def test_rosbridge_subscribe_publish_services_and_rosapi(master: Master) -
         await ws.send_str(json.dumps({"op": "publish", "topic": "/cmd", "msg": {"data": "go"}}))
         assert (await listener.next(timeout=10)).data == "go"
 
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while "/enable" not in server.hub.services:  # noqa: ASYNC110 - the hub probes the service's type
                 await asyncio.sleep(0.01)
         await ws.send_str(json.dumps({"op": "call_service", "service": "/enable", "args": {"data": True}, "id": "c1"}))
@@ -256,7 +257,7 @@ async def test_rosbridge_cbor_and_cbor_raw(master: Master) -> None:
             json.dumps({"op": "subscribe", "topic": "/image", "type": "sensor_msgs/Image", "compression": "cbor"})
         )
         await b.send_str(json.dumps({"op": "subscribe", "topic": "/image", "compression": "cbor-raw"}))
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while server.hub.sink_count("/image") < 2:  # noqa: ASYNC110 - the sessions subscribe in the server
                 await asyncio.sleep(0.01)
         await cam.wait_for_subscribers(1, timeout=10)
@@ -269,7 +270,7 @@ async def test_rosbridge_cbor_and_cbor_raw(master: Master) -> None:
         assert got_b["msg"]["secs"] > 0
         await a.close()
         await b.close()
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while server.rosbridge_sessions:  # noqa: ASYNC110 - the server ends the sessions
                 await asyncio.sleep(0.01)
         assert server.hub.ledger.size == 0
@@ -299,7 +300,7 @@ async def test_a_rosbridge_client_provides_a_service_to_ros(master: Master) -> N
         with pytest.raises(mrosd.errors.ServiceError, match="no way"):
             await call
         await ws.close()
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while True:  # the client's service is withdrawn when it disconnects
                 try:
                     await caller.master.lookup_service("/toggle")
@@ -371,7 +372,7 @@ async def test_png_compression_sends_the_publish_op_as_a_png_whole_or_in_fragmen
         await whole.send_str(json.dumps({"op": "subscribe", "topic": "/image", "compression": "png"}))
         sub = {"op": "subscribe", "topic": "/image", "compression": "png", "fragment_size": 50_000}
         await cut.send_str(json.dumps(sub))
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while server.hub.sink_count("/image") < 2:  # noqa: ASYNC110 - the sessions subscribe in the server
                 await asyncio.sleep(0.01)
         await cam.wait_for_subscribers(1, timeout=10)
@@ -432,7 +433,7 @@ async def test_a_client_sends_ops_cut_into_fragments(master: Master) -> None:
         got = await listener.next(timeout=10)
         assert (got.width, bytes(got.data)) == (512, pixels)
 
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while "/enable" not in server.hub.services:  # noqa: ASYNC110 - the hub probes the service's type
                 await asyncio.sleep(0.01)
         call = {"op": "call_service", "service": "/enable", "args": {"data": True}, "id": "c1"}

@@ -20,6 +20,7 @@ import aiohttp
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import TypeStore, get_message_class, get_service_class
 from mrosd.web import rosbridge_publishers
@@ -48,7 +49,7 @@ def node(name: str, master: str) -> mrosd.Node:
 async def call(ws: aiohttp.ClientWebSocketResponse, service: str, args: Any = None, **extra: Any) -> dict[str, Any]:
     op_id = f"{service}:{id(args)}"
     await ws.send_str(json.dumps({"op": "call_service", "service": service, "args": args or {}, "id": op_id, **extra}))
-    async with asyncio.timeout(10):
+    async with backports.timeout(10):
         while True:
             msg = json.loads((await ws.receive()).data)
             if msg.get("op") == "service_response" and msg.get("id") == op_id:
@@ -128,7 +129,7 @@ async def test_action_servers_ros_version_and_full_text_of_a_subscribed_topic(ma
         await robot.subscribe("/only_subscribed", String)
         await robot.master.set_param("/rosdistro", "melodic\n")
         async with http.ws_connect(server.rosbridge_url) as ws:
-            async with asyncio.timeout(10):
+            async with backports.timeout(10):
                 while "/only_subscribed" not in (await values(ws, "/rosapi/topics"))["topics"]:  # noqa: ASYNC110
                     await asyncio.sleep(0.05)
             assert (await values(ws, "/rosapi/action_servers")) == {"action_servers": ["/fibonacci"]}
@@ -209,7 +210,7 @@ async def test_publish_on_a_fresh_socket_that_closes_at_once_reaches_rospy(
         assert (await listener.until("message", timeout=5))["x"] == 0.5
         pubs, _, _ = await robot.master.get_system_state()
         assert "/cmd_vel" in dict(pubs)
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while "/cmd_vel" in dict((await robot.master.get_system_state())[0]):  # noqa: ASYNC110
                 await asyncio.sleep(0.1)
         assert [e for e in listener.events if e["event"] == "message"] == [{"event": "message", "x": 0.5}]
@@ -227,7 +228,7 @@ async def test_lingering_publishers_are_bounded(master: Master, monkeypatch: pyt
             for i in range(5):
                 await ws.send_str(json.dumps({"op": "advertise", "topic": f"/t{i}", "type": "std_msgs/String"}))
             await values(ws, "/rosapi/get_time")
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while len([t for t in dict((await robot.master.get_system_state())[0]) if t.startswith("/t")]) != 2:  # noqa: ASYNC110
                 await asyncio.sleep(0.05)
         assert len(server.hub._publishers) == 2

@@ -24,6 +24,7 @@ import aiohttp
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.errors import MasterError, MsgNotFoundError
 from mrosd.master import Master
 from mrosd.msg import TypeStore, get_service_class
@@ -72,7 +73,7 @@ async def bridge_process(master_uri: str, package_path: Path) -> AsyncIterator[s
     )
     try:
         assert proc.stderr is not None
-        async with asyncio.timeout(30):
+        async with backports.timeout(30):
             line = (await proc.stderr.readline()).decode()
         match = re.search(r"rosbridge (ws://\S+/)", line)
         assert match, line
@@ -100,7 +101,7 @@ async def roslibpy_client(url: str) -> NodeClient:
 
 
 async def wait_for_service(node: mrosd.Node, name: str) -> None:
-    async with asyncio.timeout(20):
+    async with backports.timeout(20):
         while True:
             try:
                 await node.master.lookup_service(name)

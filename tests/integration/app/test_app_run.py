@@ -15,6 +15,7 @@ import time
 
 import pytest
 
+from mrosd import backports
 from mrosd.master import Master
 from tests.rosenv import PROJECT_ROOT, Processes
 
@@ -153,7 +154,7 @@ async def test_the_example_talker_prints_what_it_publishes_as_rospy_s_does(procs
         proc = await _run_until_up(procs, [sys.executable, str(PROJECT_ROOT / "examples" / "talker.py")], master, set())
         try:
             assert proc.stdout is not None
-            line = await asyncio.wait_for(asyncio.to_thread(proc.stdout.readline), timeout=10)
+            line = await backports.wait_for(asyncio.to_thread(proc.stdout.readline), timeout=10)
             proc.send_signal(signal.SIGINT)
             _, err = await asyncio.to_thread(proc.communicate, timeout=10)
         finally:

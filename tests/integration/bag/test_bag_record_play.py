@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from mrosd import backports
 from mrosd.bag.files import open_bag, open_writer
 from mrosd.bag.model import ConnectionInfo
 from mrosd.msg import get_message_class
@@ -127,7 +128,7 @@ async def test_record_shows_a_live_status_line_and_sigterm_leaves_a_complete_bag
             await pub.publish(String(data=str(i)))
         assert rec.stderr is not None
         seen = b""
-        async with asyncio.timeout(10):  # the line is refreshed twice a second with the count so far
+        async with backports.timeout(10):  # the line is refreshed twice a second with the count so far
             while b": 5 msgs," not in seen:
                 seen += await asyncio.to_thread(rec.stderr.read1, 4096)  # type: ignore[attr-defined]
         rec.send_signal(signal.SIGTERM)

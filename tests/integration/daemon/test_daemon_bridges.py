@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from mrosd import Node
+from mrosd import Node, backports
 from mrosd.ixm import AsyncIxmClient
 from mrosd.msg import get_message_class
 from tests.integration.daemon.daemonproc import DaemonRun
@@ -40,19 +40,19 @@ async def test_the_daemon_runs_the_configured_bridges(daemon: DaemonRun) -> None
         sub = await node.subscribe("/arm_value", Float64)
         async with AsyncIxmClient(daemon.ixm_socket) as ixm:
             key = await ixm.open("/arm/value", "std_msgs/Float64", mode="w")
-            async with asyncio.timeout(20):  # the TCPROS connection may still be forming: write until one arrives
+            async with backports.timeout(20):  # the TCPROS connection may still be forming: write until one arrives
                 value = 1.0
                 while True:
                     key.write(Float64(data=value))
                     try:
-                        async with asyncio.timeout(0.5):
+                        async with backports.timeout(0.5):
                             got = await sub.__anext__()
                         break
                     except TimeoutError:
                         value += 1.0
             assert got.data >= 1.0
             key.write(Float64(data=42.5))
-            async with asyncio.timeout(10):
+            async with backports.timeout(10):
                 while (await sub.__anext__()).data != 42.5:
                     pass
     code, _ = daemon.stop()

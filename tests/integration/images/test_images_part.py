@@ -12,6 +12,7 @@ from collections.abc import Callable
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.images.part import NODE_NAME, CompressedImages
 from mrosd.master import Master
 from mrosd.msg import get_message_class
@@ -34,7 +35,7 @@ def picture(i: int, w: int = 320, h: int = 240) -> object:
 
 
 async def until(what: str, check: Callable[[], bool], timeout: float = 10.0) -> None:
-    async with asyncio.timeout(timeout):
+    async with backports.timeout(timeout):
         while not check():  # noqa: ASYNC110 - the state lives in the part's and the publisher's callbacks
             await asyncio.sleep(0.02)
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from mrosd import backports
 from mrosd.errors import IxmError, IxmPermissionError
 from mrosd.ixm import AccessRules, AsyncIxmClient, IxmClient
 from mrosd.ixm.server import IxmServer
@@ -29,7 +30,7 @@ async def test_async_for_yields_each_write_without_polling(shm_guard: ShmGuard, 
                     return
 
         task = asyncio.create_task(consume())
-        async with asyncio.timeout(5):
+        async with backports.timeout(5):
             await waiting.wait()
             for v in (1.0, 2.0, 3.0):
                 writer.write(v)

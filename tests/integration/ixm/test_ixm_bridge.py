@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from mrosd import backports
 from mrosd.errors import ConfigError
 from mrosd.ixm import AsyncIxmClient
 from mrosd.ixm.bridge import Bridge, IxmBridge, parse_bridges
@@ -47,7 +48,7 @@ class Lines:
 
     async def expect(self, expected: str, timeout: float = 20.0) -> None:
         loop = asyncio.get_running_loop()
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             while True:
                 while b"\n" in self.buf:
                     line, self.buf = self.buf.split(b"\n", 1)
@@ -100,7 +101,7 @@ async def test_rospy_sees_each_write_and_rostopic_pub_feeds_a_key(
         out = await ixm.open("/ixm/out", "std_msgs/Float64", mode="w")
         await lines.expect("ready")
         # the subscriber's TCPROS connection may still be forming: write until rospy reports a value
-        async with asyncio.timeout(20):
+        async with backports.timeout(20):
             value = 1.0
             while True:
                 out.write(Float64(data=value))

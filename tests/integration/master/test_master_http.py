@@ -7,6 +7,7 @@ from collections.abc import AsyncIterator
 
 import pytest
 
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.master.notifier import Notifier
 from mrosd.master.registry import publisher_update
@@ -30,11 +31,11 @@ def request(body: bytes, version: bytes = b"HTTP/1.1", extra: bytes = b"") -> by
 
 
 async def read_response(reader: asyncio.StreamReader) -> tuple[bytes, bytes]:
-    head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), 5)
+    head = await backports.wait_for(reader.readuntil(b"\r\n\r\n"), 5)
     length = next(
         int(line.split(b":", 1)[1]) for line in head.split(b"\r\n") if line.lower().startswith(b"content-length")
     )
-    return head, await asyncio.wait_for(reader.readexactly(length), 5)
+    return head, await backports.wait_for(reader.readexactly(length), 5)
 
 
 async def test_pipelined_requests_on_one_connection_are_answered_in_order(master: Master) -> None:
@@ -57,7 +58,7 @@ async def test_http_1_0_requests_are_answered_then_closed(master: Master) -> Non
         writer.write(request(encode_call("getUri", ("/c",)), version=b"HTTP/1.0"))
         head, body = await read_response(reader)
         assert b"200 OK" in head and decode_response(body)[2] == master.uri
-        assert await asyncio.wait_for(reader.read(), 5) == b""
+        assert await backports.wait_for(reader.read(), 5) == b""
     finally:
         writer.close()
 
@@ -84,7 +85,7 @@ async def test_bad_http_is_refused_with_a_status_and_the_master_keeps_serving(
     reader, writer = await asyncio.open_connection("127.0.0.1", master.port)
     try:
         writer.write(raw)
-        head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), 5)
+        head = await backports.wait_for(reader.readuntil(b"\r\n\r\n"), 5)
         assert head.split(b" ")[1] == status
     finally:
         writer.close()
@@ -140,10 +141,10 @@ async def test_a_client_trickling_a_request_is_cut_off_while_idle_keep_alive_cli
         for chunk in (b"POST / HTTP/1.1\r\n", b"Content-Le", b"ngth: 10\r\n"):
             slow_writer.write(chunk)
             await asyncio.sleep(0.1)
-        head = await asyncio.wait_for(slow_reader.readuntil(b"\r\n\r\n"), 5)
+        head = await backports.wait_for(slow_reader.readuntil(b"\r\n\r\n"), 5)
         assert head.split(b" ")[1] == b"408"
         # read() returning at all means the server closed the connection after its explanation
-        assert await asyncio.wait_for(slow_reader.read(), 5) == b"request not completed in time\n"
+        assert await backports.wait_for(slow_reader.read(), 5) == b"request not completed in time\n"
         # the idle keep-alive connection had nothing pending: it is still served
         idle_writer.write(request(encode_call("getUri", ("/c",))))
         _, body = await read_response(idle_reader)

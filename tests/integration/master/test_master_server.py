@@ -10,6 +10,7 @@ from typing import Any
 import aiohttp
 import pytest
 
+from mrosd import backports
 from mrosd.errors import MasterError
 from mrosd.master import Master, MasterClient
 from mrosd.xmlrpc import MAX_BODY_SIZE, Fault, XmlRpcClient, XmlRpcServer, encode_call
@@ -53,7 +54,7 @@ class FakeNode:
         return [1, "", 0]
 
     async def wait_for(self, count: int, timeout: float = 5.0) -> None:
-        async with asyncio.timeout(timeout):
+        async with backports.timeout(timeout):
             while len(self.calls) < count:
                 self.changed.clear()
                 await self.changed.wait()

@@ -20,6 +20,7 @@ import os
 import stat
 import sys
 
+from mrosd import backports
 from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection, ShmView, parse_answer
 from mrosd.shm.negotiate import PROTOCOL, VERSION
 from mrosd.wire.header import ConnectionHeader
@@ -129,7 +130,7 @@ async def sub(args: argparse.Namespace) -> None:
     conn = await ShmSubscriberConnection.attach(answer, header, on_frame=on_frame, zero_copy=args.zero_copy)
     say("attached")
     conn.closed.add_done_callback(lambda _: done.set())
-    await asyncio.wait_for(done.wait(), 60)
+    await backports.wait_for(done.wait(), 60)
     ordered = all(a < b for a, b in itertools.pairwise(numbers))
     result = {
         "got": len(numbers),

@@ -9,6 +9,7 @@ from collections.abc import Callable
 
 import pytest
 
+from mrosd import backports
 from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
 from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection, ShmView, parse_answer
 from mrosd.shm import publisher as shm_publisher
@@ -33,7 +34,7 @@ def answer(ep: ShmPublisherEndpoint) -> ShmAnswer:
 
 async def until(cond: Callable[[], object], timeout: float = 5.0) -> None:
     """Re-check ``cond`` at each turn of the loop (the other side runs in this loop too), bounded."""
-    async with asyncio.timeout(timeout):
+    async with backports.timeout(timeout):
         while not cond():  # noqa: ASYNC110 - the state lives in another object's callbacks
             await asyncio.sleep(0.005)
 
@@ -152,7 +153,7 @@ async def test_the_end_of_either_side_is_seen_by_the_other() -> None:
     await until(lambda: changes == [1, 0])
     conn = await ShmSubscriberConnection.attach(answer(ep), HEADER)
     await ep.aclose()
-    await asyncio.wait_for(asyncio.shield(conn.closed), 5)
+    await backports.wait_for(asyncio.shield(conn.closed), 5)
     assert conn.error == ""
     with pytest.raises(StopAsyncIteration):
         await anext(conn)
@@ -196,7 +197,7 @@ async def test_a_burst_longer_than_the_ring_waits_in_the_publishers_queue_and_ar
             ep.publish(body)
         assert ep.ring is not None and ep.ring.layout.slots < 40
         assert len(ep.backlog) == 40 - ep.ring.layout.slots and ep.ring.layout.waiting
-        got = [bytes(await asyncio.wait_for(anext(conn), 5)) for _ in sent]
+        got = [bytes(await backports.wait_for(anext(conn), 5)) for _ in sent]
         assert got == sent and conn.dropped == 0
         await until(lambda: not ep.backlog)
         assert not ep.ring.layout.waiting and ep.stats()[0]["messages"] == 40
@@ -229,7 +230,7 @@ async def test_a_stalled_subscriber_holds_back_one_that_keeps_up_for_at_most_sta
         assert max(delays) < 0.1 + 0.5  # STALL, and a loaded machine's slack
         assert [lk.lagging for lk in ep.links] == [True, False]
         # the stalled one finds the newest messages that are still in the ring, and counts the rest as lost
-        first = await asyncio.wait_for(anext(stalled), 5)
+        first = await backports.wait_for(anext(stalled), 5)
         assert bytes(first) != sent[0] and stalled.dropped > 0
     finally:
         await stalled.aclose()
@@ -248,7 +249,7 @@ async def test_a_lone_stalled_subscriber_is_queued_for_at_most_queue_size_then_l
         assert ep.links[0].lagging
         got = []
         while len(got) + conn.dropped < 50:
-            got.append(bytes(await asyncio.wait_for(anext(conn), 5)))
+            got.append(bytes(await backports.wait_for(anext(conn), 5)))
         assert got[-1] == bytes([49]) * 100 and conn.dropped > 0
         assert got == sorted(got)  # in order, the oldest ones gone
     finally:
@@ -262,13 +263,13 @@ async def test_a_held_zero_copy_view_is_not_overwritten_until_it_is_released() -
     try:
         await until(lambda: ep.links)
         ep.publish(b"first" * 1000)
-        view = await asyncio.wait_for(anext(conn), 5)
+        view = await backports.wait_for(anext(conn), 5)
         assert isinstance(view, ShmView)
         assert ep.ring is not None
         for i in range(ep.ring.layout.slots + 3):  # laps the ring: these wait while the view is held
             ep.publish(bytes([i]) * 5000)
         assert view.intact() and bytes(view.data) == b"first" * 1000 and ep.backlog
-        rest = [bytes((await asyncio.wait_for(anext(conn), 5)).data) for _ in range(ep.ring.layout.slots + 3)]
+        rest = [bytes((await backports.wait_for(anext(conn), 5)).data) for _ in range(ep.ring.layout.slots + 3)]
         assert rest == [bytes([i]) * 5000 for i in range(ep.ring.layout.slots + 3)] and conn.dropped == 0
     finally:
         await conn.aclose()

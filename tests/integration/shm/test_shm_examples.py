@@ -7,6 +7,7 @@ import importlib.util
 from pathlib import Path
 from types import ModuleType
 
+from mrosd import backports
 from mrosd.master import Master
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
@@ -26,6 +27,6 @@ async def test_the_viewer_computes_on_the_cameras_loaned_frames() -> None:
         watching = asyncio.ensure_future(viewer.main(master.uri, count=5))
         await asyncio.sleep(0.3)  # the viewer subscribes first: it sees the camera's first frames
         in_place = await camera.main(master.uri, rate=30.0, count=20)
-        seen = await asyncio.wait_for(watching, 20)
+        seen = await backports.wait_for(watching, 20)
     assert in_place >= 15  # frames written into the pool itself (the rest were copied: no slot free yet)
     assert len(seen) == 5 and all(0 <= b <= 255 for b in seen)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.tcpros import Node, Subscriber
@@ -28,7 +29,7 @@ async def test_a_publisher_latched_after_its_shared_memory_side_exists_latches_i
         pub = await talker.advertise("/later", String)
         async with Node("first", master_uri=master.uri, argv=[]) as first:
             sub = await first.subscribe("/later", String)
-            async with asyncio.timeout(10):
+            async with backports.timeout(10):
                 await shared_memory_attached(sub)
             assert pub.shm is not None and pub.shm.endpoint is not None
             pub.latch = True
@@ -36,13 +37,13 @@ async def test_a_publisher_latched_after_its_shared_memory_side_exists_latches_i
             assert (await sub.next(timeout=5)).data == "kept"
         async with Node("late", master_uri=master.uri, argv=[]) as late:
             sub = await late.subscribe("/later", String)
-            async with asyncio.timeout(10):
+            async with backports.timeout(10):
                 await shared_memory_attached(sub)
             assert (await sub.next(timeout=5)).data == "kept"
         pub.latch = False
         async with Node("unlatched", master_uri=master.uri, argv=[]) as unlatched:
             sub = await unlatched.subscribe("/later", String)
-            async with asyncio.timeout(10):
+            async with backports.timeout(10):
                 await shared_memory_attached(sub)
             await pub.publish(String(data="fresh"))
             assert (await sub.next(timeout=5)).data == "fresh"  # not the message latched before

@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import os
 
+from mrosd import backports
 from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection, parse_answer
 from mrosd.shm import publisher as shm_publisher
 from mrosd.shm.ring import POPULATED
@@ -65,7 +66,7 @@ async def test_declared_size_makes_the_pool_at_start_and_subscribers_map_it_whol
             assert resident_kib("mrosd-shm-pool") >= 2 * (size >> 10)
             body = os.urandom(size)
             ep.publish(body)
-            await asyncio.wait_for(arrived.wait(), 5)
+            await backports.wait_for(arrived.wait(), 5)
             assert got == [body] and ep.rings_made == 1
         finally:
             await conn.aclose()

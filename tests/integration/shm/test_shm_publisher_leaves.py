@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.tcpros import AnyMsg, Node, Subscriber
@@ -29,7 +30,7 @@ async def test_a_subscriber_gets_every_message_published_before_the_publisher_cl
         sub = await node.subscribe("/burst", AnyMsg, queue_size=COUNT)
         async with Node("talker", master_uri=master.uri, argv=[]) as talker:
             pub = await talker.advertise("/burst", String)
-            async with asyncio.timeout(10):
+            async with backports.timeout(10):
                 await shared_memory_attached(sub)
             for i in range(COUNT):
                 await pub.publish(String(data=f"m{i}"))

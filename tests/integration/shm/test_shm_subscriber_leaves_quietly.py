@@ -12,6 +12,7 @@ import logging
 
 import pytest
 
+from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.tcpros import AnyMsg, Node
@@ -26,13 +27,13 @@ async def test_a_subscriber_that_leaves_is_logged_at_debug(caplog: pytest.LogCap
         await talker.advertise("/leaving", String)
         async with Node("listener", master_uri=master.uri, argv=[]) as node:
             sub = await node.subscribe("/leaving", AnyMsg)
-            async with asyncio.timeout(10):
+            async with backports.timeout(10):
                 await shared_memory_attached(sub)
 
         def gone() -> list[logging.LogRecord]:
             return [r for r in caplog.records if "went away" in r.getMessage()]
 
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while not gone():  # noqa: ASYNC110  (the publisher notices on its loop; no event to wait on)
                 await asyncio.sleep(0.01)
     assert [r.levelno for r in gone()] == [logging.DEBUG]

@@ -8,6 +8,7 @@ from typing import Any
 
 import pytest
 
+from mrosd import backports
 from mrosd.errors import HandshakeError
 from mrosd.shm import topic as shm_topic
 from mrosd.shm.negotiate import HostIdentity, subscriber_offer
@@ -62,10 +63,10 @@ async def test_a_same_host_subscriber_is_answered_with_shared_memory_and_gets_ev
     conn, header = attached
     try:
         assert header.callerid == "/talker" and header.latching == "1"
-        await asyncio.wait_for(changes.wait(), 5)
+        await backports.wait_for(changes.wait(), 5)
         side.publish(b"new")
         side.publish_parts([b"a", b"b"], 2)
-        await asyncio.wait_for(three.wait(), 5)
+        await backports.wait_for(three.wait(), 5)
         assert got == [b"old", b"new", b"ab"]
         assert side.count() == 1
         assert side.stats_rows()[0][1:] == [8, 3, True, 0]  # the latched message counts

@@ -7,6 +7,7 @@ import contextlib
 import struct
 
 import mrosd
+from mrosd import backports
 from mrosd.msg import get_message_class
 from mrosd.tcpros.admission import AdmissionLimits
 from mrosd.wire.header import ConnectionHeader, encode_header
@@ -18,7 +19,7 @@ String = get_message_class("std_msgs/String")
 
 async def _closed_by_peer(reader: asyncio.StreamReader, timeout: float) -> bool:
     try:
-        return await asyncio.wait_for(reader.read(), timeout) == b""
+        return await backports.wait_for(reader.read(), timeout) == b""
     except ConnectionResetError:
         return True
     except TimeoutError:
@@ -59,12 +60,12 @@ async def test_over_the_connection_cap_with_nobody_waiting_a_new_connection_is_r
         pub = await node.advertise("/full", String)
         reader, writer = await asyncio.open_connection("127.0.0.1", node.tcpros_port)
         writer.write(encode_header(ConnectionHeader(callerid="/raw", topic="/full", md5sum="*", type="*")))
-        (length,) = struct.unpack("<I", await asyncio.wait_for(reader.readexactly(4), 5.0))
-        await asyncio.wait_for(reader.readexactly(length), 5.0)  # the publisher's reply: established
+        (length,) = struct.unpack("<I", await backports.wait_for(reader.readexactly(4), 5.0))
+        await backports.wait_for(reader.readexactly(length), 5.0)  # the publisher's reply: established
         other_reader, other_writer = await asyncio.open_connection("127.0.0.1", node.tcpros_port)
         assert await _closed_by_peer(other_reader, 2.0)  # nobody waiting to shed: refused
         other_writer.close()
         await pub.publish(String(data="still"))
-        (length,) = struct.unpack("<I", await asyncio.wait_for(reader.readexactly(4), 5.0))
-        assert (await asyncio.wait_for(reader.readexactly(length), 5.0)).endswith(b"still")
+        (length,) = struct.unpack("<I", await backports.wait_for(reader.readexactly(4), 5.0))
+        assert (await backports.wait_for(reader.readexactly(length), 5.0)).endswith(b"still")
         writer.close()

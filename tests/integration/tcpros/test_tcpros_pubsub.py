@@ -11,6 +11,7 @@ import struct
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.errors import HandshakeError, LocalProtocolError, ServiceError
 from mrosd.msg import get_message_class, get_service_class
 from mrosd.wire.header import ConnectionHeader, decode_connection_header, encode_header
@@ -48,7 +49,7 @@ async def test_a_subscriber_started_first_connects_when_the_publisher_appears(ro
             pub = await a.advertise("/late", String)
             await pub.wait_for_subscribers(1, timeout=10)
             await pub.publish(String(data="x"))
-            assert await asyncio.wait_for(got.get(), 5) == "x"
+            assert await backports.wait_for(got.get(), 5) == "x"
 
 
 async def test_an_async_callback_receives_messages_in_order(rosmaster: str) -> None:
@@ -66,7 +67,7 @@ async def test_an_async_callback_receives_messages_in_order(rosmaster: str) -> N
         await pub.wait_for_subscribers(1, timeout=10)
         for i in range(20):
             await pub.publish(Int32(data=i))
-        await asyncio.wait_for(done.wait(), 5)
+        await backports.wait_for(done.wait(), 5)
         assert got == list(range(20))
 
 
@@ -103,7 +104,7 @@ async def test_a_type_mismatch_is_reported_clearly_on_the_subscriber(
     async with node("talker", rosmaster) as a, node("listener", rosmaster) as b:
         await a.advertise("/mixed", String)
         sub = await b.subscribe("/mixed", Int32)
-        async with asyncio.timeout(10):
+        async with backports.timeout(10):
             while not sub.errors:
                 sub._changed.clear()
                 await sub._changed.wait()
@@ -137,7 +138,7 @@ async def test_a_slow_subscriber_drops_oldest_and_never_slows_a_fast_one(rosmast
         await pub.wait_for_subscribers(2, timeout=10)
         try:
             payload = "x" * 20000
-            async with asyncio.timeout(30):
+            async with backports.timeout(30):
                 for i in range(300):
                     await pub.publish(String(data=f"{i} {payload}"))
                     # The fast subscriber keeps up: every message arrives, in order.
@@ -161,7 +162,7 @@ async def test_a_garbage_header_closes_only_that_connection(rosmaster: str) -> N
         await pub.wait_for_subscribers(1, timeout=10)
         reader, writer = await asyncio.open_connection("127.0.0.1", a.tcpros_port)
         writer.write(b"\xff\xff\xff\xff" + os.urandom(64))
-        assert await asyncio.wait_for(reader.read(), 5) == b""
+        assert await backports.wait_for(reader.read(), 5) == b""
         writer.close()
         await pub.publish(String(data="still here"))
         assert (await sub.next(timeout=5)).data == "still here"
@@ -171,7 +172,7 @@ async def test_a_wrong_topic_gets_an_error_header(rosmaster: str) -> None:
     async with node("talker", rosmaster) as a:
         reader, writer = await asyncio.open_connection("127.0.0.1", a.tcpros_port)
         writer.write(encode_header(ConnectionHeader(callerid="/x", topic="/nothing", md5sum="*", type="*")))
-        (n,) = struct.unpack("<I", await asyncio.wait_for(reader.readexactly(4), 5))
+        (n,) = struct.unpack("<I", await backports.wait_for(reader.readexactly(4), 5))
         reply = decode_connection_header(await reader.readexactly(n))
         assert reply.error is not None and "/nothing" in reply.error
         writer.close()
@@ -253,7 +254,7 @@ def test_topics_and_services_work_under_uvloop(rosmaster: str) -> None:
             await a.advertise_service("/uvs", SetBool, lambda r: SetBool._response_class(success=r.data))
             assert (await b.service_proxy("/uvs", SetBool).call(SetBool._request_class(data=True))).success
 
-    with asyncio.Runner(loop_factory=uvloop.new_event_loop) as runner:
+    with backports.Runner(loop_factory=uvloop.new_event_loop) as runner:
         runner.run(main())
 
 
@@ -273,7 +274,7 @@ async def test_nodes_register_again_after_the_master_restarts(procs: Processes) 
         await asyncio.to_thread(start_rosmaster_on, procs, port)
         client = XmlRpcClient()
         try:
-            async with asyncio.timeout(20):
+            async with backports.timeout(20):
                 while True:
                     state = (await client.call(uri, "getSystemState", "/test"))[2]
                     pubs = {t: n for t, n in state[0]}
@@ -326,7 +327,7 @@ def test_large_messages_queued_behind_a_full_socket_arrive_whole_and_in_order_un
                 assert len(msg.data) == size and msg.data[0] == i and msg.data[-1] == i
             assert pub.links[0].dropped == 0
 
-    with asyncio.Runner(loop_factory=uvloop.new_event_loop) as runner:
+    with backports.Runner(loop_factory=uvloop.new_event_loop) as runner:
         runner.run(main())
 
 
@@ -337,7 +338,7 @@ async def test_a_subscribed_parameter_reports_changes_and_other_keys_are_refused
         c = XmlRpcClient()
         try:
             await c.call(rosmaster, "setParam", "/someone_else", "/gain", 2.5)  # the master skips the setter
-            assert await asyncio.wait_for(changes.get(), 10) == ("/gain", 2.5)
+            assert await backports.wait_for(changes.get(), 10) == ("/gain", 2.5)
             assert (await c.call(a.uri, "paramUpdate", "/t", "/other", 1))[0] == -1
             await a.unsubscribe_param("gain")
             assert (await c.call(a.uri, "paramUpdate", "/t", "/gain", 1))[0] == -1

@@ -10,6 +10,7 @@ from collections.abc import AsyncIterator, Awaitable, Callable
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.errors import ServiceError
 from mrosd.msg import get_service_class
 from mrosd.wire.framing import FrameDecoder, encode_frame
@@ -70,7 +71,7 @@ async def _sends_and_waits(reader: asyncio.StreamReader, writer: asyncio.StreamW
     """Keeps the connection open until the client closes it: the client must not wait for the rest."""
     writer.write(data)
     await writer.drain()
-    async with asyncio.timeout(20):
+    async with backports.timeout(20):
         await reader.read()
 
 

@@ -12,6 +12,7 @@ from collections.abc import AsyncIterator
 import aiohttp
 import pytest
 
+from mrosd import backports
 from mrosd.errors import XmlRpcError
 from mrosd.xmlrpc import (
     FAULT_INVALID_PARAMS,
@@ -116,4 +117,4 @@ async def test_aclose_closes_a_connection_accepted_as_it_was_closing(turns: int)
         await srv.aclose()
         # the server's end is closed: EOF (or a reset) at once, not when this client gives up
         with contextlib.suppress(ConnectionResetError):
-            assert await asyncio.wait_for(loop.sock_recv(sock, 1), 5.0) == b""
+            assert await backports.wait_for(loop.sock_recv(sock, 1), 5.0) == b""

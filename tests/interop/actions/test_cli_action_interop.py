@@ -6,6 +6,7 @@ import asyncio
 import signal
 import sys
 
+from mrosd import backports
 from mrosd.actions import Status
 from mrosd.msg import get_message_class
 from tests.interop.actions.test_actionlib_interop import lines, needs_actionlib, our_node, rospy_action
@@ -52,7 +53,7 @@ async def test_ctrl_c_on_mros_action_send_cancels_the_goal(procs: Processes, ros
     status_array = get_message_class("actionlib_msgs/GoalStatusArray")
     async with our_node("watch", rosmaster) as node:
         sub = await node.subscribe("/test_action/status", status_array, queue_size=10)
-        async with asyncio.timeout(15):
+        async with backports.timeout(15):
             async for msg in sub:
                 if [st.status for st in msg.status_list] == [Status.PREEMPTED]:
                     break

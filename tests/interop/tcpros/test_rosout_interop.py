@@ -19,6 +19,7 @@ from typing import Any
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.msg import get_message_class, get_service_class
 from mrosd.rosout import ROSVERSION, RosoutAggregator
 from tests.rosenv import ROS_PYTHON, Processes, needs_ros, ros_env
@@ -68,7 +69,7 @@ async def reader(procs: Processes, master: str, topic: str, node: str) -> subpro
 async def records(proc: subprocess.Popen[bytes], count: int) -> list[dict[str, Any]]:
     # Plain buffered readline (iter_lines_until's select misses a second line already in the buffer).
     assert proc.stdout is not None
-    lines = [await asyncio.wait_for(asyncio.to_thread(proc.stdout.readline), 20) for _ in range(count)]
+    lines = [await backports.wait_for(asyncio.to_thread(proc.stdout.readline), 20) for _ in range(count)]
     return [json.loads(line) for line in lines]
 
 

@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 
 import mrosd
+from mrosd import backports
 from mrosd.errors import ServiceError
 from mrosd.msg import Time, get_message_class, get_service_class, load_type
 from tests.rosenv import ROS_PYTHON, Processes, iter_lines_until, needs_ros, ros_env
@@ -136,7 +137,7 @@ async def test_a_wrong_md5_against_rospy_is_reported_clearly_on_our_side(
     assert await lines(talker, 1) == ["up"]
     async with our_node("listener", rosmaster) as node:
         sub = await node.subscribe("/typed", Coordinate)
-        async with asyncio.timeout(20):
+        async with backports.timeout(20):
             while not sub.errors:
                 sub._changed.clear()
                 await sub._changed.wait()

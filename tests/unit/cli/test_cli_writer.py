@@ -20,6 +20,8 @@ import pytest
 from mros_cli import writer as writer_module
 from mros_cli.writer import CoalescedWriter
 
+from mrosd import backports
+
 
 def _reader(fd: int, into: bytearray) -> threading.Thread:
     def drain() -> None:
@@ -99,7 +101,7 @@ async def test_a_closed_pipe_breaks_the_background_writer_quietly_and_calls_on_b
 
     writer = CoalescedWriter(out, on_broken=on_broken, background=True)
     writer.add([b"nobody reads this\n"])
-    await asyncio.wait_for(gone.wait(), timeout=30)
+    await backports.wait_for(gone.wait(), timeout=30)
     writer.add([b"dropped\n"])  # after the break: ignored, never blocks
     writer.close()
     assert writer.broken
@@ -112,7 +114,7 @@ async def test_a_failing_write_is_reported_as_the_error(full: BinaryIO, backgrou
     gone = asyncio.Event()
     writer = CoalescedWriter(full, on_broken=gone.set, background=background)
     writer.add([b"x" * 100])
-    await asyncio.wait_for(gone.wait(), timeout=30)
+    await backports.wait_for(gone.wait(), timeout=30)
     writer.close()
     assert writer.broken
     assert isinstance(writer.error, OSError)

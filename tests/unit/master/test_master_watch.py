@@ -7,6 +7,7 @@ from typing import Any
 
 import pytest
 
+from mrosd import backports
 from mrosd.errors import MasterError
 from mrosd.master.api import WATCH_MAX_PER_CALLER, MasterApi
 from mrosd.master.client import GraphChange, GraphSnapshot, graph_changes
@@ -26,7 +27,7 @@ async def test_the_long_poll_answers_at_once_when_the_version_differs_and_on_the
     await asyncio.sleep(0)
     assert not waiter.done()
     m.sync_methods["registerPublisher"]("/talker", "/chatter", "std_msgs/String", API)
-    code, _, (new_version, state, types) = await asyncio.wait_for(waiter, 5)
+    code, _, (new_version, state, types) = await backports.wait_for(waiter, 5)
     assert new_version != version
     assert state[0] == [["/chatter", ["/talker"]]] and types == [["/chatter", "std_msgs/String"]]
 
@@ -44,7 +45,7 @@ async def test_waiters_are_bounded_per_caller_and_bad_arguments_answer_minus_one
     await asyncio.sleep(0)
     assert (await wait(m, "/w", version, 10))[0] == -1
     m.sync_methods["registerSubscriber"]("/l", "/t", "std_msgs/String", API)
-    assert all(r[0] == 1 for r in await asyncio.wait_for(asyncio.gather(*waiters), 5))
+    assert all(r[0] == 1 for r in await backports.wait_for(asyncio.gather(*waiters), 5))
     assert m._watchers == {}
     for bad in [(), ("/w", 1), ("/w", "1", 1), ("/w", 1, "x"), ("/w", 1, -1), (5, 1, 1), ("", 1, 1)]:
         assert (await wait(m, *bad))[0] == -1, bad

@@ -7,6 +7,7 @@ from collections.abc import Awaitable, Callable
 
 import pytest
 
+from mrosd import backports
 from mrosd.errors import MrosError
 from mrosd.web.probes import Attempt, ProbePool
 
@@ -48,7 +49,7 @@ async def test_one_peer_cannot_fill_the_pool_and_a_newcomer_goes_first() -> None
     assert sum(k.startswith("rogue") for k in pool.in_flight()) == 2  # its share, no more
     pool.submit("/new", "new", *jobs.job("new"))
     jobs.release.set()
-    async with asyncio.timeout(2):
+    async with backports.timeout(2):
         while "new" not in jobs.started:  # noqa: ASYNC110 - the pool runs the job in its own task
             await asyncio.sleep(0)
     assert jobs.started.index("new") < jobs.started.index("old 2")  # ahead of peers that waited longer
@@ -60,14 +61,14 @@ async def test_a_peer_that_times_out_is_quarantined_with_its_address() -> None:
     jobs = Jobs()
     for i in range(5):
         pool.submit("/rogue", f"rogue {i}", *jobs.job(f"rogue {i}", hang=True, address="10.0.0.1:9"))
-    async with asyncio.timeout(2):
+    async with backports.timeout(2):
         while len(jobs.failed) < 5:  # noqa: ASYNC110 - failures arrive through the pool's callbacks
             await asyncio.sleep(0.01)
     assert jobs.started == ["rogue 0"]  # one timed out; the rest failed without a connection
     assert "did not answer" in jobs.failed["rogue 4"]
     # Another name at the same address fails without a connection, and so does a lookup for the rogue.
     pool.submit("/rogue2", "other", *jobs.job("other", address="10.0.0.1:9"))
-    async with asyncio.timeout(2):
+    async with backports.timeout(2):
         while "other" not in jobs.failed:  # noqa: ASYNC110
             await asyncio.sleep(0.01)
     with pytest.raises(MrosError, match="not probed again"):
@@ -84,7 +85,7 @@ async def test_a_lookup_never_waits_behind_background_probes() -> None:
     async def answer(attempt: Attempt) -> str:
         return "std_srvs/Trigger"
 
-    async with asyncio.timeout(1):
+    async with backports.timeout(1):
         assert await pool.lookup("/honest", answer) == "std_srvs/Trigger"
 
     async def silent(attempt: Attempt) -> str:
