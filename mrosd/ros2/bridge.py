@@ -1,0 +1,350 @@
+"""``Ros2Bridge``: chosen ROS 1 topics put on Zenoh as an rmw_zenoh ROS 2 node publishes them.
+
+For each ROS 1 topic matching ``to_ros2`` that has a publisher, the bridge subscribes raw over TCPROS. The first
+body tells the type and its ``message_definition``; the type is mapped (``mrosd.ros2.types``, off the loop) and a
+Zenoh publisher is declared on rmw_zenoh's data key with a ``MP`` liveliness token under the bridge's ``NN``
+token. Bodies then go, unconverted, into the fleet part's ``Outbox`` (per-key drop-oldest queues); its one
+sender thread converts each to CDR and puts it with a fresh attachment, so neither the conversion nor a slow
+link ever holds the loop. A type that cannot be mapped is one log line, and that topic alone is skipped.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import msgspec
+
+from mrosd.errors import ConfigError, MrosError
+from mrosd.fleet.handoff import Outbox
+from mrosd.fleet.keys import NameFilter
+from mrosd.lograte import RateLimitedLog
+from mrosd.ros2.attachment import encode_attachment, gid_of
+from mrosd.ros2.keys import EntityKind, LivelinessToken, Qos, data_key, dds_type_name
+from mrosd.ros2.types import TypeMapper, TypeMapping, UnmappableTypeError
+from mrosd.tcpros.node import Node
+from mrosd.tcpros.subscriber import AnyMsg, RawMessage
+
+if TYPE_CHECKING:
+    from mrosd.config import Ros2Config
+
+__all__ = ["Ros2Bridge", "Ros2Options", "ros2_options"]
+
+log = logging.getLogger(__name__)
+_ratelog = RateLimitedLog(log, period=60.0, burst=3)
+
+#: seconds between two reads of the ROS 1 graph
+GRAPH_PERIOD = 1.0
+#: the bridge node's name on both sides
+NODE_NAME = "mrosd_ros2"
+
+
+class Ros2Options(msgspec.Struct, frozen=True, kw_only=True):
+    """The checked settings of the ros2 part (``ros2_options`` builds them from ``[ros2]``)."""
+
+    domain_id: int = 0
+    connect: tuple[str, ...] = ("tcp/localhost:7447",)
+    listen: tuple[str, ...] = ()
+    to_ros2: tuple[str, ...] = ()
+    queue_size: int = 16
+    node_name: str = NODE_NAME
+
+
+def ros2_options(cfg: Ros2Config, environ: Mapping[str, str] | None = None) -> Ros2Options:
+    """``[ros2]`` -> options; ``domain_id`` -1 reads ``ROS_DOMAIN_ID`` (else 0).
+
+    Raises:
+        ConfigError: ``ROS_DOMAIN_ID`` is not a number from 0 to 232.
+    """
+    env = os.environ if environ is None else environ
+    domain = cfg.domain_id
+    if domain < 0:
+        text = env.get("ROS_DOMAIN_ID", "") or "0"
+        if not text.isdigit() or int(text) > 232:
+            raise ConfigError(f"ROS_DOMAIN_ID={text!r}: a ROS 2 domain is a number from 0 to 232")
+        domain = int(text)
+    return Ros2Options(
+        domain_id=domain,
+        connect=tuple(cfg.connect),
+        listen=tuple(cfg.listen),
+        to_ros2=tuple(cfg.to_ros2),
+        queue_size=cfg.queue_size,
+    )
+
+
+class RmwPublisher:
+    """What the outbox's sender thread puts through: converts a ROS 1 body to CDR and puts it with rmw_zenoh's
+    attachment (sequence number counted here, on that one thread)."""
+
+    def __init__(self, publisher: Any, mapper: TypeMapper, mapping: TypeMapping, gid: bytes) -> None:
+        self.publisher = publisher
+        self.mapper = mapper
+        self.ros2_type = mapping.ros2_type
+        self.gid = gid
+        self.sequence = 0
+        self.sent = 0
+        self.bad = 0
+
+    def put(self, body: bytes) -> None:
+        try:
+            cdr = self.mapper.to_cdr(self.ros2_type, body)
+        except MrosError as exc:
+            self.bad += 1
+            _ratelog.warning(f"cdr {self.ros2_type}", "%s", exc)
+            return
+        self.sequence += 1
+        attachment = encode_attachment(self.sequence, time.time_ns(), self.gid)
+        # the converter's buffer is a bytearray seen whole through ``cdr``: Zenoh takes it without a copy here
+        self.publisher.put(
+            cdr.obj if isinstance(cdr.obj, bytearray) and len(cdr.obj) == cdr.nbytes else bytes(cdr),
+            attachment=attachment,
+        )
+        self.sent += 1
+
+
+@dataclass
+class BridgedTopic:
+    """One ROS 1 topic on its way to ROS 2."""
+
+    topic: str
+    subscriber: Any = None
+    mapping: TypeMapping | None = None
+    key: str = ""
+    rmw: RmwPublisher | None = None
+    token: Any = None
+    #: a one-line reason this topic does not cross (an unmappable type)
+    problem: str = ""
+    mapping_task: asyncio.Task[None] | None = None
+    #: the newest body received while the type was being mapped
+    pending: bytes | None = None
+
+
+class Ros2Bridge:
+    """``async with Ros2Bridge(options, master_uri):`` puts the chosen ROS 1 topics on Zenoh until closed.
+
+    Raises (from ``start``):
+        ConfigError: eclipse-zenoh is missing or refuses the settings, or the session cannot open.
+        MasterUnreachableError: the ROS 1 master does not answer.
+    """
+
+    def __init__(self, options: Ros2Options, master_uri: str, *, host: str | None = None) -> None:
+        self.options = options
+        self.filter = NameFilter(include=options.to_ros2)
+        self.node = Node(options.node_name, master_uri, argv=[], host=host, rosout=False, logger_services=False)
+        self.mapper = TypeMapper()
+        self.topics: dict[str, BridgedTopic] = {}
+        self.session: Any = None
+        self._zenoh: Any = None
+        self._outbox: Outbox | None = None
+        self._node_token: Any = None
+        self._zid = ""
+        self._next_id = 0
+        self._tasks: list[asyncio.Task[None]] = []
+        self._changed = asyncio.Event()
+        self._closed = False
+        self._lock = threading.Lock()
+
+    # --- lifecycle ---------------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        try:
+            import zenoh
+        except ImportError:
+            raise ConfigError("the ros2 part needs Eclipse Zenoh for Python: pip install 'mrosd[ros2]'") from None
+        self._zenoh = zenoh
+        config = zenoh.Config()
+        try:
+            config.insert_json5("mode", '"peer"')
+            config.insert_json5("connect/endpoints", msgspec.json.encode(list(self.options.connect)).decode())
+            config.insert_json5("listen/endpoints", msgspec.json.encode(list(self.options.listen)).decode())
+            config.insert_json5("scouting/multicast/enabled", "false")
+        except Exception as exc:
+            raise ConfigError(f"ros2: Zenoh refused the configuration: {exc}") from exc
+        await self.node.start()
+        try:
+            try:
+                self.session = await asyncio.to_thread(zenoh.open, config)
+            except Exception as exc:
+                raise ConfigError(f"ros2: cannot open the Zenoh session: {exc}") from exc
+            self._zid = str(self.session.zid())
+            self._outbox = Outbox(self.session, self.options.queue_size, {})
+            self._outbox.start()
+            self._node_token = self.session.liveliness().declare_token(self._token(EntityKind.NODE).key())
+        except BaseException:
+            await self.aclose()
+            raise
+        self._tasks = [asyncio.create_task(self._graph_loop(), name="ros2-graph")]
+        log.info("ros2: node %s on Zenoh %s, domain %d", self.options.node_name, self._zid, self.options.domain_id)
+
+    async def aclose(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        for task in self._tasks:
+            task.cancel()
+        for task in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+        for bt in list(self.topics.values()):
+            await self._drop(bt)
+        self.topics.clear()
+        if self._outbox is not None:
+            await asyncio.to_thread(self._outbox.close)
+        self._undeclare(self._node_token)
+        if self.session is not None:
+            await asyncio.to_thread(self.session.close)
+        await self.node.aclose()
+
+    async def __aenter__(self) -> Ros2Bridge:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.aclose()
+
+    async def wait_until(self, predicate: Callable[[], bool], timeout: float) -> None:
+        """Return once ``predicate()`` holds, checked after every change of the bridge.
+
+        Raises:
+            TimeoutError: it did not hold within ``timeout`` seconds.
+        """
+        async with asyncio.timeout(timeout):
+            while not predicate():
+                self._changed.clear()
+                await self._changed.wait()
+
+    def status(self) -> list[dict[str, Any]]:
+        """One row per bridged topic: names, key, counts and any problem (for ``mros ros2 status`` later)."""
+        rows = []
+        for bt in self.topics.values():
+            rows.append(
+                {
+                    "topic": bt.topic,
+                    "ros2_type": bt.mapping.ros2_type if bt.mapping else "",
+                    "key": bt.key,
+                    "sent": bt.rmw.sent if bt.rmw else 0,
+                    "dropped": self._outbox.dropped(bt.key) if self._outbox and bt.key else 0,
+                    "problem": bt.problem,
+                }
+            )
+        return rows
+
+    # --- names -------------------------------------------------------------------------------------
+
+    def _token(self, kind: EntityKind, topic: str = "", mapping: TypeMapping | None = None, **qos: Any) -> Any:
+        with self._lock:
+            self._next_id += 1
+            entity_id = "0" if kind is EntityKind.NODE else str(self._next_id)
+        common: dict[str, Any] = {
+            "domain_id": self.options.domain_id,
+            "zid": self._zid,
+            "nid": "0",
+            "id": entity_id,
+            "kind": kind,
+            "enclave": "/",
+            "namespace": "/",
+            "node": self.options.node_name,
+        }
+        if mapping is None:
+            return LivelinessToken(**common)
+        return LivelinessToken(
+            **common,
+            topic=topic,
+            type_name=dds_type_name(mapping.ros2_type),
+            type_hash=mapping.type_hash,
+            qos=Qos(**qos),
+        )
+
+    @staticmethod
+    def _undeclare(entity: Any) -> None:
+        if entity is not None:
+            with contextlib.suppress(Exception):
+                entity.undeclare()
+
+    # --- the ROS 1 graph ---------------------------------------------------------------------------
+
+    async def _graph_loop(self) -> None:
+        while True:
+            try:
+                pubs, _subs, _srvs = await self.node.master.call("getSystemState")
+                own = self.node.name
+                want = {str(topic) for topic, nodes in pubs if topic in self.filter and any(n != own for n in nodes)}
+                for topic in want - set(self.topics):
+                    await self._add(topic)
+                for topic in set(self.topics) - want:
+                    await self._drop(self.topics.pop(topic))
+            except asyncio.CancelledError:
+                raise
+            except (MrosError, OSError, ValueError, TypeError) as exc:
+                _ratelog.warning("graph", "ros2: cannot read the ROS 1 graph: %s", exc)
+            await asyncio.sleep(GRAPH_PERIOD)
+
+    async def _add(self, topic: str) -> None:
+        bt = BridgedTopic(topic)
+        self.topics[topic] = bt
+        try:
+            bt.subscriber = await self.node.subscribe(
+                topic, AnyMsg, callback=lambda msg: self._local_message(bt, msg), queue_size=self.options.queue_size
+            )
+        except MrosError as exc:
+            _ratelog.warning(f"sub {topic}", "ros2: cannot subscribe to %s: %s", topic, exc)
+            self.topics.pop(topic, None)
+        self._changed.set()
+
+    async def _drop(self, bt: BridgedTopic) -> None:
+        if bt.mapping_task is not None:
+            bt.mapping_task.cancel()
+        self._undeclare(bt.token)
+        if bt.rmw is not None:
+            self._undeclare(bt.rmw.publisher)
+        if self._outbox is not None and bt.key:
+            self._outbox.forget(bt.key)
+        if bt.subscriber is not None:
+            with contextlib.suppress(MrosError, OSError):
+                await bt.subscriber.aclose()
+        self._changed.set()
+
+    def _local_message(self, bt: BridgedTopic, msg: RawMessage) -> None:
+        if bt.problem:
+            return
+        body = bytes(msg.data)
+        if bt.rmw is None:
+            bt.pending = body
+            if bt.mapping_task is None:
+                header = msg.header
+                bt.mapping_task = asyncio.create_task(
+                    self._map(bt, header.type or "", header.message_definition or "", header.latching == "1")
+                )
+            return
+        if self._outbox is not None:
+            self._outbox.put(bt.key, bt.rmw, body)
+
+    async def _map(self, bt: BridgedTopic, ros1_type: str, definition: str, latched: bool) -> None:
+        try:
+            mapping = await asyncio.to_thread(self.mapper.mapping, ros1_type, definition)
+        except UnmappableTypeError as exc:
+            bt.problem = str(exc)
+            log.warning("%s (topic %s is not bridged)", exc, bt.topic)
+            self._changed.set()
+            return
+        if self.session is None or self._closed or self.topics.get(bt.topic) is not bt:
+            return
+        zenoh = self._zenoh
+        bt.mapping = mapping
+        bt.key = data_key(self.options.domain_id, bt.topic, mapping.ros2_type, mapping.type_hash)
+        token = self._token(EntityKind.PUBLISHER, bt.topic, mapping, depth=self.options.queue_size)
+        publisher = self.session.declare_publisher(bt.key, congestion_control=zenoh.CongestionControl.BLOCK)
+        bt.rmw = RmwPublisher(publisher, self.mapper, mapping, gid_of(token.key()))
+        bt.token = self.session.liveliness().declare_token(token.key())
+        log.info("ros2: %s (%s) -> %s", bt.topic, ros1_type, bt.key)
+        if bt.pending is not None and self._outbox is not None:
+            self._outbox.put(bt.key, bt.rmw, bt.pending)
+            bt.pending = None
+        self._changed.set()

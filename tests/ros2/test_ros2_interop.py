@@ -1,0 +1,121 @@
+"""A rospy /chatter reaches a zenoh-ros2-sdk subscriber (an rmw_zenoh peer we did not write) through
+``Ros2Bridge``, against Debian's rosmaster, over an in-process Zenoh router on a loopback port."""
+
+from __future__ import annotations
+
+import asyncio
+import queue
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from mrosd.ros2.bridge import Ros2Bridge, Ros2Options
+from mrosd.ros2.keys import EntityKind, parse_token
+from tests.rosenv import Processes, free_port, needs_ros, ros_env
+
+pytestmark = [pytest.mark.interop, needs_ros]
+zenoh = pytest.importorskip("zenoh")
+sdk = pytest.importorskip("zenoh_ros2_sdk")
+
+STRING_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
+
+TALKER = """
+import rospy
+from std_msgs.msg import String
+rospy.init_node("talker")
+pub = rospy.Publisher("/chatter", String, queue_size=10)
+rate = rospy.Rate(20)
+while not rospy.is_shutdown():
+    pub.publish(String(data="hello from rospy"))
+    rate.sleep()
+"""
+
+
+@pytest.fixture
+def router() -> Iterator[int]:
+    """A Zenoh router on a free loopback port, as ``rmw_zenohd`` would be."""
+    port = free_port()
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"router"')
+    conf.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    try:
+        yield port
+    finally:
+        session.close()
+
+
+@pytest.fixture
+def messages_dir(tmp_path: Path) -> Iterator[Path]:
+    """zenoh-ros2-sdk's message folder, filled offline (it would clone ros2/common_interfaces otherwise)."""
+    folder = tmp_path / "messages"
+    (folder / "std_msgs" / "msg").mkdir(parents=True)
+    (folder / "std_msgs" / "msg" / "String.msg").write_text("string data\n")
+    from zenoh_ros2_sdk import message_registry  # type: ignore[import-untyped]
+
+    old = message_registry._registry
+    message_registry._registry = message_registry.MessageRegistry(str(folder))
+    yield folder
+    message_registry._registry = old
+
+
+def _tokens(port: int) -> list[str]:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    try:
+        return [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/**", timeout=5.0) if r.ok is not None]
+    finally:
+        session.close()
+
+
+async def test_rospy_chatter_reaches_a_zenoh_ros2_sdk_subscriber_on_rmw_zenohs_key(
+    procs: Processes, rosmaster: str, tmp_path: Path, router: int, messages_dir: Path
+) -> None:
+    from zenoh_ros2_sdk import ROS2Subscriber
+    from zenoh_ros2_sdk.session import ZenohSession  # type: ignore[import-untyped]
+
+    got: queue.Queue[Any] = queue.Queue(maxsize=100)
+    options = Ros2Options(domain_id=0, connect=(f"tcp/127.0.0.1:{router}",), to_ros2=("/chatter",))
+    sub = ROS2Subscriber(
+        topic="/chatter",
+        msg_type="std_msgs/msg/String",
+        callback=lambda msg: got.put_nowait(msg.data) if not got.full() else None,
+        domain_id=0,
+        router_ip="127.0.0.1",
+        router_port=router,
+    )
+    try:
+        assert sub.type_hash == STRING_HASH
+        async with Ros2Bridge(options, rosmaster) as bridge:
+            procs.python(TALKER, ros_env(rosmaster, tmp_path))
+            await bridge.wait_until(
+                lambda: "/chatter" in bridge.topics and bridge.topics["/chatter"].rmw is not None, 30
+            )
+            assert (
+                bridge.topics["/chatter"].key == sub.keyexpr == f"0/chatter/std_msgs::msg::dds_::String_/{STRING_HASH}"
+            )
+            data = await asyncio.to_thread(got.get, True, 20)
+            assert data == "hello from rospy"
+            parsed = [parse_token(t) for t in _tokens(router)]
+            ours = [t for t in parsed if t.node == "mrosd_ros2"]
+            assert {t.kind for t in ours} == {EntityKind.NODE, EntityKind.PUBLISHER}
+            pub = next(t for t in ours if t.kind is EntityKind.PUBLISHER)
+            assert (pub.topic, pub.type_name, pub.type_hash) == (
+                "/chatter",
+                "std_msgs::msg::dds_::String_",
+                STRING_HASH,
+            )
+            theirs = [t for t in parsed if t.kind is EntityKind.SUBSCRIPTION]
+            assert [(t.topic, t.type_hash) for t in theirs] == [("/chatter", STRING_HASH)]
+            assert bridge.status()[0]["sent"] >= 1
+    finally:
+        sub.close()
+        inst = ZenohSession._instance
+        if inst is not None:
+            inst.close()
