@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import queue
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +12,7 @@ import pytest
 
 from mrosd.ros2.bridge import Ros2Bridge, Ros2Options
 from mrosd.ros2.keys import EntityKind, parse_token
-from tests.rosenv import Processes, free_port, needs_ros, ros_env
+from tests.rosenv import Processes, needs_ros, ros_env
 
 pytestmark = [pytest.mark.interop, needs_ros]
 zenoh = pytest.importorskip("zenoh")
@@ -33,35 +32,6 @@ while not rospy.is_shutdown():
 """
 
 
-@pytest.fixture
-def router() -> Iterator[int]:
-    """A Zenoh router on a free loopback port, as ``rmw_zenohd`` would be."""
-    port = free_port()
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"router"')
-    conf.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(conf)
-    try:
-        yield port
-    finally:
-        session.close()
-
-
-@pytest.fixture
-def messages_dir(tmp_path: Path) -> Iterator[Path]:
-    """zenoh-ros2-sdk's message folder, filled offline (it would clone ros2/common_interfaces otherwise)."""
-    folder = tmp_path / "messages"
-    (folder / "std_msgs" / "msg").mkdir(parents=True)
-    (folder / "std_msgs" / "msg" / "String.msg").write_text("string data\n")
-    from zenoh_ros2_sdk import message_registry  # type: ignore[import-untyped]
-
-    old = message_registry._registry
-    message_registry._registry = message_registry.MessageRegistry(str(folder))
-    yield folder
-    message_registry._registry = old
-
-
 def _tokens(port: int) -> list[str]:
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')
@@ -78,7 +48,7 @@ async def test_rospy_chatter_reaches_a_zenoh_ros2_sdk_subscriber_on_rmw_zenohs_k
     procs: Processes, rosmaster: str, tmp_path: Path, router: int, messages_dir: Path
 ) -> None:
     from zenoh_ros2_sdk import ROS2Subscriber
-    from zenoh_ros2_sdk.session import ZenohSession  # type: ignore[import-untyped]
+    from zenoh_ros2_sdk.session import ZenohSession
 
     got: queue.Queue[Any] = queue.Queue(maxsize=100)
     options = Ros2Options(domain_id=0, connect=(f"tcp/127.0.0.1:{router}",), to_ros2=("/chatter",))
