@@ -26,6 +26,7 @@ from mrosd.errors import ConfigError, MrosError
 from mrosd.fleet.handoff import Outbox
 from mrosd.fleet.keys import NameFilter
 from mrosd.lograte import RateLimitedLog
+from mrosd.names import canonicalize, is_valid_name
 from mrosd.ros2.attachment import encode_attachment, gid_of
 from mrosd.ros2.keys import EntityKind, LivelinessToken, Qos, data_key, dds_type_name
 from mrosd.ros2.types import TypeMapper, TypeMapping, UnmappableTypeError
@@ -44,6 +45,8 @@ _ratelog = RateLimitedLog(log, period=60.0, burst=3)
 GRAPH_PERIOD = 1.0
 #: the bridge node's name on both sides
 NODE_NAME = "mrosd_ros2"
+#: refused names remembered so each is logged once (a stranger can register any number of them)
+MAX_REFUSED_NAMES = 1024
 
 
 class Ros2Options(msgspec.Struct, frozen=True, kw_only=True):
@@ -150,6 +153,10 @@ class Ros2Bridge:
         self._changed = asyncio.Event()
         self._closed = False
         self._lock = threading.Lock()
+        #: names refused once (logged once each; cleared when full)
+        self._refused: set[str] = set()
+        #: completed reads of the ROS 1 graph (tests wait on it)
+        self.graph_reads = 0
 
     # --- lifecycle ---------------------------------------------------------------------------------
 
@@ -275,16 +282,34 @@ class Ros2Bridge:
             try:
                 pubs, _subs, _srvs = await self.node.master.call("getSystemState")
                 own = self.node.name
-                want = {str(topic) for topic, nodes in pubs if topic in self.filter and any(n != own for n in nodes)}
+                want = {
+                    str(topic)
+                    for topic, nodes in pubs
+                    if topic in self.filter and any(n != own for n in nodes) and self._carriable(str(topic))
+                }
                 for topic in want - set(self.topics):
                     await self._add(topic)
                 for topic in set(self.topics) - want:
                     await self._drop(self.topics.pop(topic))
+                self.graph_reads += 1
+                self._changed.set()
             except asyncio.CancelledError:
                 raise
             except (MrosError, OSError, ValueError, TypeError) as exc:
                 _ratelog.warning("graph", "ros2: cannot read the ROS 1 graph: %s", exc)
             await asyncio.sleep(GRAPH_PERIOD)
+
+    def _carriable(self, topic: str) -> bool:
+        """A ROS name in canonical form: anything else (a Zenoh wildcard, rmw_zenoh's ``%``, an empty chunk) that a
+        stranger registered with the master would be another key on Zenoh, or none; refused, one line per name."""
+        if is_valid_name(topic) and topic.startswith("/") and canonicalize(topic) == topic:
+            return True
+        if topic not in self._refused:
+            if len(self._refused) >= MAX_REFUSED_NAMES:
+                self._refused.clear()
+            self._refused.add(topic)
+            log.warning("ros2: %r is not a ROS name; not bridged", topic[:200])
+        return False
 
     async def _add(self, topic: str) -> None:
         bt = BridgedTopic(topic)
