@@ -28,7 +28,7 @@ from mrosd.fleet.keys import NameFilter
 from mrosd.lograte import RateLimitedLog
 from mrosd.names import canonicalize, is_valid_name
 from mrosd.ros2.attachment import encode_attachment, gid_of
-from mrosd.ros2.keys import EntityKind, LivelinessToken, Qos, data_key, dds_type_name
+from mrosd.ros2.keys import DURABILITY_TRANSIENT_LOCAL, EntityKind, LivelinessToken, Qos, data_key, dds_type_name
 from mrosd.ros2.types import TypeMapper, TypeMapping, UnmappableTypeError
 from mrosd.tcpros.node import Node
 from mrosd.tcpros.subscriber import AnyMsg, RawMessage
@@ -125,6 +125,8 @@ class BridgedTopic:
     #: a one-line reason this topic does not cross (an unmappable type)
     problem: str = ""
     mapping_task: asyncio.Task[None] | None = None
+    #: crossed as TRANSIENT_LOCAL (the ROS 1 publisher latches)
+    latched: bool = False
     #: the newest body received while the type was being mapped
     pending: bytes | None = None
 
@@ -172,6 +174,8 @@ class Ros2Bridge:
             config.insert_json5("connect/endpoints", msgspec.json.encode(list(self.options.connect)).decode())
             config.insert_json5("listen/endpoints", msgspec.json.encode(list(self.options.listen)).decode())
             config.insert_json5("scouting/multicast/enabled", "false")
+            # rmw_zenoh's session config stamps every sample; TRANSIENT_LOCAL's advanced publisher needs it
+            config.insert_json5("timestamping/enabled", "true")
         except Exception as exc:
             raise ConfigError(f"ros2: Zenoh refused the configuration: {exc}") from exc
         await self.node.start()
@@ -238,6 +242,7 @@ class Ros2Bridge:
                     "key": bt.key,
                     "sent": bt.rmw.sent if bt.rmw else 0,
                     "dropped": self._outbox.dropped(bt.key) if self._outbox and bt.key else 0,
+                    "latched": bt.latched,
                     "problem": bt.problem,
                 }
             )
@@ -362,10 +367,33 @@ class Ros2Bridge:
         if self.session is None or self._closed or self.topics.get(bt.topic) is not bt:
             return
         zenoh = self._zenoh
+        import zenoh.ext as zenoh_ext
+
         bt.mapping = mapping
         bt.key = data_key(self.options.domain_id, bt.topic, mapping.ros2_type, mapping.type_hash)
-        token = self._token(EntityKind.PUBLISHER, bt.topic, mapping, depth=self.options.queue_size)
-        publisher = self.session.declare_publisher(bt.key, congestion_control=zenoh.CongestionControl.BLOCK)
+        try:
+            if latched:
+                # A latched ROS 1 topic is TRANSIENT_LOCAL: as rmw_zenoh does, an advanced publisher detectable
+                # through liveliness whose cache (depth 1: the latched message) answers late joiners' queries.
+                token = self._token(
+                    EntityKind.PUBLISHER, bt.topic, mapping, durability=DURABILITY_TRANSIENT_LOCAL, depth=1
+                )
+                publisher = zenoh_ext.declare_advanced_publisher(
+                    self.session,
+                    bt.key,
+                    congestion_control=zenoh.CongestionControl.BLOCK,
+                    cache=zenoh_ext.CacheConfig(1),
+                    publisher_detection=True,
+                )
+            else:
+                token = self._token(EntityKind.PUBLISHER, bt.topic, mapping, depth=self.options.queue_size)
+                publisher = self.session.declare_publisher(bt.key, congestion_control=zenoh.CongestionControl.BLOCK)
+        except Exception as exc:  # Zenoh refused the key or the options: this topic alone does not cross
+            bt.problem = f"ros2: {bt.topic}: Zenoh refused the publisher on {bt.key}: {exc}"
+            log.warning("%s", bt.problem)
+            self._changed.set()
+            return
+        bt.latched = latched
         bt.rmw = RmwPublisher(publisher, self.mapper, mapping, gid_of(token.key()))
         bt.token = self.session.liveliness().declare_token(token.key())
         log.info("ros2: %s (%s) -> %s", bt.topic, ros1_type, bt.key)

@@ -89,3 +89,58 @@ async def test_rospy_chatter_reaches_a_zenoh_ros2_sdk_subscriber_on_rmw_zenohs_k
         inst = ZenohSession._instance
         if inst is not None:
             inst.close()
+
+
+LATCHER = """
+import rospy
+from std_msgs.msg import String
+rospy.init_node("mapper")
+pub = rospy.Publisher("/map", String, queue_size=1, latch=True)
+pub.publish(String(data="the map from rospy"))
+rospy.spin()
+"""
+
+
+async def test_a_latched_topic_reaches_a_late_transient_local_subscriber(
+    procs: Processes, rosmaster: str, tmp_path: Path, router: int, messages_dir: Path
+) -> None:
+    from zenoh_ros2_sdk import ROS2Subscriber
+    from zenoh_ros2_sdk.qos import QosDurability, QosProfile
+    from zenoh_ros2_sdk.session import ZenohSession
+
+    got: queue.Queue[Any] = queue.Queue(maxsize=100)
+    options = Ros2Options(domain_id=0, connect=(f"tcp/127.0.0.1:{router}",), to_ros2=("/map",))
+    sub = None
+    try:
+        async with Ros2Bridge(options, rosmaster) as bridge:
+            procs.python(LATCHER, ros_env(rosmaster, tmp_path))
+
+            def sent() -> bool:
+                bt = bridge.topics.get("/map")
+                return bt is not None and bt.rmw is not None and bt.rmw.sent >= 1
+
+            await bridge.wait_until(sent, 30)
+            assert bridge.status()[0]["latched"]
+            # the only message was put before any ROS 2 subscriber existed
+            sub = await asyncio.to_thread(
+                ROS2Subscriber,
+                topic="/map",
+                msg_type="std_msgs/msg/String",
+                callback=lambda msg: got.put_nowait(msg.data) if not got.full() else None,
+                domain_id=0,
+                router_ip="127.0.0.1",
+                router_port=router,
+                qos=QosProfile(durability=QosDurability.TRANSIENT_LOCAL, history_depth=1),
+            )
+            data = await asyncio.to_thread(got.get, True, 20)
+            assert data == "the map from rospy"
+            pub = next(
+                t for t in map(parse_token, _tokens(router)) if t.kind is EntityKind.PUBLISHER and t.topic == "/map"
+            )
+            assert pub.qos is not None and (pub.qos.durability, pub.qos.depth) == (1, 1)
+    finally:
+        if sub is not None:
+            sub.close()
+        inst = ZenohSession._instance
+        if inst is not None:
+            inst.close()
