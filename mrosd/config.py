@@ -188,7 +188,8 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """``[ros2]``: ROS 1 topics on Zenoh as rmw_zenoh's ROS 2 nodes see them (docs/ros2.md).
 
     Off by default. ``domain_id`` -1 means ``ROS_DOMAIN_ID`` (else 0); ``connect`` defaults to the router
-    rmw_zenoh's nodes use; ``to_ros2`` lists the ROS 1 topics (globs) that cross.
+    rmw_zenoh's nodes use; ``to_ros2`` lists the ROS 1 topics (globs) that cross, ``from_ros2`` the
+    ROS 2 topics (globs) republished on ROS 1.
     """
 
     enabled: bool = False
@@ -196,6 +197,7 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     connect: list[str] = msgspec.field(default_factory=lambda: ["tcp/localhost:7447"])
     listen: list[str] = msgspec.field(default_factory=list)
     to_ros2: list[str] = msgspec.field(default_factory=list)
+    from_ros2: list[str] = msgspec.field(default_factory=list)
     queue_size: Count = 16
 
 

@@ -23,11 +23,12 @@ from typing import TYPE_CHECKING, Any
 import msgspec
 
 from mrosd.errors import ConfigError, MrosError
-from mrosd.fleet.handoff import Outbox
+from mrosd.fleet.handoff import Inbox, Outbox
 from mrosd.fleet.keys import NameFilter
 from mrosd.lograte import RateLimitedLog
 from mrosd.names import canonicalize, is_valid_name
 from mrosd.ros2.attachment import encode_attachment, gid_of
+from mrosd.ros2.inbound import Inbound
 from mrosd.ros2.keys import DURABILITY_TRANSIENT_LOCAL, EntityKind, LivelinessToken, Qos, data_key, dds_type_name
 from mrosd.ros2.types import TypeMapper, TypeMapping, UnmappableTypeError
 from mrosd.tcpros.node import Node
@@ -47,6 +48,9 @@ GRAPH_PERIOD = 1.0
 NODE_NAME = "mrosd_ros2"
 #: refused names remembered so each is logged once (a stranger can register any number of them)
 MAX_REFUSED_NAMES = 1024
+#: the inbox's name for liveliness tokens, and how many may wait for the loop
+TOKENS = "@tokens"
+TOKEN_QUEUE = 4096
 
 
 class Ros2Options(msgspec.Struct, frozen=True, kw_only=True):
@@ -56,6 +60,7 @@ class Ros2Options(msgspec.Struct, frozen=True, kw_only=True):
     connect: tuple[str, ...] = ("tcp/localhost:7447",)
     listen: tuple[str, ...] = ()
     to_ros2: tuple[str, ...] = ()
+    from_ros2: tuple[str, ...] = ()
     queue_size: int = 16
     node_name: str = NODE_NAME
 
@@ -78,6 +83,7 @@ def ros2_options(cfg: Ros2Config, environ: Mapping[str, str] | None = None) -> R
         connect=tuple(cfg.connect),
         listen=tuple(cfg.listen),
         to_ros2=tuple(cfg.to_ros2),
+        from_ros2=tuple(cfg.from_ros2),
         queue_size=cfg.queue_size,
     )
 
@@ -148,6 +154,10 @@ class Ros2Bridge:
         self.session: Any = None
         self._zenoh: Any = None
         self._outbox: Outbox | None = None
+        self._inbox: Inbox | None = None
+        self._token_sub: Any = None
+        self.inbound: Inbound | None = None
+        self._background: set[asyncio.Task[None]] = set()
         self._node_token: Any = None
         self._zid = ""
         self._next_id = 0
@@ -188,21 +198,60 @@ class Ros2Bridge:
             self._outbox = Outbox(self.session, self.options.queue_size, {})
             self._outbox.start()
             self._node_token = self.session.liveliness().declare_token(self._token(EntityKind.NODE).key())
+            if self.options.from_ros2:
+                self._start_inbound(asyncio.get_running_loop())
         except BaseException:
             await self.aclose()
             raise
         self._tasks = [asyncio.create_task(self._graph_loop(), name="ros2-graph")]
         log.info("ros2: node %s on Zenoh %s, domain %d", self.options.node_name, self._zid, self.options.domain_id)
 
+    def _start_inbound(self, loop: asyncio.AbstractEventLoop) -> None:
+        zenoh = self._zenoh
+        inbox = self._inbox = Inbox(loop, self._deliver, self.options.queue_size, {TOKENS: TOKEN_QUEUE})
+        self.inbound = Inbound(self.options.from_ros2, self.options.domain_id, self.node, self.mapper, self._zid)
+
+        def heard(sample: Any) -> None:  # on Zenoh's thread
+            inbox.put(TOKENS, (str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
+
+        self._token_sub = self.session.liveliness().declare_subscriber(
+            f"@ros2_lv/{self.options.domain_id}/**", heard, history=True
+        )
+
+    def _deliver(self, name: str, items: list[Any]) -> None:
+        if name == TOKENS:
+            task = asyncio.create_task(self._tokens(items))
+            self._background.add(task)
+            task.add_done_callback(self._background.discard)
+        elif self.inbound is not None and name.startswith("in:"):
+            self.inbound.deliver(name[3:], items)
+            self._changed.set()
+
+    async def _tokens(self, items: list[tuple[str, bool]]) -> None:
+        inbound, inbox = self.inbound, self._inbox
+        if inbound is None or inbox is None or self._closed:
+            return
+        for key, alive in items:
+            await inbound.token(
+                key, alive, session=self.session, inbox=inbox, make_token=self._token, outbound=set(self.topics)
+            )
+        self._changed.set()
+
     async def aclose(self) -> None:
         if self._closed:
             return
         self._closed = True
-        for task in self._tasks:
+        tasks = [*self._tasks, *self._background]
+        for task in tasks:
             task.cancel()
-        for task in self._tasks:
+        for task in tasks:
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await task
+        if self._inbox is not None:
+            self._inbox.closed = True
+        self._undeclare(self._token_sub)
+        if self.inbound is not None:
+            await self.inbound.aclose()
         for bt in list(self.topics.values()):
             await self._drop(bt)
         self.topics.clear()

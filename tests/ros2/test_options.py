@@ -24,6 +24,7 @@ def test_settings_and_ros_domain_id() -> None:
     opts = ros2_options(cfg.ros2, {"ROS_DOMAIN_ID": "7"})
     assert opts.domain_id == 7 and opts.to_ros2 == ("/chatter", "/camera/**")
     assert ros2_options(parse_config("[ros2]\ndomain_id = 3\n").ros2, {"ROS_DOMAIN_ID": "7"}).domain_id == 3
+    assert ros2_options(parse_config('[ros2]\nfrom_ros2 = ["/cmd_vel"]\n').ros2, {}).from_ros2 == ("/cmd_vel",)
 
 
 @pytest.mark.parametrize("bad", ["x", "233", "-1"])

@@ -144,3 +144,43 @@ async def test_a_latched_topic_reaches_a_late_transient_local_subscriber(
         inst = ZenohSession._instance
         if inst is not None:
             inst.close()
+
+
+async def test_a_zenoh_ros2_sdk_publisher_reaches_rostopic_echo(
+    procs: Processes, rosmaster: str, tmp_path: Path, router: int, messages_dir: Path
+) -> None:
+    from zenoh_ros2_sdk import ROS2Publisher
+    from zenoh_ros2_sdk.session import ZenohSession
+
+    options = Ros2Options(domain_id=0, connect=(f"tcp/127.0.0.1:{router}",), from_ros2=("/from_ros2",))
+    pub = None
+    try:
+        async with Ros2Bridge(options, rosmaster) as bridge:
+            pub = await asyncio.to_thread(
+                ROS2Publisher,
+                topic="/from_ros2",
+                msg_type="std_msgs/msg/String",
+                domain_id=0,
+                router_ip="127.0.0.1",
+                router_port=router,
+            )
+            await bridge.wait_until(lambda: bridge.inbound is not None and "/from_ros2" in bridge.inbound.topics, 30)
+            echo = procs.start(["rostopic", "echo", "-n", "1", "/from_ros2"], ros_env(rosmaster, tmp_path))
+
+            async def keep_publishing() -> None:
+                while echo.poll() is None:
+                    await asyncio.to_thread(pub.publish, data="hello from ROS 2")
+                    await asyncio.sleep(0.1)
+
+            await asyncio.wait_for(keep_publishing(), 30)
+            out, err = echo.communicate(timeout=5)
+            assert echo.returncode == 0, err
+            assert "hello from ROS 2" in out.decode()
+            parsed = [parse_token(t) for t in _tokens(router)]
+            assert any(t.kind is EntityKind.SUBSCRIPTION and t.node == "mrosd_ros2" for t in parsed)
+    finally:
+        if pub is not None:
+            pub.close()
+        inst = ZenohSession._instance
+        if inst is not None:
+            inst.close()

@@ -118,3 +118,12 @@ def test_a_1080p_rgb8_image_converts_intact(capsys: pytest.CaptureFixture[str]) 
     assert bytes(cdr[-len(img.data) :]) == img.data
     with capsys.disabled():
         print(f"\n1080p rgb8 ROS 1 -> CDR: {per * 1e3:.2f} ms")
+
+
+def test_ros2_names_map_back_to_ros1_names() -> None:
+    from mrosd.ros2.inbound import ros1_type_name
+
+    assert ros1_type_name("std_msgs/msg/String") == "std_msgs/String"
+    assert ros1_type_name("tf2_msgs/msg/TFMessage") == "tf2_msgs/TFMessage"
+    with pytest.raises(ValueError):
+        ros1_type_name("std_srvs/srv/Trigger")
