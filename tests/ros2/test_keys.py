@@ -114,3 +114,15 @@ def test_the_attachment_is_zenohs_serialization_of_seq_stamp_and_gid() -> None:
         decode_attachment(ours[:-1])
     with pytest.raises(RemoteProtocolError):
         decode_attachment(ours[:16] + b"\x0f" + ours[17:])
+
+
+def test_the_cores_import_no_asyncio_zenoh_or_sockets() -> None:
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, mrosd.ros2.keys, mrosd.ros2.attachment, mrosd.ros2.types\n"
+        "print(sorted(m for m in ('asyncio', 'zenoh', 'aiohttp', 'socket', 'threading') if m in sys.modules))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    assert done.stdout.strip() == "[]"
