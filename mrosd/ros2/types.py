@@ -96,7 +96,8 @@ class TypeMapper:
             MsgError: the body does not match the type (a peer's bad bytes).
         """
         try:
-            raw = body if isinstance(body, bytes | memoryview) else bytes(body)
+            # a memoryview: rosbags slices its input, and a slice of ``bytes`` is a copy (6 MB per 1080p image)
+            raw = body if isinstance(body, memoryview) else memoryview(body)
             out: memoryview = self._store.ros1_to_cdr(raw, ros2_type)
         except Exception as exc:
             raise MsgError(f"ros2: a {ros2_type} body does not convert: {exc}") from exc
@@ -109,7 +110,9 @@ class TypeMapper:
             MsgError: the body does not match the type.
         """
         try:
-            out: memoryview = self._store.cdr_to_ros1(cdr, ros2_type)
+            out: memoryview = self._store.cdr_to_ros1(
+                cdr if isinstance(cdr, memoryview) else memoryview(cdr), ros2_type
+            )
         except Exception as exc:
             raise MsgError(f"ros2: a {ros2_type} CDR body does not convert: {exc}") from exc
         return out
