@@ -7,10 +7,16 @@ in the foreground until Ctrl-C: chosen ROS 1 topics appear to ROS 2 nodes that u
 from __future__ import annotations
 
 import asyncio
+import json
+from typing import Any
 
 import click
 
-from mros_cli.main import master_uri, run
+from mros_cli.main import anonymous, fail, master_uri, run
+from mrosd.errors import MrosError
+
+#: the bridge node's status service (``Ros2Bridge``'s ``~status`` of node ``mrosd_ros2``)
+STATUS_SERVICE = "/mrosd_ros2/status"
 
 
 @click.group(name="ros2")
@@ -21,6 +27,7 @@ def group() -> None:
     Examples:
       mros ros2 bridge --to-ros2 /chatter --from-ros2 /cmd_vel
       mros ros2 bridge --to-ros2 '/camera/**' --connect tcp/laptop:7447 --domain-id 3
+      mros ros2 status
     """
 
 
@@ -79,3 +86,49 @@ def bridge(
             await asyncio.Event().wait()
 
     run(serve())
+
+
+async def fetch_status(uri: str, timeout: float = 5.0) -> dict[str, Any]:
+    """The bridge node's status.
+
+    Raises:
+        MrosError: no ros2 bridge runs on this master, or it does not answer.
+    """
+    from mrosd.msg import get_service_class
+    from mrosd.tcpros.node import Node
+
+    trigger = get_service_class("std_srvs/Trigger")
+    async with Node(anonymous("ros2"), master_uri=uri, argv=[], rosout=False, logger_services=False) as node:
+        resp = await node.service_proxy(STATUS_SERVICE, trigger).call(trigger._request_class(), timeout=timeout)
+    status: dict[str, Any] = json.loads(resp.message)
+    return status
+
+
+def format_status(st: dict[str, Any]) -> str:
+    """One line per bridged topic, each direction."""
+    lines = [f"zenoh id {st['zid']}, domain {st['domain_id']}", "to ROS 2:"]
+    for row in st["to_ros2"]:
+        what = row["problem"] or f"{row['ros2_type']}{' (latched)' if row.get('latched') else ''}"
+        lines.append(f"  {row['topic']}  {what}  sent {row['sent']}  dropped {row['dropped']}")
+    lines.append("from ROS 2:")
+    for row in st["from_ros2"]:
+        lines.append(
+            f"  {row['topic']}  {row['ros2_type']}  received {row['received']}  "
+            f"dropped {row['dropped']}  bad {row['bad']}"
+        )
+    return "\n".join(lines)
+
+
+@group.command(name="status")
+@click.option("--json", "as_json", is_flag=True, help="Print the status as JSON.")
+def status(as_json: bool) -> None:
+    """What the ros2 bridge on this master shows to ROS 2 and takes from it."""
+
+    async def ask() -> dict[str, Any]:
+        try:
+            return await fetch_status(master_uri())
+        except MrosError as exc:
+            fail(f"no ros2 bridge answers on {master_uri()}: {exc}")
+
+    st = run(ask())
+    click.echo(json.dumps(st, indent=2, sort_keys=True) if as_json else format_status(st))

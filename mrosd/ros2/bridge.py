@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
 import os
 import threading
@@ -200,6 +201,7 @@ class Ros2Bridge:
             self._node_token = self.session.liveliness().declare_token(self._token(EntityKind.NODE).key())
             if self.options.from_ros2:
                 self._start_inbound(asyncio.get_running_loop())
+            await self._advertise_status()
         except BaseException:
             await self.aclose()
             raise
@@ -280,8 +282,43 @@ class Ros2Bridge:
                 self._changed.clear()
                 await self._changed.wait()
 
+    async def _advertise_status(self) -> None:
+        """``~status`` (std_srvs/Trigger): the bridge's status as JSON in ``message``, what ``mros ros2 status``
+        reads; a plain ROS service, so any host that reaches the master can ask."""
+        from mrosd.msg import get_service_class
+
+        trigger = get_service_class("std_srvs/Trigger")
+
+        def answer(_request: Any) -> Any:
+            doc = {
+                "zid": self._zid,
+                "domain_id": self.options.domain_id,
+                "to_ros2": self.status(),
+                "from_ros2": self.inbound_status(),
+            }
+            return trigger._response_class(success=True, message=json.dumps(doc))
+
+        await self.node.advertise_service("~status", trigger, answer)
+
+    def inbound_status(self) -> list[dict[str, Any]]:
+        """One row per ROS 2 topic republished on ROS 1."""
+        inbound, inbox = self.inbound, self._inbox
+        if inbound is None:
+            return []
+        return [
+            {
+                "topic": rt.topic,
+                "ros2_type": rt.ros2_type,
+                "key": rt.key,
+                "received": rt.received,
+                "dropped": inbox.dropped("in:" + rt.topic) if inbox is not None else 0,
+                "bad": rt.bad,
+            }
+            for rt in inbound.topics.values()
+        ]
+
     def status(self) -> list[dict[str, Any]]:
-        """One row per bridged topic: names, key, counts and any problem (for ``mros ros2 status`` later)."""
+        """One row per ROS 1 topic shown to ROS 2: names, key, counts and any problem."""
         rows = []
         for bt in self.topics.values():
             rows.append(
