@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 from mrosd.errors import MrosError, RemoteProtocolError
 from mrosd.fleet.keys import NameFilter
 from mrosd.lograte import RateLimitedLog
+from mrosd.names import canonicalize, is_valid_name
 from mrosd.ros2.keys import EntityKind, LivelinessToken, data_key, parse_token, ros2_type_of_dds
 
 if TYPE_CHECKING:
@@ -28,6 +29,12 @@ __all__ = ["Inbound", "ros1_type_name"]
 
 log = logging.getLogger(__name__)
 _ratelog = RateLimitedLog(log, period=60.0, burst=3)
+
+#: ROS 2 topics republished on ROS 1 at most (each holds a ROS 1 publisher and a Zenoh subscription); a peer
+#: announcing more gets one log line, as the fleet part's ``max_received`` bounds what it takes
+MAX_RECEIVED_TOPICS = 256
+#: refused names remembered so each is logged once
+MAX_REFUSED_NAMES = 1024
 
 #: ROS 2 names whose ROS 1 name is not ``pkg/Type``
 _RENAMED_BACK = {"tf2_msgs/msg/TFMessage": "tf2_msgs/TFMessage"}
@@ -72,6 +79,8 @@ class Inbound:
         self.mapper = mapper
         self.own_zid = own_zid
         self.topics: dict[str, ReceivedTopic] = {}
+        self._refused: set[str] = set()
+        self._full_logged = False
 
     async def token(
         self, key: str, alive: bool, *, session: Any, inbox: Inbox, make_token: Any, outbound: set[str]
@@ -88,7 +97,27 @@ class Inbound:
             return None
         if tok.topic in outbound:
             return None  # we publish it to ROS 2 ourselves: never bridge a topic both ways
+        if not self._carriable(tok.topic):
+            return None
+        if len(self.topics) >= MAX_RECEIVED_TOPICS:
+            if not self._full_logged:
+                self._full_logged = True
+                log.warning(
+                    "ros2: ROS 2 announces more than %d topics for ROS 1; the rest are not bridged", MAX_RECEIVED_TOPICS
+                )
+            return None
         return await self._start(tok, session, inbox, make_token)
+
+    def _carriable(self, topic: str) -> bool:
+        """A canonical global ROS name; anything else a peer announces is refused, one line per name."""
+        if topic.startswith("/") and is_valid_name(topic) and canonicalize(topic) == topic:
+            return True
+        if topic not in self._refused:
+            if len(self._refused) >= MAX_REFUSED_NAMES:
+                self._refused.clear()
+            self._refused.add(topic)
+            log.warning("ros2: %r announced by ROS 2 is not a ROS name; not bridged", topic[:200])
+        return False
 
     async def _start(self, tok: LivelinessToken, session: Any, inbox: Inbox, make_token: Any) -> ReceivedTopic | None:
         from mrosd.fleet.bridge import raw_message_class

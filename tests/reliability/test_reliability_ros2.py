@@ -131,3 +131,54 @@ async def test_a_ros2_side_that_stops_reading_never_stalls_the_loop_and_drops_ol
         release.set()
         sub.undeclare()
         stuck.close()
+
+
+STRING_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
+
+
+def _peer(router: int) -> Any:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{router}"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(conf)
+
+
+def _mp_token(zid: str, n: int, mangled_topic: str) -> str:
+    return f"@ros2_lv/0/{zid}/0/{n}/MP/%/%/evil/{mangled_topic}/std_msgs::msg::dds_::String_/{STRING_HASH}/::,:,:,:,,"
+
+
+async def test_a_ros2_peer_announcing_names_that_are_not_ros_names_or_too_many_topics_is_bounded(
+    rosmaster: str, router: int, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A hostile ROS 2 peer announces publishers on non-canonical names (``/a//b``, ``/a b``, ``/c/``) and on
+    more topics than the bridge takes from ROS 2: none of the first get a ROS 1 publisher or a Zenoh
+    subscription, and the rest stop at the cap, one line."""
+    from mrosd.ros2 import inbound
+
+    peer = _peer(router)
+    zid = str(peer.zid())
+    tokens = [peer.liveliness().declare_token(_mp_token(zid, i, t)) for i, t in enumerate(["%a%%b", "%a b", "%c%"])]
+    many = inbound.MAX_RECEIVED_TOPICS + 5
+    tokens += [peer.liveliness().declare_token(_mp_token(zid, 100 + i, f"%many%t{i}")) for i in range(many)]
+    try:
+        with caplog.at_level(logging.WARNING, logger="mrosd.ros2.inbound"):
+            async with Ros2Bridge(
+                Ros2Options(domain_id=0, connect=(f"tcp/127.0.0.1:{router}",), from_ros2=("/**",)), rosmaster
+            ) as bridge:
+                await bridge.wait_until(
+                    lambda: bridge.inbound is not None and len(bridge.inbound.topics) >= inbound.MAX_RECEIVED_TOPICS,
+                    60,
+                )
+                await asyncio.sleep(0.5)
+                assert bridge.inbound is not None
+                names = set(bridge.inbound.topics)
+        assert not names & {"/a//b", "/a b", "/c/", "/a/b", "/c"}
+        assert len(names) == inbound.MAX_RECEIVED_TOPICS
+        messages = [r.getMessage() for r in caplog.records]
+        assert sum("not a ROS name" in m for m in messages) == 3
+        assert sum("more than" in m for m in messages) == 1
+    finally:
+        for tok in tokens:
+            tok.undeclare()
+        peer.close()
