@@ -150,3 +150,21 @@ def test_a_big_array_is_copied_once_not_sliced_into_a_temporary_copy_first() -> 
         tracemalloc.stop()
     assert len(cdr) >= len(img.data)
     assert peak < 1.25 * len(body), f"peak {peak} for a {len(body)}-byte body: the input was copied"
+
+
+def test_a_cdr_body_claiming_a_huge_array_is_one_error_without_the_memory_it_claims() -> None:
+    import tracemalloc
+
+    from mrosd.errors import MsgError
+
+    mapper = TypeMapper()
+    ros2_type = mapper.mapping("std_msgs/String").ros2_type
+    cdr = b"\x00\x01\x00\x00" + struct.pack("<I", 0x7FFFFFF0) + b"abc"
+    tracemalloc.start()
+    try:
+        with pytest.raises(MsgError):
+            mapper.to_ros1(ros2_type, cdr)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 24
