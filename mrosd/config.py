@@ -33,6 +33,7 @@ __all__ = [
     "IxmConfig",
     "LogConfig",
     "MasterConfig",
+    "Ros2Config",
     "RosoutConfig",
     "WebConfig",
     "default_ixm_socket",
@@ -205,6 +206,23 @@ class ImagesConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     png_level: Annotated[int, msgspec.Meta(ge=0, le=9)] = 1
 
 
+class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """``[ros2]``: ROS 1 topics on Zenoh as rmw_zenoh's ROS 2 nodes see them (docs/ros2.md).
+
+    Off by default. ``domain_id`` -1 means ``ROS_DOMAIN_ID`` (else 0); ``connect`` defaults to the router
+    rmw_zenoh's nodes use; ``to_ros2`` lists the ROS 1 topics (globs) that cross, ``from_ros2`` the
+    ROS 2 topics (globs) republished on ROS 1.
+    """
+
+    enabled: bool = False
+    domain_id: Annotated[int, msgspec.Meta(ge=-1, le=232)] = -1
+    connect: list[str] = msgspec.field(default_factory=lambda: ["tcp/localhost:7447"])
+    listen: list[str] = msgspec.field(default_factory=list)
+    to_ros2: list[str] = msgspec.field(default_factory=list)
+    from_ros2: list[str] = msgspec.field(default_factory=list)
+    queue_size: Count = 16
+
+
 class LogConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """``[log]``: the daemon's own log verbosity, and the log files roscore users look for.
 
@@ -231,6 +249,7 @@ class Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     log: LogConfig = msgspec.field(default_factory=LogConfig)
     fleet: FleetConfig = msgspec.field(default_factory=FleetConfig)
     images: ImagesConfig = msgspec.field(default_factory=ImagesConfig)
+    ros2: Ros2Config = msgspec.field(default_factory=Ros2Config)
     #: the file this came from, or "" for defaults only (not a TOML key).
     source: str = ""
 

@@ -133,6 +133,8 @@ class Daemon:
                 await self._optional("fleet", self._start_fleet)
             if not self.master_only and self.cfg.images.compressed:
                 await self._optional("images", self._start_images)
+            if not self.master_only and self.cfg.ros2.enabled:
+                await self._optional("ros2", self._start_ros2)
         except BaseException:
             await self.aclose()
             raise
@@ -323,6 +325,13 @@ class Daemon:
         await part.start()
         self._parts.append(("images", part))
 
+    async def _start_ros2(self) -> None:
+        from mrosd.ros2.bridge import Ros2Bridge, ros2_options
+
+        ros2 = Ros2Bridge(ros2_options(self.cfg.ros2), self.master_uri)
+        await ros2.start()
+        self._parts.append(("ros2", ros2))
+
     def status_line(self) -> str:
         """The one-line status for ``systemctl status``: ``running: ...`` or ``degraded: ...; ixm failed: why``."""
         parts = [f"master {self.master_uri}"]
@@ -490,6 +499,8 @@ class Daemon:
             await self._optional("fleet", self._start_fleet)
         if "images" in retry:
             await self._optional("images", self._start_images)
+        if "ros2" in retry:
+            await self._optional("ros2", self._start_ros2)
 
     async def aclose(self, timeout: float = SHUTDOWN_TIMEOUT) -> bool:
         """Close the parts in reverse start order within ``timeout`` seconds in all; True when all closed.

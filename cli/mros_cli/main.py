@@ -40,6 +40,7 @@ SUBCOMMANDS = {
     "graph": "mros_cli.graph",
     "bridge": "mros_cli.bridge",
     "fleet": "mros_cli.fleet",
+    "ros2": "mros_cli.ros2",
     "web": "mros_cli.web",
     "action": "mros_cli.action",
     "tf": "mros_cli.tf",

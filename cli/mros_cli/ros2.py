@@ -1,0 +1,134 @@
+"""``mros ros2``: the daemon's ros2 part alone, against any master (rosmaster included).
+
+``mros ros2 bridge`` runs the same ``mrosd.ros2.bridge.Ros2Bridge`` the daemon runs with ``[ros2] enabled``,
+in the foreground until Ctrl-C: chosen ROS 1 topics appear to ROS 2 nodes that use rmw_zenoh.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from typing import Any
+
+import click
+
+from mros_cli.main import anonymous, fail, master_uri, run
+from mrosd.errors import MrosError
+
+#: the bridge node's status service (``Ros2Bridge``'s ``~status`` of node ``mrosd_ros2``)
+STATUS_SERVICE = "/mrosd_ros2/status"
+
+
+@click.group(name="ros2")
+def group() -> None:
+    """Show ROS 1 topics to ROS 2 (rmw_zenoh) without a ROS 2 install.
+
+    \b
+    Examples:
+      mros ros2 bridge --to-ros2 /chatter --from-ros2 /cmd_vel
+      mros ros2 bridge --to-ros2 '/camera/**' --connect tcp/laptop:7447 --domain-id 3
+      mros ros2 status
+    """
+
+
+@group.command(name="bridge")
+@click.option("--to-ros2", "to_ros2", multiple=True, help="ROS 1 topic glob to show to ROS 2 (repeatable)")
+@click.option("--from-ros2", "from_ros2", multiple=True, help="ROS 2 topic glob to republish on ROS 1 (repeatable)")
+@click.option(
+    "--connect",
+    multiple=True,
+    default=["tcp/localhost:7447"],
+    show_default=True,
+    help="Zenoh endpoint of the ROS 2 side's router (repeatable)",
+)
+@click.option("--listen", multiple=True, help="Zenoh endpoint to listen on (repeatable)")
+@click.option(
+    "--domain-id", type=click.IntRange(-1, 232), default=-1, show_default=True, help="-1: $ROS_DOMAIN_ID, else 0"
+)
+@click.option("--queue-size", type=click.IntRange(1, 10000), default=16, show_default=True)
+def bridge(
+    *,
+    to_ros2: tuple[str, ...],
+    from_ros2: tuple[str, ...],
+    connect: tuple[str, ...],
+    listen: tuple[str, ...],
+    domain_id: int,
+    queue_size: int,
+) -> None:
+    """Put the chosen ROS 1 topics on Zenoh as an rmw_zenoh ROS 2 node publishes them, and back."""
+    from mrosd.config import Ros2Config
+    from mrosd.errors import ConfigError
+    from mrosd.ros2.bridge import Ros2Bridge, ros2_options
+
+    if not to_ros2 and not from_ros2:
+        raise click.UsageError("name topics with --to-ros2 and/or --from-ros2")
+    cfg = Ros2Config(
+        enabled=True,
+        domain_id=domain_id,
+        connect=list(connect),
+        listen=list(listen),
+        to_ros2=list(to_ros2),
+        from_ros2=list(from_ros2),
+        queue_size=queue_size,
+    )
+    try:
+        options = ros2_options(cfg)
+    except ConfigError as exc:
+        raise click.UsageError(str(exc)) from None
+
+    async def serve() -> None:
+        async with Ros2Bridge(options, master_uri()):
+            click.echo(
+                f"ros2: to ROS 2 {', '.join(to_ros2) or '-'}, from ROS 2 {', '.join(from_ros2) or '-'}; "
+                f"Zenoh {', '.join(connect)} domain {options.domain_id} (master {master_uri()}); Ctrl-C to stop",
+                err=True,
+            )
+            await asyncio.Event().wait()
+
+    run(serve())
+
+
+async def fetch_status(uri: str, timeout: float = 5.0) -> dict[str, Any]:
+    """The bridge node's status.
+
+    Raises:
+        MrosError: no ros2 bridge runs on this master, or it does not answer.
+    """
+    from mrosd.msg import get_service_class
+    from mrosd.tcpros.node import Node
+
+    trigger = get_service_class("std_srvs/Trigger")
+    async with Node(anonymous("ros2"), master_uri=uri, argv=[], rosout=False, logger_services=False) as node:
+        resp = await node.service_proxy(STATUS_SERVICE, trigger).call(trigger._request_class(), timeout=timeout)
+    status: dict[str, Any] = json.loads(resp.message)
+    return status
+
+
+def format_status(st: dict[str, Any]) -> str:
+    """One line per bridged topic, each direction."""
+    lines = [f"zenoh id {st['zid']}, domain {st['domain_id']}", "to ROS 2:"]
+    for row in st["to_ros2"]:
+        what = row["problem"] or f"{row['ros2_type']}{' (latched)' if row.get('latched') else ''}"
+        lines.append(f"  {row['topic']}  {what}  sent {row['sent']}  dropped {row['dropped']}")
+    lines.append("from ROS 2:")
+    for row in st["from_ros2"]:
+        lines.append(
+            f"  {row['topic']}  {row['ros2_type']}  received {row['received']}  "
+            f"dropped {row['dropped']}  bad {row['bad']}"
+        )
+    return "\n".join(lines)
+
+
+@group.command(name="status")
+@click.option("--json", "as_json", is_flag=True, help="Print the status as JSON.")
+def status(as_json: bool) -> None:
+    """What the ros2 bridge on this master shows to ROS 2 and takes from it."""
+
+    async def ask() -> dict[str, Any]:
+        try:
+            return await fetch_status(master_uri())
+        except MrosError as exc:
+            fail(f"no ros2 bridge answers on {master_uri()}: {exc}")
+
+    st = run(ask())
+    click.echo(json.dumps(st, indent=2, sort_keys=True) if as_json else format_status(st))

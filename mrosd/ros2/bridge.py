@@ -1,0 +1,490 @@
+"""``Ros2Bridge``: chosen ROS 1 topics put on Zenoh as an rmw_zenoh ROS 2 node publishes them.
+
+For each ROS 1 topic matching ``to_ros2`` that has a publisher, the bridge subscribes raw over TCPROS. The first
+body tells the type and its ``message_definition``; the type is mapped (``mrosd.ros2.types``, off the loop) and a
+Zenoh publisher is declared on rmw_zenoh's data key with a ``MP`` liveliness token under the bridge's ``NN``
+token. Bodies then go, unconverted, into the fleet part's ``Outbox`` (per-key drop-oldest queues); its one
+sender thread converts each to CDR and puts it with a fresh attachment, so neither the conversion nor a slow
+link ever holds the loop. A type that cannot be mapped is one log line, and that topic alone is skipped.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import os
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import msgspec
+
+from mrosd import backports
+from mrosd.errors import ConfigError, MrosError
+from mrosd.fleet.handoff import Inbox, Outbox
+from mrosd.fleet.keys import NameFilter
+from mrosd.lograte import RateLimitedLog
+from mrosd.names import canonicalize, is_valid_name
+from mrosd.ros2.attachment import encode_attachment, gid_of
+from mrosd.ros2.inbound import Inbound
+from mrosd.ros2.keys import DURABILITY_TRANSIENT_LOCAL, EntityKind, LivelinessToken, Qos, data_key, dds_type_name
+from mrosd.ros2.types import TypeMapper, TypeMapping, UnmappableTypeError
+from mrosd.tcpros.node import Node
+from mrosd.tcpros.subscriber import AnyMsg, RawMessage
+
+if TYPE_CHECKING:
+    from mrosd.config import Ros2Config
+
+__all__ = ["Ros2Bridge", "Ros2Options", "ros2_options"]
+
+log = logging.getLogger(__name__)
+_ratelog = RateLimitedLog(log, period=60.0, burst=3)
+
+#: seconds between two reads of the ROS 1 graph
+GRAPH_PERIOD = 1.0
+#: the bridge node's name on both sides
+NODE_NAME = "mrosd_ros2"
+#: refused names remembered so each is logged once (a stranger can register any number of them)
+MAX_REFUSED_NAMES = 1024
+#: the inbox's name for liveliness tokens, and how many may wait for the loop
+TOKENS = "@tokens"
+TOKEN_QUEUE = 4096
+
+
+class Ros2Options(msgspec.Struct, frozen=True, kw_only=True):
+    """The checked settings of the ros2 part (``ros2_options`` builds them from ``[ros2]``)."""
+
+    domain_id: int = 0
+    connect: tuple[str, ...] = ("tcp/localhost:7447",)
+    listen: tuple[str, ...] = ()
+    to_ros2: tuple[str, ...] = ()
+    from_ros2: tuple[str, ...] = ()
+    queue_size: int = 16
+    node_name: str = NODE_NAME
+
+
+def ros2_options(cfg: Ros2Config, environ: Mapping[str, str] | None = None) -> Ros2Options:
+    """``[ros2]`` -> options; ``domain_id`` -1 reads ``ROS_DOMAIN_ID`` (else 0).
+
+    Raises:
+        ConfigError: ``ROS_DOMAIN_ID`` is not a number from 0 to 232.
+    """
+    env = os.environ if environ is None else environ
+    domain = cfg.domain_id
+    if domain < 0:
+        text = env.get("ROS_DOMAIN_ID", "") or "0"
+        if not text.isdigit() or int(text) > 232:
+            raise ConfigError(f"ROS_DOMAIN_ID={text!r}: a ROS 2 domain is a number from 0 to 232")
+        domain = int(text)
+    return Ros2Options(
+        domain_id=domain,
+        connect=tuple(cfg.connect),
+        listen=tuple(cfg.listen),
+        to_ros2=tuple(cfg.to_ros2),
+        from_ros2=tuple(cfg.from_ros2),
+        queue_size=cfg.queue_size,
+    )
+
+
+class RmwPublisher:
+    """What the outbox's sender thread puts through: converts a ROS 1 body to CDR and puts it with rmw_zenoh's
+    attachment (sequence number counted here, on that one thread)."""
+
+    def __init__(self, publisher: Any, mapper: TypeMapper, mapping: TypeMapping, gid: bytes) -> None:
+        self.publisher = publisher
+        self.mapper = mapper
+        self.ros2_type = mapping.ros2_type
+        self.gid = gid
+        self.sequence = 0
+        self.sent = 0
+        self.bad = 0
+
+    def put(self, body: bytes) -> None:
+        try:
+            cdr = self.mapper.to_cdr(self.ros2_type, body)
+        except MrosError as exc:
+            self.bad += 1
+            _ratelog.warning(f"cdr {self.ros2_type}", "%s", exc)
+            return
+        self.sequence += 1
+        attachment = encode_attachment(self.sequence, time.time_ns(), self.gid)
+        # the converter's buffer is a bytearray seen whole through ``cdr``: Zenoh takes it without a copy here
+        self.publisher.put(
+            cdr.obj if isinstance(cdr.obj, bytearray) and len(cdr.obj) == cdr.nbytes else bytes(cdr),
+            attachment=attachment,
+        )
+        self.sent += 1
+
+
+@dataclass
+class BridgedTopic:
+    """One ROS 1 topic on its way to ROS 2."""
+
+    topic: str
+    subscriber: Any = None
+    mapping: TypeMapping | None = None
+    key: str = ""
+    rmw: RmwPublisher | None = None
+    token: Any = None
+    #: a one-line reason this topic does not cross (an unmappable type)
+    problem: str = ""
+    mapping_task: asyncio.Task[None] | None = None
+    #: crossed as TRANSIENT_LOCAL (the ROS 1 publisher latches)
+    latched: bool = False
+    #: the newest body received while the type was being mapped
+    pending: bytes | None = None
+
+
+class Ros2Bridge:
+    """``async with Ros2Bridge(options, master_uri):`` puts the chosen ROS 1 topics on Zenoh until closed.
+
+    Raises (from ``start``):
+        ConfigError: eclipse-zenoh is missing or refuses the settings, or the session cannot open.
+        MasterUnreachableError: the ROS 1 master does not answer.
+    """
+
+    def __init__(self, options: Ros2Options, master_uri: str, *, host: str | None = None) -> None:
+        self.options = options
+        self.filter = NameFilter(include=options.to_ros2)
+        self.node = Node(options.node_name, master_uri, argv=[], host=host, rosout=False, logger_services=False)
+        self.mapper = TypeMapper()
+        self.topics: dict[str, BridgedTopic] = {}
+        self.session: Any = None
+        self._zenoh: Any = None
+        self._outbox: Outbox | None = None
+        self._inbox: Inbox | None = None
+        self._token_sub: Any = None
+        self.inbound: Inbound | None = None
+        self._background: set[asyncio.Task[None]] = set()
+        self._node_token: Any = None
+        self._zid = ""
+        self._next_id = 0
+        self._tasks: list[asyncio.Task[None]] = []
+        self._changed = asyncio.Event()
+        self._closed = False
+        self._lock = threading.Lock()
+        #: names refused once (logged once each; cleared when full)
+        self._refused: set[str] = set()
+        #: completed reads of the ROS 1 graph (tests wait on it)
+        self.graph_reads = 0
+
+    # --- lifecycle ---------------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        try:
+            import zenoh
+        except ImportError:
+            raise ConfigError("the ros2 part needs Eclipse Zenoh for Python: pip install 'mrosd[ros2]'") from None
+        self._zenoh = zenoh
+        config = zenoh.Config()
+        try:
+            config.insert_json5("mode", '"peer"')
+            config.insert_json5("connect/endpoints", msgspec.json.encode(list(self.options.connect)).decode())
+            config.insert_json5("listen/endpoints", msgspec.json.encode(list(self.options.listen)).decode())
+            config.insert_json5("scouting/multicast/enabled", "false")
+            # rmw_zenoh's session config stamps every sample; TRANSIENT_LOCAL's advanced publisher needs it
+            config.insert_json5("timestamping/enabled", "true")
+        except Exception as exc:
+            raise ConfigError(f"ros2: Zenoh refused the configuration: {exc}") from exc
+        await self.node.start()
+        try:
+            try:
+                self.session = await asyncio.to_thread(zenoh.open, config)
+            except Exception as exc:
+                raise ConfigError(f"ros2: cannot open the Zenoh session: {exc}") from exc
+            self._zid = str(self.session.zid())
+            self._outbox = Outbox(self.session, self.options.queue_size, {})
+            self._outbox.start()
+            self._node_token = self.session.liveliness().declare_token(self._token(EntityKind.NODE).key())
+            if self.options.from_ros2:
+                self._start_inbound(asyncio.get_running_loop())
+            await self._advertise_status()
+        except BaseException:
+            await self.aclose()
+            raise
+        self._tasks = [asyncio.create_task(self._graph_loop(), name="ros2-graph")]
+        log.info("ros2: node %s on Zenoh %s, domain %d", self.options.node_name, self._zid, self.options.domain_id)
+
+    def _start_inbound(self, loop: asyncio.AbstractEventLoop) -> None:
+        zenoh = self._zenoh
+        inbox = self._inbox = Inbox(loop, self._deliver, self.options.queue_size, {TOKENS: TOKEN_QUEUE})
+        self.inbound = Inbound(self.options.from_ros2, self.options.domain_id, self.node, self.mapper, self._zid)
+
+        def heard(sample: Any) -> None:  # on Zenoh's thread
+            inbox.put(TOKENS, (str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
+
+        self._token_sub = self.session.liveliness().declare_subscriber(
+            f"@ros2_lv/{self.options.domain_id}/**", heard, history=True
+        )
+
+    def _deliver(self, name: str, items: list[Any]) -> None:
+        if name == TOKENS:
+            task = asyncio.create_task(self._tokens(items))
+            self._background.add(task)
+            task.add_done_callback(self._background.discard)
+        elif self.inbound is not None and name.startswith("in:"):
+            self.inbound.deliver(name[3:], items)
+            self._changed.set()
+
+    async def _tokens(self, items: list[tuple[str, bool]]) -> None:
+        inbound, inbox = self.inbound, self._inbox
+        if inbound is None or inbox is None or self._closed:
+            return
+        for key, alive in items:
+            await inbound.token(
+                key, alive, session=self.session, inbox=inbox, make_token=self._token, outbound=set(self.topics)
+            )
+        self._changed.set()
+
+    async def aclose(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        tasks = [*self._tasks, *self._background]
+        for task in tasks:
+            task.cancel()
+        for task in tasks:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+        if self._inbox is not None:
+            self._inbox.closed = True
+        self._undeclare(self._token_sub)
+        if self.inbound is not None:
+            await self.inbound.aclose()
+        for bt in list(self.topics.values()):
+            await self._drop(bt)
+        self.topics.clear()
+        if self._outbox is not None:
+            await asyncio.to_thread(self._outbox.close)
+        self._undeclare(self._node_token)
+        if self.session is not None:
+            await asyncio.to_thread(self.session.close)
+        await self.node.aclose()
+
+    async def __aenter__(self) -> Ros2Bridge:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.aclose()
+
+    async def wait_until(self, predicate: Callable[[], bool], timeout: float) -> None:
+        """Return once ``predicate()`` holds, checked after every change of the bridge.
+
+        Raises:
+            TimeoutError: it did not hold within ``timeout`` seconds.
+        """
+        async with backports.timeout(timeout):
+            while not predicate():
+                self._changed.clear()
+                await self._changed.wait()
+
+    async def _advertise_status(self) -> None:
+        """``~status`` (std_srvs/Trigger): the bridge's status as JSON in ``message``, what ``mros ros2 status``
+        reads; a plain ROS service, so any host that reaches the master can ask."""
+        from mrosd.msg import get_service_class
+
+        trigger = get_service_class("std_srvs/Trigger")
+
+        def answer(_request: Any) -> Any:
+            doc = {
+                "zid": self._zid,
+                "domain_id": self.options.domain_id,
+                "to_ros2": self.status(),
+                "from_ros2": self.inbound_status(),
+            }
+            return trigger._response_class(success=True, message=json.dumps(doc))
+
+        await self.node.advertise_service("~status", trigger, answer)
+
+    def inbound_status(self) -> list[dict[str, Any]]:
+        """One row per ROS 2 topic republished on ROS 1."""
+        inbound, inbox = self.inbound, self._inbox
+        if inbound is None:
+            return []
+        return [
+            {
+                "topic": rt.topic,
+                "ros2_type": rt.ros2_type,
+                "key": rt.key,
+                "received": rt.received,
+                "dropped": inbox.dropped("in:" + rt.topic) if inbox is not None else 0,
+                "bad": rt.bad,
+            }
+            for rt in inbound.topics.values()
+        ]
+
+    def status(self) -> list[dict[str, Any]]:
+        """One row per ROS 1 topic shown to ROS 2: names, key, counts and any problem."""
+        rows = []
+        for bt in self.topics.values():
+            rows.append(
+                {
+                    "topic": bt.topic,
+                    "ros2_type": bt.mapping.ros2_type if bt.mapping else "",
+                    "key": bt.key,
+                    "sent": bt.rmw.sent if bt.rmw else 0,
+                    "dropped": self._outbox.dropped(bt.key) if self._outbox and bt.key else 0,
+                    "latched": bt.latched,
+                    "problem": bt.problem,
+                }
+            )
+        return rows
+
+    # --- names -------------------------------------------------------------------------------------
+
+    def _token(self, kind: EntityKind, topic: str = "", mapping: TypeMapping | None = None, **qos: Any) -> Any:
+        with self._lock:
+            self._next_id += 1
+            entity_id = "0" if kind is EntityKind.NODE else str(self._next_id)
+        common: dict[str, Any] = {
+            "domain_id": self.options.domain_id,
+            "zid": self._zid,
+            "nid": "0",
+            "id": entity_id,
+            "kind": kind,
+            "enclave": "/",
+            "namespace": "/",
+            "node": self.options.node_name,
+        }
+        if mapping is None:
+            return LivelinessToken(**common)
+        return LivelinessToken(
+            **common,
+            topic=topic,
+            type_name=dds_type_name(mapping.ros2_type),
+            type_hash=mapping.type_hash,
+            qos=Qos(**qos),
+        )
+
+    @staticmethod
+    def _undeclare(entity: Any) -> None:
+        if entity is not None:
+            with contextlib.suppress(Exception):
+                entity.undeclare()
+
+    # --- the ROS 1 graph ---------------------------------------------------------------------------
+
+    async def _graph_loop(self) -> None:
+        while True:
+            try:
+                pubs, _subs, _srvs = await self.node.master.call("getSystemState")
+                own = self.node.name
+                want = {
+                    str(topic)
+                    for topic, nodes in pubs
+                    if topic in self.filter and any(n != own for n in nodes) and self._carriable(str(topic))
+                }
+                for topic in want - set(self.topics):
+                    await self._add(topic)
+                for topic in set(self.topics) - want:
+                    await self._drop(self.topics.pop(topic))
+                self.graph_reads += 1
+                self._changed.set()
+            except asyncio.CancelledError:
+                raise
+            except (MrosError, OSError, ValueError, TypeError) as exc:
+                _ratelog.warning("graph", "ros2: cannot read the ROS 1 graph: %s", exc)
+            await asyncio.sleep(GRAPH_PERIOD)
+
+    def _carriable(self, topic: str) -> bool:
+        """A ROS name in canonical form: anything else (a Zenoh wildcard, rmw_zenoh's ``%``, an empty chunk) that a
+        stranger registered with the master would be another key on Zenoh, or none; refused, one line per name."""
+        if is_valid_name(topic) and topic.startswith("/") and canonicalize(topic) == topic:
+            return True
+        if topic not in self._refused:
+            if len(self._refused) >= MAX_REFUSED_NAMES:
+                self._refused.clear()
+            self._refused.add(topic)
+            log.warning("ros2: %r is not a ROS name; not bridged", topic[:200])
+        return False
+
+    async def _add(self, topic: str) -> None:
+        bt = BridgedTopic(topic)
+        self.topics[topic] = bt
+        try:
+            bt.subscriber = await self.node.subscribe(
+                topic, AnyMsg, callback=lambda msg: self._local_message(bt, msg), queue_size=self.options.queue_size
+            )
+        except MrosError as exc:
+            _ratelog.warning(f"sub {topic}", "ros2: cannot subscribe to %s: %s", topic, exc)
+            self.topics.pop(topic, None)
+        self._changed.set()
+
+    async def _drop(self, bt: BridgedTopic) -> None:
+        if bt.mapping_task is not None:
+            bt.mapping_task.cancel()
+        self._undeclare(bt.token)
+        if bt.rmw is not None:
+            self._undeclare(bt.rmw.publisher)
+        if self._outbox is not None and bt.key:
+            self._outbox.forget(bt.key)
+        if bt.subscriber is not None:
+            with contextlib.suppress(MrosError, OSError):
+                await bt.subscriber.aclose()
+        self._changed.set()
+
+    def _local_message(self, bt: BridgedTopic, msg: RawMessage) -> None:
+        if bt.problem:
+            return
+        body = bytes(msg.data)
+        if bt.rmw is None:
+            bt.pending = body
+            if bt.mapping_task is None:
+                header = msg.header
+                bt.mapping_task = asyncio.create_task(
+                    self._map(bt, header.type or "", header.message_definition or "", header.latching == "1")
+                )
+            return
+        if self._outbox is not None:
+            self._outbox.put(bt.key, bt.rmw, body)
+
+    async def _map(self, bt: BridgedTopic, ros1_type: str, definition: str, latched: bool) -> None:
+        try:
+            mapping = await asyncio.to_thread(self.mapper.mapping, ros1_type, definition)
+        except UnmappableTypeError as exc:
+            bt.problem = str(exc)
+            log.warning("%s (topic %s is not bridged)", exc, bt.topic)
+            self._changed.set()
+            return
+        if self.session is None or self._closed or self.topics.get(bt.topic) is not bt:
+            return
+        zenoh = self._zenoh
+        import zenoh.ext as zenoh_ext
+
+        bt.mapping = mapping
+        bt.key = data_key(self.options.domain_id, bt.topic, mapping.ros2_type, mapping.type_hash)
+        try:
+            if latched:
+                # A latched ROS 1 topic is TRANSIENT_LOCAL: as rmw_zenoh does, an advanced publisher detectable
+                # through liveliness whose cache (depth 1: the latched message) answers late joiners' queries.
+                token = self._token(
+                    EntityKind.PUBLISHER, bt.topic, mapping, durability=DURABILITY_TRANSIENT_LOCAL, depth=1
+                )
+                publisher = zenoh_ext.declare_advanced_publisher(
+                    self.session,
+                    bt.key,
+                    congestion_control=zenoh.CongestionControl.BLOCK,
+                    cache=zenoh_ext.CacheConfig(1),
+                    publisher_detection=True,
+                )
+            else:
+                token = self._token(EntityKind.PUBLISHER, bt.topic, mapping, depth=self.options.queue_size)
+                publisher = self.session.declare_publisher(bt.key, congestion_control=zenoh.CongestionControl.BLOCK)
+        except Exception as exc:  # Zenoh refused the key or the options: this topic alone does not cross
+            bt.problem = f"ros2: {bt.topic}: Zenoh refused the publisher on {bt.key}: {exc}"
+            log.warning("%s", bt.problem)
+            self._changed.set()
+            return
+        bt.latched = latched
+        bt.rmw = RmwPublisher(publisher, self.mapper, mapping, gid_of(token.key()))
+        bt.token = self.session.liveliness().declare_token(token.key())
+        log.info("ros2: %s (%s) -> %s", bt.topic, ros1_type, bt.key)
+        if bt.pending is not None and self._outbox is not None:
+            self._outbox.put(bt.key, bt.rmw, bt.pending)
+            bt.pending = None
+        self._changed.set()

@@ -1,0 +1,186 @@
+"""ROS 2 -> ROS 1: topics that rmw_zenoh publishers announce, republished on the ROS 1 graph.
+
+The bridge's liveliness subscriber hands every token to ``Inbound.token`` on the loop (through the fleet part's
+``Inbox``). A publisher token (``MP``) of another session whose topic matches ``from_ros2`` and whose type is a
+standard one mrosd knows in its ROS 1 form, with the same RIHS01 hash, gets a Zenoh subscriber on its data key
+and a ROS 1 publisher of the ROS 1 type; samples come through the ``Inbox`` (per-topic drop-oldest) and are
+converted from CDR on the loop (small messages; big ones move to a worker in a later slice).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from mrosd.errors import MrosError, RemoteProtocolError
+from mrosd.fleet.keys import NameFilter
+from mrosd.lograte import RateLimitedLog
+from mrosd.names import canonicalize, is_valid_name
+from mrosd.ros2.keys import EntityKind, LivelinessToken, data_key, parse_token, ros2_type_of_dds
+
+if TYPE_CHECKING:
+    from mrosd.fleet.handoff import Inbox
+    from mrosd.ros2.types import TypeMapper
+    from mrosd.tcpros.node import Node
+
+__all__ = ["Inbound", "ros1_type_name"]
+
+log = logging.getLogger(__name__)
+_ratelog = RateLimitedLog(log, period=60.0, burst=3)
+
+#: ROS 2 topics republished on ROS 1 at most (each holds a ROS 1 publisher and a Zenoh subscription); a peer
+#: announcing more gets one log line, as the fleet part's ``max_received`` bounds what it takes
+MAX_RECEIVED_TOPICS = 256
+#: refused names remembered so each is logged once
+MAX_REFUSED_NAMES = 1024
+
+#: ROS 2 names whose ROS 1 name is not ``pkg/Type``
+_RENAMED_BACK = {"tf2_msgs/msg/TFMessage": "tf2_msgs/TFMessage"}
+
+
+def ros1_type_name(ros2_type: str) -> str:
+    """``pkg/msg/Type`` -> ``pkg/Type``.
+
+    Raises:
+        ValueError: not a ``pkg/msg/Type`` name.
+    """
+    if ros2_type in _RENAMED_BACK:
+        return _RENAMED_BACK[ros2_type]
+    parts = ros2_type.split("/")
+    if len(parts) != 3 or parts[1] != "msg" or not parts[0] or not parts[2]:
+        raise ValueError(f"not a ROS 2 message type: {ros2_type!r}")
+    return f"{parts[0]}/{parts[2]}"
+
+
+@dataclass
+class ReceivedTopic:
+    """One ROS 2 topic republished on ROS 1."""
+
+    topic: str
+    ros1_type: str
+    ros2_type: str
+    key: str
+    publisher: Any = None
+    subscriber: Any = None
+    token: Any = None
+    received: int = 0
+    bad: int = 0
+
+
+class Inbound:
+    """The ROS 2 -> ROS 1 half of ``Ros2Bridge``; runs on the loop, but for what Zenoh hands to the ``Inbox``."""
+
+    def __init__(self, include: tuple[str, ...], domain_id: int, node: Node, mapper: TypeMapper, own_zid: str) -> None:
+        self.filter = NameFilter(include=include)
+        self.domain_id = domain_id
+        self.node = node
+        self.mapper = mapper
+        self.own_zid = own_zid
+        self.topics: dict[str, ReceivedTopic] = {}
+        self._refused: set[str] = set()
+        self._full_logged = False
+
+    async def token(
+        self, key: str, alive: bool, *, session: Any, inbox: Inbox, make_token: Any, outbound: set[str]
+    ) -> ReceivedTopic | None:
+        """A liveliness token appeared (``alive``) or went; returns the topic it started receiving, if any."""
+        try:
+            tok = parse_token(key)
+        except RemoteProtocolError as exc:
+            _ratelog.warning("token", "ros2: ignoring a liveliness token: %s", exc)
+            return None
+        if not alive or tok.kind is not EntityKind.PUBLISHER or tok.zid == self.own_zid:
+            return None
+        if tok.domain_id != self.domain_id or tok.topic not in self.filter or tok.topic in self.topics:
+            return None
+        if tok.topic in outbound:
+            return None  # we publish it to ROS 2 ourselves: never bridge a topic both ways
+        if not self._carriable(tok.topic):
+            return None
+        if len(self.topics) >= MAX_RECEIVED_TOPICS:
+            if not self._full_logged:
+                self._full_logged = True
+                log.warning(
+                    "ros2: ROS 2 announces more than %d topics for ROS 1; the rest are not bridged", MAX_RECEIVED_TOPICS
+                )
+            return None
+        return await self._start(tok, session, inbox, make_token)
+
+    def _carriable(self, topic: str) -> bool:
+        """A canonical global ROS name; anything else a peer announces is refused, one line per name."""
+        if topic.startswith("/") and is_valid_name(topic) and canonicalize(topic) == topic:
+            return True
+        if topic not in self._refused:
+            if len(self._refused) >= MAX_REFUSED_NAMES:
+                self._refused.clear()
+            self._refused.add(topic)
+            log.warning("ros2: %r announced by ROS 2 is not a ROS name; not bridged", topic[:200])
+        return False
+
+    async def _start(self, tok: LivelinessToken, session: Any, inbox: Inbox, make_token: Any) -> ReceivedTopic | None:
+        from mrosd.fleet.raw import raw_message_class
+        from mrosd.msg import get_message_class
+
+        try:
+            ros2_type = ros2_type_of_dds(tok.type_name)
+            ros1_type = ros1_type_name(ros2_type)
+            cls = get_message_class(ros1_type)
+            mapping = self.mapper.mapping(ros1_type)
+        except (MrosError, ValueError) as exc:
+            _ratelog.warning(f"in {tok.topic}", "ros2: %s from ROS 2 is not bridged: %s", tok.topic, exc)
+            return None
+        if mapping.type_hash != tok.type_hash:
+            _ratelog.warning(
+                f"hash {tok.topic}",
+                "ros2: %s: the ROS 2 publisher's %s hash %s is not ours (%s); not bridged",
+                tok.topic,
+                ros2_type,
+                tok.type_hash,
+                mapping.type_hash,
+            )
+            return None
+        rt = ReceivedTopic(
+            tok.topic, ros1_type, ros2_type, data_key(self.domain_id, tok.topic, ros2_type, tok.type_hash)
+        )
+        self.topics[tok.topic] = rt
+        try:
+            rt.publisher = await self.node.advertise(
+                tok.topic, raw_message_class(ros1_type, cls._md5sum, str(cls._full_text))
+            )
+        except MrosError as exc:
+            _ratelog.warning(f"adv {tok.topic}", "ros2: cannot publish %s on ROS 1: %s", tok.topic, exc)
+            self.topics.pop(tok.topic, None)
+            return None
+        name = "in:" + tok.topic
+        rt.subscriber = session.declare_subscriber(rt.key, lambda sample: inbox.put(name, sample.payload.to_bytes()))
+        rt.token = session.liveliness().declare_token(make_token(EntityKind.SUBSCRIPTION, tok.topic, mapping).key())
+        log.info("ros2: %s <- %s (%s)", tok.topic, rt.key, ros1_type)
+        return rt
+
+    def deliver(self, topic: str, bodies: list[bytes]) -> None:
+        """CDR bodies of ``topic`` (on the loop): converted and published on ROS 1."""
+        rt = self.topics.get(topic)
+        if rt is None or rt.publisher is None:
+            return
+        for cdr in bodies:
+            try:
+                body = bytes(self.mapper.to_ros1(rt.ros2_type, cdr))
+            except MrosError as exc:
+                rt.bad += 1
+                _ratelog.warning(f"cdr in {topic}", "%s", exc)
+                continue
+            rt.received += 1
+            rt.publisher.publish_serialized(body)
+
+    async def aclose(self) -> None:
+        for rt in self.topics.values():
+            for entity in (rt.token, rt.subscriber):
+                if entity is not None:
+                    with contextlib.suppress(Exception):
+                        entity.undeclare()
+            if rt.publisher is not None:
+                with contextlib.suppress(MrosError, OSError):
+                    await rt.publisher.aclose()
+        self.topics.clear()
