@@ -295,11 +295,46 @@ class Prober:
         self._thread.join(10)
 
 
+class Watcher:
+    """A Foxglove client connected (and reading) in a thread of its own: the web hub learns the types of
+    topics it has no files for only while a browser client is connected, so the rogue's topics are read."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.connected = threading.Event()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=lambda: asyncio.run(self._run()), daemon=True)
+
+    async def _run(self) -> None:
+        import aiohttp
+
+        async with (
+            aiohttp.ClientSession() as http,
+            http.ws_connect(self.url, protocols=["foxglove.websocket.v1"]) as ws,
+        ):
+            self.connected.set()
+            while not self._stop.is_set():
+                try:
+                    await ws.receive(timeout=0.2)
+                except TimeoutError:
+                    pass
+
+    def __enter__(self) -> Watcher:
+        self._thread.start()
+        assert self.connected.wait(10), "the Foxglove client did not connect"
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(10)
+
+
 @needs_ros
 def test_a_rogue_rospy_node_sending_a_new_exploding_definition_every_second_never_stalls_the_master(
     procs: Processes, tmp_path: Path, daemon: Daemon
 ) -> None:
-    """The web hub reads the definition of a topic whose type it has no files for from the publisher."""
+    """While a browser client is connected, the web hub reads the definition of a topic whose type it has no
+    files for from the publisher."""
     pid = daemon.run.proc.pid
     rss_before = _rss(pid)
     count = 8
@@ -313,7 +348,7 @@ def test_a_rogue_rospy_node_sending_a_new_exploding_definition_every_second_neve
             lines.append(raw.decode().strip())
 
     threading.Thread(target=read, daemon=True).start()
-    with Prober(daemon.uri) as prober:
+    with Watcher(daemon.foxglove_url()), Prober(daemon.uri) as prober:
         deadline = time.monotonic() + count + 15
         while time.monotonic() < deadline and "done" not in lines:
             time.sleep(0.05)
