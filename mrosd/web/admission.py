@@ -42,6 +42,16 @@ def host_name(host: str) -> str:
     return host.rstrip(".")
 
 
+def host_port(host: str) -> int | None:
+    """The port of a ``Host`` header (None when it names none)."""
+    host = host.strip()
+    tail = host[host.find("]") + 1 :] if host.startswith("[") else host
+    if tail.count(":") != 1:
+        return None
+    digits = tail.rsplit(":", 1)[1]
+    return int(digits) if digits.isdigit() and len(digits) <= 5 else None
+
+
 def _is_ip(name: str) -> bool:
     try:
         ipaddress.ip_address(name)
@@ -87,6 +97,12 @@ class OriginGate:
         if origin.strip().lower().rstrip("/") in self.allowed_origins:
             return None
         if host is not None and self._own_page(origin, host_name(host), page_port):
+            return None
+        # The socket's own origin (scheme://Host): what Python and node WebSocket clients (websocket-client,
+        # ros-mcp's) send as Origin. A browser sends it only for a page that this very port served, and the
+        # rosbridge port serves none; the Foxglove port serves ours.
+        port = host_port(host) if host is not None else None
+        if port is not None and self._own_page(origin, host_name(host or ""), port):
             return None
         return (
             f"Origin {origin!r:.200} is not this robot's page: a page from another site may not use the robot; "

@@ -141,6 +141,7 @@ class WebHub:
         self._lock = asyncio.Lock()
         #: called with the full system state after every graph change, while any is registered
         self.state_listeners: set[Callable[[SystemState], None]] = set()
+        self._state_again = False
         self._state_task: asyncio.Task[None] | None = None
         self._params: dict[str, set[Callable[[str, Any], None]]] = {}
         #: /use_sim_time is true (followed through the master's paramUpdate, as it changes): /clock is
@@ -339,22 +340,28 @@ class WebHub:
         )
 
     def refresh_state(self) -> None:
-        """Fetch the system state once (coalesced) and hand it to every state listener."""
+        """Fetch the system state (coalesced: a change during a fetch means one more fetch after it, so the
+        listeners always end with a state newer than the change) and hand it to every state listener."""
         if self._state_task is not None and not self._state_task.done():
+            self._state_again = True
             return
         self._state_task = asyncio.get_running_loop().create_task(self._push_state(), name="web system state")
 
     async def _push_state(self) -> None:
-        try:
-            state = await self.system_state()
-        except MrosError as exc:
-            log.info("web: getSystemState failed: %s", exc)
-            return
-        for listener in list(self.state_listeners):
+        while True:
+            self._state_again = False
             try:
-                listener(state)
-            except Exception:
-                log.exception("web: a state listener failed")
+                state = await self.system_state()
+            except MrosError as exc:
+                log.info("web: getSystemState failed: %s", exc)
+                return
+            for listener in list(self.state_listeners):
+                try:
+                    listener(state)
+                except Exception:
+                    log.exception("web: a state listener failed")
+            if not self._state_again:
+                return
 
     def _notify_topics(self, added: list[TopicInfo], removed: list[TopicInfo]) -> None:
         for listener in list(self.listeners):

@@ -32,6 +32,8 @@ def test_origins() -> None:
         ("robot.local:9090", "http://robot.local:8765"),
         ("127.0.0.1:9090", None),  # not a browser
         ("127.0.0.1:9090", "https://app.foxglove.dev"),
+        ("127.0.0.1:9090", "http://127.0.0.1:9090"),  # the socket's own origin: websocket-client (ros-mcp)
+        ("[::1]:9090", "http://[::1]:9090"),
     ]
     for host, origin in own:
         assert gate.refusal(host, origin, 8765) is None, (host, origin)
@@ -44,6 +46,9 @@ def test_origins() -> None:
         ("attacker.test:8765", "http://attacker.test:8765"),  # DNS rebinding: the Host is refused
         ("attacker.test:8765", None),
         ("127.0.0.1:9090", "http://127.0.0.1:notaport"),
+        ("127.0.0.1:9090", "http://127.0.0.1:9091"),  # a page of the next port
+        ("127.0.0.1:9090", "http://localhost:9090"),  # the socket's port by another name
+        ("127.0.0.1", "http://127.0.0.1"),  # no port in Host: only the page's port counts
     ]
     for host, origin in foreign:
         assert gate.refusal(host, origin, 8765) is not None, (host, origin)
