@@ -100,7 +100,7 @@ class XmlRpcClient:
             raise ValueError(f"not an http:// URI: {uri!r}")
         host, port = parts.hostname, parts.port or 80
         authority = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
-        head = REQUEST_HEAD % ((parts.path or "/").encode(), authority.encode("idna"), len(body))
+        head = REQUEST_HEAD % ((parts.path or "/").encode(), authority.encode("ascii"), len(body))
         if self._slots is None:
             self._slots = asyncio.Semaphore(self._limit)
         async with self._slots:
