@@ -1,4 +1,4 @@
-"""The master's request bodies to response bodies: a sync fast path, a reply cache, ``XmlRpcServer`` for the rest.
+"""The master's request bodies to response bodies: a sync fast path, a reply cache, a ``MethodTable`` for the rest.
 
 No HTTP and no sockets: ``mrosd.master.httpserver`` hands over each complete body and writes what comes back
 (bytes, or a coroutine for calls that need the event loop, producing bytes or a ``LargeReply``). The XML-RPC
@@ -21,21 +21,19 @@ from typing import Any, cast
 
 from mrosd.errors import LocalProtocolError, RemoteProtocolError
 from mrosd.lograte import RateLimitedLog
-from mrosd.xmlrpc import (
+from mrosd.xmlrpc.chunks import ValueEncoder, reply_parts, response_parts
+from mrosd.xmlrpc.codec import (
     FAULT_INTERNAL_ERROR,
     FAULT_PARSE_ERROR,
     INCREMENTAL_DECODE_SIZE,
     MAX_REPLY_SIZE,
     Fault,
-    ValueEncoder,
-    XmlRpcServer,
     decode_call,
     decode_call_async,
     encode_fault,
     encode_response,
-    reply_parts,
-    response_parts,
 )
+from mrosd.xmlrpc.methods import MethodTable
 
 log = logging.getLogger(__name__)
 _ratelog = RateLimitedLog(log)
@@ -161,7 +159,7 @@ Reply = bytes | LargeReply
 
 
 class XmlRpcHttpHandler:
-    """Turns one request body into one response body: sync fast path, else the shared XmlRpcServer.
+    """Turns one request body into one response body: sync fast path, else the shared ``MethodTable``.
 
     Replies of read-only methods (``cacheable``) are kept, keyed by the exact request body, for as
     long as ``state_version()`` returns the same value: a repeated getSystemState/lookupNode/getParam
@@ -171,7 +169,7 @@ class XmlRpcHttpHandler:
     def __init__(
         self,
         sync_methods: dict[str, SyncHandler],
-        fallback: XmlRpcServer,
+        fallback: MethodTable,
         *,
         cacheable: frozenset[str] = frozenset(),
         state_version: Callable[[], object] | None = None,

@@ -15,7 +15,7 @@ import functools
 import logging
 import socket
 from collections.abc import Coroutine
-from typing import TYPE_CHECKING, Any, Protocol, cast
+from typing import Any, Protocol, cast
 
 from mrosd.errors import HttpRefused
 from mrosd.lograte import RateLimitedLog
@@ -31,12 +31,9 @@ from mrosd.master.httpframing import (
     status_response,
 )
 from mrosd.master.peers import Endpoint
-from mrosd.xmlrpc import FAULT_INTERNAL_ERROR, encode_fault
+from mrosd.xmlrpc.codec import FAULT_INTERNAL_ERROR, encode_fault
 
-if TYPE_CHECKING:
-    from mrosd.master.dispatch import XmlRpcHttpHandler
-
-__all__ = ["MAX_REFUSED_BYTES", "REQUEST_TIMEOUT", "WRITE_SLICE", "ConnectionOwner", "HttpProtocol"]
+__all__ = ["MAX_REFUSED_BYTES", "REQUEST_TIMEOUT", "WRITE_SLICE", "BodyHandler", "ConnectionOwner", "HttpProtocol"]
 
 log = logging.getLogger(__name__)
 _ratelog = RateLimitedLog(log)
@@ -50,6 +47,13 @@ REQUEST_TIMEOUT = 30.0
 
 #: A big reply (``LargeReply``) is handed to the transport this many bytes at a time, as the client reads.
 WRITE_SLICE = 256 * 1024
+
+
+class BodyHandler(Protocol):
+    """Turns one request body into a response body, or a coroutine producing one (``dispatch``'s handler, a
+    slave API's ``XmlRpcServer``)."""
+
+    def handle(self, body: bytes) -> bytes | Coroutine[Any, Any, Reply]: ...
 
 
 class ConnectionOwner(Protocol):
@@ -74,15 +78,18 @@ class HttpProtocol(asyncio.Protocol):
 
     def __init__(
         self,
-        handler: XmlRpcHttpHandler,
+        handler: BodyHandler,
         server: ConnectionOwner,
         host: str,
         refused: bool,
         *,
         peer: Endpoint = ("", 0),
         ours: Endpoint = ("", 0),
+        name: str = "master",
     ) -> None:
         self._handler = handler
+        #: Who serves, for the log lines ("master", "slave /talker").
+        self.name = name
         self._server = server
         self.host = host
         #: The two ends as ``(host, port)``: the key to the peer's socket in the kernel's tables.
@@ -118,7 +125,7 @@ class HttpProtocol(asyncio.Protocol):
         if self._refused:
             # Answered once its request is in (closing at once races the client's send into a broken pipe
             # instead of a readable 403); MAX_REFUSED_BYTES bounds what such a client may send first.
-            _ratelog.warning("allow", "master: refusing connection from %s (not in the allow-list)", self.host)
+            _ratelog.warning("allow", "%s: refusing connection from %s (not in the allow-list)", self.name, self.host)
             return
         sock = transport.get_extra_info("socket")
         if sock is not None:
@@ -204,7 +211,12 @@ class HttpProtocol(asyncio.Protocol):
             self._timer = asyncio.get_running_loop().call_later(REQUEST_TIMEOUT, self._timed_out)
             return
         _ratelog.log(
-            logging.INFO, "timeout", "master: closing %s: request incomplete after %g s", self.host, REQUEST_TIMEOUT
+            logging.INFO,
+            "timeout",
+            "%s: closing %s: request incomplete after %g s",
+            self.name,
+            self.host,
+            REQUEST_TIMEOUT,
         )
         self._fail(408, b"request not completed in time\n")
 
@@ -246,7 +258,13 @@ class HttpProtocol(asyncio.Protocol):
             length, keep_alive, expect_continue = parse(head)
         except HttpRefused as exc:
             _ratelog.log(
-                logging.INFO, "refused", "master: HTTP %d to %s: %s", exc.status, self.host, exc.text.strip().decode()
+                logging.INFO,
+                "refused",
+                "%s: HTTP %d to %s: %s",
+                self.name,
+                exc.status,
+                self.host,
+                exc.text.strip().decode(),
             )
             self._fail(exc.status, exc.text)
             return None

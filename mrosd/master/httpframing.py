@@ -1,4 +1,5 @@
-"""The master's HTTP/1.1 framing rules, sans IO: request-head parsing, refusal texts, response bytes.
+"""The project's HTTP/1.1 framing rules, sans IO: request-head parsing, refusal texts, response bytes, and the
+client's side (request heads, response-head parsing) for ``mrosd.xmlrpc.client``.
 
 Pure functions of bytes (no sockets, no event loop), so they are tested and fuzzed on their own;
 ``mrosd.master.httpserver`` drives them over connections. Accepted: POST with one Content-Length,
@@ -14,8 +15,8 @@ from __future__ import annotations
 import functools
 import re
 
-from mrosd.errors import HttpRefused
-from mrosd.xmlrpc import MAX_BODY_SIZE
+from mrosd.errors import HttpRefused, RemoteProtocolError
+from mrosd.xmlrpc.codec import MAX_BODY_SIZE
 
 #: Largest request line + headers accepted.
 MAX_HEADER_SIZE = 64 * 1024
@@ -104,3 +105,59 @@ def parse_head(head: bytes) -> tuple[int, bool, bool]:
 #: Header blocks up to this size may go to ``parse_short_head``, ``parse_head`` with a cache of 256 entries.
 CACHED_HEAD_SIZE = 1024
 parse_short_head = functools.lru_cache(maxsize=256)(parse_head)
+
+
+# --- the client's side ----------------------------------------------------------------------------------------
+
+_TRANSFER_ENCODING = re.compile(rb"\r\ntransfer-encoding:[ \t]*([^\r\n]*?)[ \t]*(?=\r\n|$)")
+
+#: The head of an XML-RPC request: ``REQUEST_HEAD % (path, host, len(body))``; the connection is kept alive.
+REQUEST_HEAD = (
+    b"POST %s HTTP/1.1\r\nHost: %s\r\nUser-Agent: mrosd\r\nContent-Type: text/xml\r\nContent-Length: %d\r\n\r\n"
+)
+
+
+def parse_response_head(head: bytes) -> tuple[int, int | None, bool, bool]:
+    """``(status, content_length, keep_alive, chunked)`` of a response's header block (without the blank line).
+
+    ``content_length`` is None when the body is chunked or runs to the end of the connection (then
+    ``keep_alive`` is False). Refused as request smuggling is refused: a repeated Content-Length, or one with
+    Transfer-Encoding.
+
+    Raises:
+        RemoteProtocolError: a malformed status line or header block.
+    """
+    line_end = head.find(b"\r\n")
+    parts = (head if line_end < 0 else head[:line_end]).split(None, 2)
+    if len(parts) < 2 or not parts[0].startswith(b"HTTP/1.") or len(parts[1]) != 3 or not parts[1].isdigit():
+        raise RemoteProtocolError("malformed HTTP status line")
+    status = int(parts[1])
+    keep_alive = parts[0] != b"HTTP/1.0"
+    length: int | None = None
+    chunked = False
+    fields = head[line_end:].lower() if line_end >= 0 else b""
+    if fields:
+        if _BAD_FIELD_NAME.search(fields):
+            raise RemoteProtocolError("malformed HTTP header field")
+        lengths = _CONTENT_LENGTH.findall(fields)
+        codings = _TRANSFER_ENCODING.findall(fields)
+        if codings:
+            if lengths:
+                raise RemoteProtocolError("HTTP response with Content-Length and Transfer-Encoding")
+            if codings != [b"chunked"]:
+                raise RemoteProtocolError(
+                    f"unsupported Transfer-Encoding {b', '.join(codings).decode(errors='replace')}"
+                )
+            chunked = True
+        if len(lengths) > 1:
+            raise RemoteProtocolError("HTTP response with more than one Content-Length")
+        if lengths:
+            if not lengths[0]:
+                raise RemoteProtocolError("bad Content-Length")
+            length = int(lengths[0])
+        m = _CONNECTION.search(fields)
+        if m is not None:
+            keep_alive = m.group(1) == b"keep-alive"
+    if length is None and not chunked:
+        keep_alive = False  # the body runs to the end of the connection
+    return status, length, keep_alive, chunked

@@ -29,16 +29,13 @@ import ipaddress
 import logging
 import resource
 import socket
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from mrosd.lograte import RateLimitedLog
 from mrosd.master.admission import Admission
-from mrosd.master.httpconn import HttpProtocol
+from mrosd.master.httpconn import BodyHandler, HttpProtocol
 from mrosd.master.httpframing import status_response
 from mrosd.master.peers import Endpoint, PeerUids, is_local, peer_address
-
-if TYPE_CHECKING:
-    from mrosd.master.dispatch import XmlRpcHttpHandler
 
 log = logging.getLogger(__name__)
 _ratelog = RateLimitedLog(log)
@@ -85,28 +82,32 @@ class HttpServer:
         max_connections_per_host: open connections of one who: a remote address, or a local uid (the name is
             kept for the callers and the config key ``[master] max_connections_per_host``).
         idle_timeout: seconds a kept-alive connection may stay idle (closed after 1x to 1.5x that).
+        name: who serves, for the log lines ("master", or a node's "slave /talker").
     """
 
     def __init__(
         self,
-        handler: XmlRpcHttpHandler,
+        handler: BodyHandler,
         networks: list[Network] | None,
         *,
         max_connections: int = MAX_CONNECTIONS,
         max_connections_per_host: int = MAX_CONNECTIONS_PER_HOST,
         idle_timeout: float = IDLE_TIMEOUT,
+        name: str = "master",
     ) -> None:
         if max_connections < 1 or max_connections_per_host < 1 or idle_timeout <= 0:
             raise ValueError("connection caps must be at least 1 and the idle timeout positive")
         self._handler = handler
         self._networks = networks
+        self.name = name
         self.max_connections = max_connections
         self.max_connections_per_host = max_connections_per_host
         self.idle_timeout = idle_timeout
         self._live: set[HttpProtocol] = set()
         self._admission: Admission[HttpProtocol] = Admission(max_connections, max_connections_per_host)
         self._peers = PeerUids()
-        self._pending: set[asyncio.Task[Any]] = set()
+        #: Accepted sockets on their way to their protocol (a task each), closed with the server if still there.
+        self._pending: dict[asyncio.Task[Any], socket.socket] = {}
         self._socks: list[socket.socket] = []
         self._loop: asyncio.AbstractEventLoop | None = None
         self._backoff = 0.0
@@ -152,7 +153,8 @@ class HttpServer:
         self._admission = Admission(self._cap, self.max_connections_per_host)
         if self._cap < self.max_connections:
             log.warning(
-                "master: at most %d connections (RLIMIT_NOFILE %d); raise the limit for %d",
+                "%s: at most %d connections (RLIMIT_NOFILE %d); raise the limit for %d",
+                self.name,
                 self._cap,
                 _nofile_limit(),
                 self.max_connections,
@@ -183,7 +185,7 @@ class HttpServer:
                 if exc.errno in _OUT_OF_RESOURCES:
                     self._pause_accepting(exc)
                 else:
-                    _ratelog.error("accept", "master: accept failed: %s", exc)
+                    _ratelog.error("accept", "%s: accept failed: %s", self.name, exc)
                 return
             self._backoff = 0.0
             self._adopt(conn, addr)
@@ -196,7 +198,8 @@ class HttpServer:
         self.accept_backoffs += 1
         _ratelog.error(
             "emfile",
-            "master: cannot accept (%s) with %d connections open; pausing accepts for %g s",
+            "%s: cannot accept (%s) with %d connections open; pausing accepts for %g s",
+            self.name,
             exc.strerror or exc,
             len(self._live),
             self._backoff,
@@ -221,7 +224,7 @@ class HttpServer:
             ours = ("", 0)
         local = is_local(host, ours[0])
         refused = not allowed(self._networks, host)
-        proto = HttpProtocol(self._handler, self, host, refused, peer=peer, ours=ours)
+        proto = HttpProtocol(self._handler, self, host, refused, peer=peer, ours=ours, name=self.name)
         admission = self._admission
         uid = None
         if admission.needs_identity(local):
@@ -235,7 +238,7 @@ class HttpServer:
         if not decision.admitted:
             self.refused_connections += 1
             who = f"{host} (uid {uid})" if uid is not None else host
-            _ratelog.warning("cap", "master: refusing a connection from %s: %s", who, decision.reason)
+            _ratelog.warning("cap", "%s: refusing a connection from %s: %s", self.name, who, decision.reason)
             try:
                 conn.setblocking(False)
                 conn.send(status_response(503, b"too many connections\n"))
@@ -249,7 +252,8 @@ class HttpServer:
             self._live.discard(shed)
             _ratelog.warning(
                 "shed",
-                "master: all %d connection slots taken; closing the oldest idle connection of %s to admit %s",
+                "%s: all %d connection slots taken; closing the oldest idle connection of %s to admit %s",
+                self.name,
                 self._cap,
                 decision.shed_from,
                 host if uid is None else f"{host} (uid {uid})",
@@ -259,17 +263,20 @@ class HttpServer:
         self._live.add(proto)
         assert self._loop is not None
         task = self._loop.create_task(self._connect(conn, proto))
-        self._pending.add(task)
-        task.add_done_callback(self._pending.discard)
+        self._pending[task] = conn
+        task.add_done_callback(self._connected)
 
     async def _connect(self, conn: socket.socket, proto: HttpProtocol) -> None:
         assert self._loop is not None
         try:
             await self._loop.connect_accepted_socket(lambda: proto, conn)
         except Exception as exc:
-            _ratelog.warning("connect", "master: dropping a new connection from %s: %s", proto.host, exc)
+            _ratelog.warning("connect", "%s: dropping a new connection from %s: %s", self.name, proto.host, exc)
             conn.close()
             self.forget(proto)
+
+    def _connected(self, task: asyncio.Task[Any]) -> None:
+        self._pending.pop(task, None)
 
     def forget(self, proto: HttpProtocol) -> None:
         """Called once a connection is gone: its slot is free again."""
@@ -283,7 +290,9 @@ class HttpServer:
         now = self._loop.time()
         for proto in list(self._live):
             if proto.stalled(now):
-                _ratelog.log(logging.INFO, "stalled", "master: closing %s: it stopped reading a big reply", proto.host)
+                _ratelog.log(
+                    logging.INFO, "stalled", "%s: closing %s: it stopped reading a big reply", self.name, proto.host
+                )
                 proto.abort()
                 continue
             if proto.activity != proto.seen_activity or not proto.idle:
@@ -306,8 +315,9 @@ class HttpServer:
             for sock in self._socks:
                 sock.close()
         self._loop, self._socks, self._resume, self._sweeper = None, [], None, None
-        for task in list(self._pending):
+        for task, conn in list(self._pending.items()):
             task.cancel()
+            conn.close()  # a task cancelled before it ran never closes its socket
         for proto in list(self._live):
             proto.abort()
         self._live.clear()

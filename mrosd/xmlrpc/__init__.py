@@ -1,17 +1,20 @@
-"""XML-RPC for every part of mrosd: the one codec (fast path included), the aiohttp server, the client.
+"""XML-RPC for every part of mrosd: the one codec (fast path included), the dispatcher, the server, the client.
 
 Who uses what:
 
 * The codec (``codec``: ``decode_call``/``decode_call_async``/``encode_response``/``encode_fault``/
   ``decode_response``/``encode_call``, tried after the ``fastpath``) is used by everything that speaks
   XML-RPC; ``chunks`` encodes a big value a piece at a time for the master's replies.
-* ``XmlRpcServer`` (``server``, aiohttp) serves the nodes' slave APIs; the master uses only its ``call``
-  (dispatch, multicall, fault mapping) and is served by its own HTTP layer, ``mrosd.master.httpserver``.
-* ``XmlRpcClient`` (``client``, aiohttp) makes every outgoing call: nodes to the master and to each other,
-  the master's callbacks to nodes, the ``mros`` CLI.
+* ``MethodTable`` (``methods``) dispatches a decoded call to a table of async handlers (multicall, fault
+  mapping); the master uses it for its multicalls and slow calls.
+* ``XmlRpcServer`` (``server``) serves a ``MethodTable`` (the nodes' slave APIs) over the project's one
+  HTTP/1.1 server, the master's ``mrosd.master.httpserver``.
+* ``XmlRpcClient`` (``client``, asyncio streams and ``mrosd.xmlrpc.httpclient``'s framing) makes every
+  outgoing call: nodes to the master and to each other, the master's callbacks to nodes, the ``mros`` CLI.
 
-The names are re-exported here lazily, so the pure parts (``codec``, ``fastpath``, ``chunks``) import
-without aiohttp. Nothing here knows ROS semantics.
+None of them imports aiohttp (a node's start-up does not pay for it). The names are re-exported here lazily,
+so the pure parts (``codec``, ``fastpath``, ``chunks``) import without the HTTP side. Nothing here knows ROS
+semantics.
 """
 
 from __future__ import annotations
@@ -41,7 +44,8 @@ if TYPE_CHECKING:
         encode_response,
     )
     from mrosd.xmlrpc.fastpath import fast_decode_call, fast_encode_response
-    from mrosd.xmlrpc.server import Handler, XmlRpcServer
+    from mrosd.xmlrpc.methods import Handler, MethodTable
+    from mrosd.xmlrpc.server import XmlRpcServer
 
 __all__ = [
     "DEFAULT_TIMEOUT",
@@ -57,6 +61,7 @@ __all__ = [
     "VALUE_CHUNK",
     "Fault",
     "Handler",
+    "MethodTable",
     "ValueEncoder",
     "XmlRpcClient",
     "XmlRpcServer",
@@ -98,7 +103,8 @@ _EXPORTS = {
     "encode_value_chunks": "mrosd.xmlrpc.chunks",
     "reply_parts": "mrosd.xmlrpc.chunks",
     "response_parts": "mrosd.xmlrpc.chunks",
-    "Handler": "mrosd.xmlrpc.server",
+    "Handler": "mrosd.xmlrpc.methods",
+    "MethodTable": "mrosd.xmlrpc.methods",
     "XmlRpcServer": "mrosd.xmlrpc.server",
     "DEFAULT_TIMEOUT": "mrosd.xmlrpc.client",
     "XmlRpcClient": "mrosd.xmlrpc.client",

@@ -1,62 +1,69 @@
-"""``XmlRpcClient``: every outgoing XML-RPC call of a process part, over one aiohttp session.
+"""``XmlRpcClient``: every outgoing XML-RPC call of a process part, over kept-alive connections (asyncio streams).
 
-Owns the call's transport: the per-call timeout (connect included), big request bodies streamed, replies
-read to their end but never past ``MAX_REPLY_SIZE``, and every transport failure as one ``XmlRpcError``
-naming the method and the URI. Must not know what is called; the bytes are ``mrosd.xmlrpc.codec``'s.
+Owns the call's transport: the per-call timeout (connect included), connections kept alive per server and
+reused (at most ``limit`` in use at once, idle ones closed after ``KEEPALIVE_TIMEOUT``), replies read to their
+end but never past ``MAX_REPLY_SIZE``, and every transport failure as one ``XmlRpcError`` naming the method and
+the URI. The HTTP framing is the project's one (``mrosd.master.httpframing``); the bytes of the call are
+``mrosd.xmlrpc.codec``'s. Must not know what is called. No aiohttp: a node's start-up does not pay for it.
 """
 
 from __future__ import annotations
 
-import io
+import asyncio
+import collections
 from typing import Any
-
-import aiohttp
+from urllib.parse import urlsplit
 
 from mrosd import backports
 from mrosd.errors import RemoteProtocolError, XmlRpcError
+from mrosd.master.httpframing import MAX_HEADER_SIZE, REQUEST_HEAD, parse_response_head
 from mrosd.xmlrpc.codec import MAX_REPLY_SIZE, decode_response, encode_call
 
 #: Default timeout for one outgoing call, connect included.
 DEFAULT_TIMEOUT = 10.0
 
+#: Seconds an idle kept-alive connection stays in the pool (servers close theirs later: the master after 60 s).
+KEEPALIVE_TIMEOUT = 15.0
 
-#: Request bodies from this size on are handed to aiohttp as a stream (written in chunks).
-_LARGE_REQUEST = 1024 * 1024
+#: Longest line of a chunked body's framing (a size and its extensions).
+_MAX_CHUNK_LINE = 1024
+
+#: Request bodies from this size on are written after their head, not joined to it.
+_SEPARATE_BODY = 64 * 1024
+
+_Key = tuple[str, int]
 
 
-async def _read_body(content: aiohttp.StreamReader) -> bytes | None:
-    """The whole response body (every read until EOF, not just the first chunk); None beyond MAX_REPLY_SIZE."""
-    chunks: list[bytes] = []
-    size = 0
-    while True:
-        chunk = await content.read(MAX_REPLY_SIZE + 1 - size)
-        if not chunk:
-            return b"".join(chunks)
-        chunks.append(chunk)
-        size += len(chunk)
-        if size > MAX_REPLY_SIZE:
-            return None
+class _Conn:
+    __slots__ = ("idle_since", "reader", "writer")
+
+    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self.reader = reader
+        self.writer = writer
+        self.idle_since = 0.0
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+class _TooBig(Exception):
+    """A reply over ``MAX_REPLY_SIZE``."""
 
 
 class XmlRpcClient:
-    """One aiohttp session for all outgoing XML-RPC calls of a process part.
+    """Kept-alive connections for all outgoing XML-RPC calls of a process part.
 
     Create it inside a running event loop (or let the first call do so) and ``aclose()`` it.
+    ``limit``: connections in use at once (further calls wait their turn, within their timeout).
     """
 
     def __init__(self, timeout: float = DEFAULT_TIMEOUT, limit: int = 256) -> None:
         self._timeout = timeout
         self._limit = limit
-        self._session: aiohttp.ClientSession | None = None
-
-    def _get_session(self) -> aiohttp.ClientSession:
-        if self._session is None or self._session.closed:
-            connector = aiohttp.TCPConnector(limit=self._limit, limit_per_host=0, force_close=False)
-            self._session = aiohttp.ClientSession(
-                connector=connector,
-                headers={"Content-Type": "text/xml", "User-Agent": "mrosd"},
-            )
-        return self._session
+        self._slots: asyncio.Semaphore | None = None
+        self._idle: dict[_Key, collections.deque[_Conn]] = {}
+        self._idle_count = 0
+        self._busy: set[_Conn] = set()
 
     async def call(self, uri: str, method: str, *params: Any, timeout: float | None = None) -> Any:
         """Call ``method`` on the server at ``uri`` and return its single result value.
@@ -66,42 +73,168 @@ class XmlRpcClient:
             XmlRpcError: the server is unreachable, timed out, or answered with garbage.
         """
         body = encode_call(method, params)
-        session = self._get_session()
         limit = self._timeout if timeout is None else timeout
-        # aiohttp warns that big bytes bodies block the loop; a BytesIO is written in chunks instead.
-        data_out: bytes | io.BytesIO = body if len(body) < _LARGE_REQUEST else io.BytesIO(body)
         try:
-            async with backports.timeout(limit), session.post(uri, data=data_out) as resp:
-                if resp.status != 200:
-                    raise XmlRpcError(f"{method} at {uri}: HTTP status {resp.status}")
-                if resp.content_length is not None and resp.content_length > MAX_REPLY_SIZE:
-                    raise XmlRpcError(
-                        f"{method} at {uri}: response of {resp.content_length} bytes exceeds the"
-                        f" {MAX_REPLY_SIZE >> 20} MiB any mrosd master sends (MAX_REPLY_SIZE)"
-                    )
-                data = await _read_body(resp.content)
-                if data is None:
-                    raise XmlRpcError(
-                        f"{method} at {uri}: response exceeds the {MAX_REPLY_SIZE >> 20} MiB any mrosd master"
-                        " sends (MAX_REPLY_SIZE)"
-                    )
+            async with backports.timeout(limit):
+                data = await self._post(uri, body)
         except TimeoutError as exc:
             raise XmlRpcError(f"{method} at {uri}: no answer within {limit:g} s") from exc
-        except (aiohttp.ClientError, OSError, ValueError) as exc:
+        except _TooBig as exc:
+            raise XmlRpcError(f"{method} at {uri}: {exc}") from exc
+        except (
+            OSError,
+            ValueError,
+            RemoteProtocolError,
+            asyncio.IncompleteReadError,
+            asyncio.LimitOverrunError,
+        ) as exc:
             raise XmlRpcError(f"{method} at {uri}: {exc or type(exc).__name__}") from exc
         try:
             return decode_response(data)
         except RemoteProtocolError as exc:
             raise XmlRpcError(f"{method} at {uri}: {exc}") from exc
 
+    async def _post(self, uri: str, body: bytes) -> bytes:
+        parts = urlsplit(uri)
+        if parts.scheme != "http" or not parts.hostname:
+            raise ValueError(f"not an http:// URI: {uri!r}")
+        host, port = parts.hostname, parts.port or 80
+        authority = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+        head = REQUEST_HEAD % ((parts.path or "/").encode(), authority.encode("ascii"), len(body))
+        if self._slots is None:
+            self._slots = asyncio.Semaphore(self._limit)
+        async with self._slots:
+            key = (host, port)
+            while True:
+                conn = self._pooled(key)
+                reused = conn is not None
+                if conn is None:
+                    reader, writer = await asyncio.open_connection(host, port, limit=MAX_HEADER_SIZE)
+                    conn = _Conn(reader, writer)
+                self._busy.add(conn)
+                keep = False
+                try:
+                    try:
+                        conn.writer.write(head + body if len(body) < _SEPARATE_BODY else head)
+                        if len(body) >= _SEPARATE_BODY:
+                            conn.writer.write(body)  # not copied into one more big bytes object
+                        await conn.writer.drain()
+                        status, length, keep_alive, chunked = await self._read_head(conn.reader)
+                    except (ConnectionError, asyncio.IncompleteReadError):
+                        if reused:  # the server closed a kept-alive connection as we reused it: once more, anew
+                            continue
+                        raise
+                    data = await _read_body(conn.reader, length, chunked)
+                    if status != 200:
+                        raise ValueError(f"HTTP status {status}")
+                    keep = keep_alive
+                    return data
+                finally:
+                    self._busy.discard(conn)
+                    if keep:
+                        self._release(key, conn)
+                    else:
+                        conn.close()
+
+    @staticmethod
+    async def _read_head(reader: asyncio.StreamReader) -> tuple[int, int | None, bool, bool]:
+        while True:
+            try:
+                head = await reader.readuntil(b"\r\n\r\n")
+            except asyncio.LimitOverrunError as exc:
+                raise ValueError(f"HTTP response head over {MAX_HEADER_SIZE} bytes") from exc
+            status, length, keep_alive, chunked = parse_response_head(head[:-4])
+            if status != 100:  # an interim "100 Continue" precedes the real answer
+                return status, length, keep_alive, chunked
+
+    def _pooled(self, key: _Key) -> _Conn | None:
+        idle = self._idle.get(key)
+        now = asyncio.get_running_loop().time()
+        while idle:
+            conn = idle.pop()
+            self._idle_count -= 1
+            if now - conn.idle_since < KEEPALIVE_TIMEOUT and not conn.reader.at_eof() and not conn.writer.is_closing():
+                return conn
+            conn.close()
+        return None
+
+    def _release(self, key: _Key, conn: _Conn) -> None:
+        if conn.reader.at_eof() or conn.writer.is_closing() or conn.reader._buffer:  # type: ignore[attr-defined]
+            conn.close()  # closed by the server, or bytes nobody asked for: not reusable
+            return
+        conn.idle_since = asyncio.get_running_loop().time()
+        self._idle.setdefault(key, collections.deque()).append(conn)
+        self._idle_count += 1
+        if self._idle_count > self._limit:  # bounded: the oldest idle connection of the fullest server goes
+            fullest = max(self._idle.values(), key=len)
+            fullest.popleft().close()
+            self._idle_count -= 1
+
     async def aclose(self) -> None:
-        """Close the session and its pooled connections."""
-        if self._session is not None:
-            await self._session.close()
-            self._session = None
+        """Close every pooled connection (and those of calls still running)."""
+        conns = [conn for idle in self._idle.values() for conn in idle] + list(self._busy)
+        self._idle.clear()
+        self._idle_count = 0
+        for conn in conns:
+            conn.close()
+        for conn in conns:
+            try:
+                await conn.writer.wait_closed()
+            except (OSError, asyncio.CancelledError):
+                pass
 
     async def __aenter__(self) -> XmlRpcClient:
         return self
 
     async def __aexit__(self, *exc_info: object) -> None:
         await self.aclose()
+
+
+def _too_big() -> _TooBig:
+    return _TooBig(f"response exceeds the {MAX_REPLY_SIZE >> 20} MiB any mrosd master sends (MAX_REPLY_SIZE)")
+
+
+async def _read_body(reader: asyncio.StreamReader, length: int | None, chunked: bool) -> bytes:
+    """The whole response body, never past ``MAX_REPLY_SIZE``: framed by its length, its chunks, or the EOF."""
+    if length is not None:
+        if length > MAX_REPLY_SIZE:
+            raise _TooBig(
+                f"response of {length} bytes exceeds the {MAX_REPLY_SIZE >> 20} MiB any mrosd master sends"
+                " (MAX_REPLY_SIZE)"
+            )
+        return await reader.readexactly(length)
+    if not chunked:
+        data = await reader.read(MAX_REPLY_SIZE + 1)
+        chunks = [data]
+        size = len(data)
+        while data and size <= MAX_REPLY_SIZE:
+            data = await reader.read(MAX_REPLY_SIZE + 1 - size)
+            chunks.append(data)
+            size += len(data)
+        if size > MAX_REPLY_SIZE:
+            raise _too_big()
+        return b"".join(chunks)
+    pieces: list[bytes] = []
+    size = 0
+    while True:
+        line = await reader.readuntil(b"\r\n")
+        if len(line) > _MAX_CHUNK_LINE:
+            raise ValueError("malformed chunked body")
+        try:
+            chunk_size = int(line.split(b";", 1)[0].strip(), 16)
+        except ValueError as exc:
+            raise ValueError("malformed chunked body") from exc
+        if chunk_size < 0:
+            raise ValueError("malformed chunked body")
+        if chunk_size == 0:
+            break
+        size += chunk_size
+        if size > MAX_REPLY_SIZE:
+            raise _too_big()
+        pieces.append(await reader.readexactly(chunk_size))
+        if await reader.readexactly(2) != b"\r\n":
+            raise ValueError("malformed chunked body")
+    for _ in range(64):  # trailer fields, then the blank line
+        if await reader.readuntil(b"\r\n") == b"\r\n":
+            return b"".join(pieces)
+    raise ValueError("malformed chunked body")

@@ -13,6 +13,7 @@ from tests.rosenv import Processes
 SELF_TALK = textwrap.dedent(
     """
     import asyncio, uvloop, mrosd
+    from mrosd import backports
     from mrosd.msg import get_message_class
     String = get_message_class("std_msgs/String")
     async def main():

@@ -31,3 +31,11 @@ def test_the_lazy_packages_still_export_their_names() -> None:
     for package in (mrosd.master, mrosd.shm):
         for name in package.__all__:
             assert getattr(package, name) is not None, (package.__name__, name)
+
+
+def test_a_node_imports_no_aiohttp() -> None:
+    """aiohttp's import alone took ~240 ms of a node's start-up (its connector builds SSL contexts): a node's
+    XML-RPC (client and slave API) runs on the project's own HTTP/1.1 framing instead."""
+    probe = "import sys, mrosd.tcpros.node, mrosd.xmlrpc.client, mrosd.xmlrpc.server\nprint('aiohttp' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout.split() == ["False"]
