@@ -209,7 +209,9 @@ def write(  # noqa: PLR0917  (one parameter per click option)
         if hold:
             import signal
 
-            click.echo(f"holding {key}; Ctrl-C to release", err=True)
             stops = {signal.SIGINT, signal.SIGTERM}
+            # blocked before the line is printed: a signal sent as soon as it is read waits for sigwait,
+            # instead of hitting Python's default SIGINT handler (a KeyboardInterrupt, status 130)
             signal.pthread_sigmask(signal.SIG_BLOCK, stops)  # SIGTERM too goes to sigwait, not to its default
+            click.echo(f"holding {key}; Ctrl-C to release", err=True)
             signal.sigwait(stops)  # (death): the key is released below, as on Ctrl-C
