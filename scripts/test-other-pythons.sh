@@ -8,6 +8,8 @@
 # directory, as when several checkouts test on one machine): on 2 cores that costs about half the time of
 # running them one after the other, which keeps .ci/run under 30 minutes. Each version's output goes to
 # build/venvs/py3.X.log and is printed when that version fails.
+# Tests marked quiet_cpu measure behaviour that turns itself off under CPU pressure (three suites at once on
+# 2 cores is such pressure); they run in the main suite only.
 #
 # Usage: scripts/test-other-pythons.sh [3.10 3.12 ...]   (default: 3.10 3.12 3.13)
 # Exits non-zero if a version is missing or its install or tests fail; prints "python 3.X.Y: ..." per version.
@@ -33,7 +35,7 @@ install_version() {
 test_version() {
     local env_dir="build/venvs/py$1" started=$SECONDS exact
     exact=$("$env_dir/bin/python" -c 'import platform; print(platform.python_version())')
-    if "$env_dir/bin/python" -m pytest -q -p no:cacheprovider tests/unit tests/integration; then
+    if "$env_dir/bin/python" -m pytest -q -p no:cacheprovider -m "not slow and not quiet_cpu" tests/unit tests/integration; then
         echo "python $exact: unit and integration tests passed ($((SECONDS - started)) s)"
     else
         echo "python $exact: unit or integration tests FAILED ($((SECONDS - started)) s)"

@@ -149,6 +149,7 @@ async def test_a_frame_handed_to_a_worker_thread_is_released_there() -> None:
             assert sub.stats()[1][0][3] == 0  # nothing dropped: every lease came back in time
 
 
+@pytest.mark.quiet_cpu
 async def test_a_zero_copy_subscriber_spins_through_the_window_of_a_periodic_publishers_next_message(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
