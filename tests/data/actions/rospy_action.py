@@ -36,6 +36,12 @@ def client(goal, cancel_after):
     if not cli.wait_for_server(rospy.Duration(20)):
         print("no server", flush=True)
         return
+    # wait_for_server checks the server's subscriptions to goal and cancel, not ours to its feedback and result:
+    # a goal sent before they connect loses its first feedback (actionlib's own race, with any server)
+    subs = (cli.action_client.feedback_sub, cli.action_client.result_sub)
+    deadline = rospy.Time.now() + rospy.Duration(20)
+    while any(sub.get_num_connections() == 0 for sub in subs) and rospy.Time.now() < deadline:
+        rospy.sleep(0.01)
     print("up", flush=True)
     seen = []
 
