@@ -53,7 +53,8 @@ async def test_debian_simple_action_client_drives_the_example_server(procs: Proc
 
     canceller = rospy_action(procs, rosmaster, "cancel", "50", "2")
     got = await lines(canceller, 4, timeout=40.0)
-    assert got[:3] == ["up", "feedback 1", "feedback 2"]
+    # feedback arrives (which numbers: a rospy client may miss the first while its subscription connects)
+    assert got[0] == "up" and all(line.startswith("feedback ") for line in got[1:3]), got
     assert got[3].startswith("done PREEMPTED"), got
 
 
