@@ -200,7 +200,11 @@ def rss_kib(pid: int) -> int:
 
 @pytest.fixture
 def running(procs: Processes, tmp_path: Path) -> Iterator[tuple[DaemonRun, str]]:
-    run = DaemonRun(procs, tmp_path)
+    # No dead-node sweep: a node that died without unregistering must stay listed until the page's own probe
+    # draws it dead (the master's sweep, every 5 s by default, removed it first on a loaded machine).
+    config = tmp_path / "mrosd.toml"
+    config.write_text("[master]\ncleanup_interval = 0\n")
+    run = DaemonRun(procs, tmp_path, "--config", str(config))
     try:
         status = run.ready()
         assert status.startswith("running:"), status
