@@ -8,11 +8,13 @@ const out = (obj) => process.stdout.write(JSON.stringify(obj) + "\n");
 const browser = await chromium.launch({
   executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
   headless: true,
+  handleSIGTERM: false, // ours below: playwright's closes the browser but leaves node running until SIGKILL
   args: [
     "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
     "--disable-component-update", "--no-first-run", "--disable-sync",
   ],
 });
+process.on("SIGTERM", () => { browser.close().finally(() => process.exit(0)); });
 const page = await browser.newPage();
 page.on("console", (m) => out({ event: "console", text: m.text() }));
 page.on("pageerror", (e) => out({ event: "pageerror", message: String(e) }));
