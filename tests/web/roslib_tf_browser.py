@@ -6,6 +6,7 @@ The page is served by ``python -m http.server`` from tests/web (the import map n
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -93,6 +94,12 @@ class Browser:
                     return ev
 
     def close(self) -> None:
+        """Ask the driver to close Chromium (a signal would leave Chromium to the process-group kill)."""
+        if self.proc.poll() is None:
+            with contextlib.suppress(OSError):
+                self.send(cmd="close")
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                self.proc.wait(5.0)
         self.procs.stop(self.proc)
 
 
