@@ -80,6 +80,8 @@ class TFRepublisherNode:
         self._tasks: set[asyncio.Task[None]] = set()
         self._watch: asyncio.Task[None] | None = None
         self._buffer_lock = asyncio.Lock()
+        #: set each time a subscription is added or removed (for whoever waits on the count)
+        self.changed = asyncio.Event()
 
     async def start(self) -> TFRepublisherNode:
         await self.node.start()
@@ -142,6 +144,7 @@ class TFRepublisherNode:
     # --- the buffer, held while a subscription is ------------------------------------------------
 
     async def _hold_buffer(self) -> None:
+        self.changed.set()
         async with self._buffer_lock:
             if self.buffer is None:
                 self.buffer = await Buffer(self.node).start()
@@ -151,6 +154,7 @@ class TFRepublisherNode:
             if self.buffer is not None and not self.core.subscriptions:
                 buffer, self.buffer = self.buffer, None
                 await buffer.aclose()
+        self.changed.set()
 
     def _lookup(self, target: str, source: str) -> Pose:
         assert self.buffer is not None
