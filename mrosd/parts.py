@@ -306,7 +306,8 @@ class Daemon:
             from mrosd.tf.republish_node import TFRepublisherNode
 
             try:
-                self._parts.append(("tf2_web_republisher", await TFRepublisherNode(self.master_uri).start()))
+                tf = TFRepublisherNode(self.master_uri, admission=self._tcpros_admission())
+                self._parts.append(("tf2_web_republisher", await tf.start()))
             except (MrosError, OSError) as exc:
                 log.error("tf2_web_republisher did not start: %s; the web part runs without it", reason(exc))
 

@@ -37,6 +37,7 @@ from mrosd.tf.republish import (
 
 if TYPE_CHECKING:
     from mrosd.tcpros import Publisher
+    from mrosd.tcpros.admission import AdmissionLimits
     from mrosd.tf.core import Pose
 
 __all__ = ["ACTION_TYPE", "NODE_NAME", "SERVICE_NAME", "TFRepublisherNode"]
@@ -69,8 +70,11 @@ class TFRepublisherNode:
         host: str | None = None,
         limits: Limits | None = None,
         goal_idle_timeout: float = GOAL_IDLE_TIMEOUT,
+        admission: AdmissionLimits | None = None,
     ) -> None:
-        self.node = Node(name, master_uri=master_uri, argv=[], rosout=False, logger_services=False, host=host)
+        self.node = Node(
+            name, master_uri=master_uri, argv=[], rosout=False, logger_services=False, host=host, admission=admission
+        )
         self.core = Republisher(limits or Limits())
         self.goal_idle_timeout = goal_idle_timeout
         self.buffer: Buffer | None = None
@@ -120,6 +124,7 @@ class TFRepublisherNode:
 
     async def aclose(self) -> None:
         self.serving = False
+        self.changed.set()
         if self._watch is not None:
             self._watch.cancel()
             self._watch = None

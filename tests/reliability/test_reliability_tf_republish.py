@@ -154,3 +154,18 @@ async def test_a_hostile_goal_ends_aborted_with_the_reason_and_an_abandoned_one_
     # the client is gone (no subscriber to the feedback): the goal ends after goal_idle_timeout (1 s here)
     await until(repub, lambda: not repub.core.subscriptions)
     assert good.status is not Status.SUCCEEDED
+
+
+async def test_a_running_tf2_web_republisher_keeps_the_names_and_a_later_one_takes_them_over(robot: Any) -> None:
+    master, repub, _ = robot
+    second = TFRepublisherNode(master.uri, host="127.0.0.1")
+    async with second:
+        assert not second.serving  # the first one holds the node name and /republish_tfs
+    assert repub.serving
+    # a real tf2_web_republisher starting later registers the same node name: the master shuts ours down
+    async with mrosd.Node("/tf2_web_republisher", master_uri=master.uri, argv=[], host="127.0.0.1") as real:
+        await real.advertise_service("/republish_tfs", RepublishTFs, lambda _req: None)
+        async with backports.timeout(5):
+            await repub.node.shutdown_event.wait()
+        await until(repub, lambda: not repub.serving)
+        assert await real.master.lookup_service("/republish_tfs") == real.service_uri
