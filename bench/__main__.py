@@ -10,7 +10,7 @@ import importlib
 import sys
 
 #: Run by a bare ``python -m bench``, in this order.
-PARTS = ["msg", "master", "tcpros", "ixm", "cli", "bag", "web", "fleet", "images"]
+PARTS = ["msg", "master", "tcpros", "ixm", "cli", "bag", "web", "fleet", "images", "tf"]
 #: Run only when named: ``shm`` needs a C++ toolchain for its roscpp rows and takes minutes.
 NAMED_ONLY = ["shm"]
 

@@ -140,6 +140,8 @@ class WebConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     #: bytes queued for all clients together
     total_bytes: Count | None = None
     max_clients: Count | None = None
+    #: answer tf2_web_republisher's service and action (roslibjs/roslibpy ``TFClient``) from the daemon
+    tf_republisher: bool = True
 
     def hosts(self) -> list[str]:
         """``host`` as a list, in the order given (the first is the one URLs name)."""
