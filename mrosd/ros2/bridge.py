@@ -14,30 +14,35 @@ import asyncio
 import contextlib
 import json
 import logging
-import os
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
-
-import msgspec
+from typing import Any
 
 from mrosd import backports
-from mrosd.errors import ConfigError, MrosError
+from mrosd.errors import ConfigError, MrosError, RemoteProtocolError
 from mrosd.fleet.handoff import Inbox, Outbox
 from mrosd.fleet.keys import NameFilter
 from mrosd.lograte import RateLimitedLog
 from mrosd.names import canonicalize, is_valid_name
 from mrosd.ros2.attachment import encode_attachment, gid_of
 from mrosd.ros2.inbound import Inbound
-from mrosd.ros2.keys import DURABILITY_TRANSIENT_LOCAL, EntityKind, LivelinessToken, Qos, data_key, dds_type_name
+from mrosd.ros2.keys import (
+    DURABILITY_TRANSIENT_LOCAL,
+    EntityKind,
+    LivelinessToken,
+    Qos,
+    data_key,
+    dds_type_name,
+    parse_token,
+)
+from mrosd.ros2.options import Ros2Options, ros2_options, zenoh_config
+from mrosd.ros2.services import Ros2Services
+from mrosd.ros2.srvtypes import HUMBLE_TYPE_HASH
 from mrosd.ros2.types import TypeMapper, TypeMapping, UnmappableTypeError
 from mrosd.tcpros.node import Node
 from mrosd.tcpros.subscriber import AnyMsg, RawMessage
-
-if TYPE_CHECKING:
-    from mrosd.config import Ros2Config
 
 __all__ = ["Ros2Bridge", "Ros2Options", "ros2_options"]
 
@@ -46,48 +51,11 @@ _ratelog = RateLimitedLog(log, period=60.0, burst=3)
 
 #: seconds between two reads of the ROS 1 graph
 GRAPH_PERIOD = 1.0
-#: the bridge node's name on both sides
-NODE_NAME = "mrosd_ros2"
 #: refused names remembered so each is logged once (a stranger can register any number of them)
 MAX_REFUSED_NAMES = 1024
 #: the inbox's name for liveliness tokens, and how many may wait for the loop
 TOKENS = "@tokens"
 TOKEN_QUEUE = 4096
-
-
-class Ros2Options(msgspec.Struct, frozen=True, kw_only=True):
-    """The checked settings of the ros2 part (``ros2_options`` builds them from ``[ros2]``)."""
-
-    domain_id: int = 0
-    connect: tuple[str, ...] = ("tcp/localhost:7447",)
-    listen: tuple[str, ...] = ()
-    to_ros2: tuple[str, ...] = ()
-    from_ros2: tuple[str, ...] = ()
-    queue_size: int = 16
-    node_name: str = NODE_NAME
-
-
-def ros2_options(cfg: Ros2Config, environ: Mapping[str, str] | None = None) -> Ros2Options:
-    """``[ros2]`` -> options; ``domain_id`` -1 reads ``ROS_DOMAIN_ID`` (else 0).
-
-    Raises:
-        ConfigError: ``ROS_DOMAIN_ID`` is not a number from 0 to 232.
-    """
-    env = os.environ if environ is None else environ
-    domain = cfg.domain_id
-    if domain < 0:
-        text = env.get("ROS_DOMAIN_ID", "") or "0"
-        if not text.isdigit() or int(text) > 232:
-            raise ConfigError(f"ROS_DOMAIN_ID={text!r}: a ROS 2 domain is a number from 0 to 232")
-        domain = int(text)
-    return Ros2Options(
-        domain_id=domain,
-        connect=tuple(cfg.connect),
-        listen=tuple(cfg.listen),
-        to_ros2=tuple(cfg.to_ros2),
-        from_ros2=tuple(cfg.from_ros2),
-        queue_size=cfg.queue_size,
-    )
 
 
 class RmwPublisher:
@@ -149,7 +117,10 @@ class Ros2Bridge:
 
     def __init__(self, options: Ros2Options, master_uri: str, *, host: str | None = None) -> None:
         self.options = options
-        self.filter = NameFilter(include=options.to_ros2)
+        everything = ("/**",) if options.mode == "all" else ()
+        self.to_ros2 = everything or options.to_ros2
+        self.from_ros2 = everything or options.from_ros2
+        self.filter = NameFilter(include=self.to_ros2)
         self.node = Node(options.node_name, master_uri, argv=[], host=host, rosout=False, logger_services=False)
         self.mapper = TypeMapper()
         self.topics: dict[str, BridgedTopic] = {}
@@ -159,6 +130,7 @@ class Ros2Bridge:
         self._inbox: Inbox | None = None
         self._token_sub: Any = None
         self.inbound: Inbound | None = None
+        self.services: Ros2Services | None = None
         self._background: set[asyncio.Task[None]] = set()
         self._node_token: Any = None
         self._zid = ""
@@ -180,16 +152,7 @@ class Ros2Bridge:
         except ImportError:
             raise ConfigError("the ros2 part needs Eclipse Zenoh for Python: pip install 'mrosd[ros2]'") from None
         self._zenoh = zenoh
-        config = zenoh.Config()
-        try:
-            config.insert_json5("mode", '"peer"')
-            config.insert_json5("connect/endpoints", msgspec.json.encode(list(self.options.connect)).decode())
-            config.insert_json5("listen/endpoints", msgspec.json.encode(list(self.options.listen)).decode())
-            config.insert_json5("scouting/multicast/enabled", "false")
-            # rmw_zenoh's session config stamps every sample; TRANSIENT_LOCAL's advanced publisher needs it
-            config.insert_json5("timestamping/enabled", "true")
-        except Exception as exc:
-            raise ConfigError(f"ros2: Zenoh refused the configuration: {exc}") from exc
+        config = zenoh_config(zenoh, self.options)
         await self.node.start()
         try:
             try:
@@ -200,7 +163,19 @@ class Ros2Bridge:
             self._outbox = Outbox(self.session, self.options.queue_size, {})
             self._outbox.start()
             self._node_token = self.session.liveliness().declare_token(self._token(EntityKind.NODE).key())
-            if self.options.from_ros2:
+            self.services = Ros2Services(
+                node=self.node,
+                mapper=self.mapper,
+                session=self.session,
+                zenoh=zenoh,
+                domain_id=self.options.domain_id,
+                humble=self.options.humble,
+                to_ros2=self.to_ros2,
+                from_ros2=self.from_ros2,
+                make_token=self._token,
+                changed=self._changed.set,
+            )
+            if self.from_ros2:
                 self._start_inbound(asyncio.get_running_loop())
             await self._advertise_status()
         except BaseException:
@@ -212,7 +187,9 @@ class Ros2Bridge:
     def _start_inbound(self, loop: asyncio.AbstractEventLoop) -> None:
         zenoh = self._zenoh
         inbox = self._inbox = Inbox(loop, self._deliver, self.options.queue_size, {TOKENS: TOKEN_QUEUE})
-        self.inbound = Inbound(self.options.from_ros2, self.options.domain_id, self.node, self.mapper, self._zid)
+        self.inbound = Inbound(
+            self.from_ros2, self.options.domain_id, self.node, self.mapper, self._zid, humble=self.options.humble
+        )
 
         def heard(sample: Any) -> None:  # on Zenoh's thread
             inbox.put(TOKENS, (str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
@@ -235,6 +212,15 @@ class Ros2Bridge:
         if inbound is None or inbox is None or self._closed:
             return
         for key, alive in items:
+            if "/SS/" in key and self.services is not None:
+                try:
+                    tok = parse_token(key)
+                except RemoteProtocolError as exc:
+                    _ratelog.warning("token", "ros2: ignoring a liveliness token: %s", exc)
+                    continue
+                if tok.kind is EntityKind.SERVICE and tok.zid != self._zid:
+                    await self.services.token(tok, alive, key)
+                continue
             await inbound.token(
                 key, alive, session=self.session, inbox=inbox, make_token=self._token, outbound=set(self.topics)
             )
@@ -255,6 +241,8 @@ class Ros2Bridge:
         self._undeclare(self._token_sub)
         if self.inbound is not None:
             await self.inbound.aclose()
+        if self.services is not None:
+            await self.services.aclose()
         for bt in list(self.topics.values()):
             await self._drop(bt)
         self.topics.clear()
@@ -337,7 +325,17 @@ class Ros2Bridge:
 
     # --- names -------------------------------------------------------------------------------------
 
-    def _token(self, kind: EntityKind, topic: str = "", mapping: TypeMapping | None = None, **qos: Any) -> Any:
+    def _token(
+        self,
+        kind: EntityKind,
+        topic: str = "",
+        mapping: TypeMapping | Any = None,
+        *,
+        qos: Qos | None = None,
+        type_hash: str = "",
+    ) -> LivelinessToken:
+        """The liveliness token of the bridge node (``mapping`` None) or of one of its endpoints; ``mapping``
+        has ``ros2_type`` and ``type_hash`` (a message's or a service's); Humble's placeholder replaces the hash."""
         with self._lock:
             self._next_id += 1
             entity_id = "0" if kind is EntityKind.NODE else str(self._next_id)
@@ -357,9 +355,12 @@ class Ros2Bridge:
             **common,
             topic=topic,
             type_name=dds_type_name(mapping.ros2_type),
-            type_hash=mapping.type_hash,
-            qos=Qos(**qos),
+            type_hash=type_hash or self._type_hash(mapping),
+            qos=qos or Qos(),
         )
+
+    def _type_hash(self, mapping: TypeMapping | Any) -> str:
+        return HUMBLE_TYPE_HASH if self.options.humble else str(mapping.type_hash)
 
     @staticmethod
     def _undeclare(entity: Any) -> None:
@@ -372,17 +373,22 @@ class Ros2Bridge:
     async def _graph_loop(self) -> None:
         while True:
             try:
-                pubs, _subs, _srvs = await self.node.master.call("getSystemState")
+                pubs, _subs, srvs = await self.node.master.call("getSystemState")
                 own = self.node.name
                 want = {
                     str(topic)
                     for topic, nodes in pubs
                     if topic in self.filter and any(n != own for n in nodes) and self._carriable(str(topic))
                 }
-                for topic in want - set(self.topics):
+                for topic in sorted(want - set(self.topics)):
+                    if len(self.topics) >= self.options.max_topics:
+                        _ratelog.warning("max topics", "ros2: over %d topics to bridge", self.options.max_topics)
+                        break
                     await self._add(topic)
                 for topic in set(self.topics) - want:
                     await self._drop(self.topics.pop(topic))
+                if self.services is not None:
+                    await self.services.reconcile(srvs)
                 self.graph_reads += 1
                 self._changed.set()
             except asyncio.CancelledError:
@@ -457,13 +463,13 @@ class Ros2Bridge:
         import zenoh.ext as zenoh_ext
 
         bt.mapping = mapping
-        bt.key = data_key(self.options.domain_id, bt.topic, mapping.ros2_type, mapping.type_hash)
+        bt.key = data_key(self.options.domain_id, bt.topic, mapping.ros2_type, self._type_hash(mapping))
         try:
             if latched:
                 # A latched ROS 1 topic is TRANSIENT_LOCAL: as rmw_zenoh does, an advanced publisher detectable
                 # through liveliness whose cache (depth 1: the latched message) answers late joiners' queries.
                 token = self._token(
-                    EntityKind.PUBLISHER, bt.topic, mapping, durability=DURABILITY_TRANSIENT_LOCAL, depth=1
+                    EntityKind.PUBLISHER, bt.topic, mapping, qos=Qos(durability=DURABILITY_TRANSIENT_LOCAL, depth=1)
                 )
                 publisher = zenoh_ext.declare_advanced_publisher(
                     self.session,
@@ -473,7 +479,7 @@ class Ros2Bridge:
                     publisher_detection=True,
                 )
             else:
-                token = self._token(EntityKind.PUBLISHER, bt.topic, mapping, depth=self.options.queue_size)
+                token = self._token(EntityKind.PUBLISHER, bt.topic, mapping, qos=Qos(depth=self.options.queue_size))
                 publisher = self.session.declare_publisher(bt.key, congestion_control=zenoh.CongestionControl.BLOCK)
         except Exception as exc:  # Zenoh refused the key or the options: this topic alone does not cross
             bt.problem = f"ros2: {bt.topic}: Zenoh refused the publisher on {bt.key}: {exc}"

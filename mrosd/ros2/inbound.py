@@ -19,6 +19,7 @@ from mrosd.fleet.keys import NameFilter
 from mrosd.lograte import RateLimitedLog
 from mrosd.names import canonicalize, is_valid_name
 from mrosd.ros2.keys import EntityKind, LivelinessToken, data_key, parse_token, ros2_type_of_dds
+from mrosd.ros2.srvtypes import HUMBLE_TYPE_HASH
 
 if TYPE_CHECKING:
     from mrosd.fleet.handoff import Inbox
@@ -72,8 +73,18 @@ class ReceivedTopic:
 class Inbound:
     """The ROS 2 -> ROS 1 half of ``Ros2Bridge``; runs on the loop, but for what Zenoh hands to the ``Inbox``."""
 
-    def __init__(self, include: tuple[str, ...], domain_id: int, node: Node, mapper: TypeMapper, own_zid: str) -> None:
+    def __init__(
+        self,
+        include: tuple[str, ...],
+        domain_id: int,
+        node: Node,
+        mapper: TypeMapper,
+        own_zid: str,
+        *,
+        humble: bool = False,
+    ) -> None:
         self.filter = NameFilter(include=include)
+        self.humble = humble
         self.domain_id = domain_id
         self.node = node
         self.mapper = mapper
@@ -131,14 +142,15 @@ class Inbound:
         except (MrosError, ValueError) as exc:
             _ratelog.warning(f"in {tok.topic}", "ros2: %s from ROS 2 is not bridged: %s", tok.topic, exc)
             return None
-        if mapping.type_hash != tok.type_hash:
+        ours = HUMBLE_TYPE_HASH if self.humble else mapping.type_hash
+        if ours != tok.type_hash:
             _ratelog.warning(
                 f"hash {tok.topic}",
                 "ros2: %s: the ROS 2 publisher's %s hash %s is not ours (%s); not bridged",
                 tok.topic,
                 ros2_type,
                 tok.type_hash,
-                mapping.type_hash,
+                ours,
             )
             return None
         rt = ReceivedTopic(
