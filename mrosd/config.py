@@ -229,6 +229,8 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     #: be the Zenoh router rmw_zenoh's nodes connect to (``listen`` defaults to tcp/[::]:7447)
     router: bool = False
     max_topics: Count = 256
+    #: seconds a bridged service call may take, either way (rmw_zenoh's clients wait 10 s)
+    service_timeout: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 10.0
 
 
 class LogConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

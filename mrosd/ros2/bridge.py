@@ -174,6 +174,7 @@ class Ros2Bridge:
                 from_ros2=self.from_ros2,
                 make_token=self._token,
                 changed=self._changed.set,
+                call_timeout=self.options.service_timeout,
             )
             if self.from_ros2:
                 self._start_inbound(asyncio.get_running_loop())

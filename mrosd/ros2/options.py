@@ -48,6 +48,7 @@ class Ros2Options(msgspec.Struct, frozen=True, kw_only=True):
     distro: Distro = "jazzy"
     router: bool = False
     max_topics: int = MAX_ALL_TOPICS
+    service_timeout: float = 10.0
 
     @property
     def humble(self) -> bool:
@@ -83,6 +84,7 @@ def ros2_options(cfg: Ros2Config, environ: Mapping[str, str] | None = None) -> R
         distro=cfg.distro,
         router=cfg.router,
         max_topics=cfg.max_topics,
+        service_timeout=cfg.service_timeout,
     )
 
 

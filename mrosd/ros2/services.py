@@ -406,7 +406,10 @@ class Ros2Services:
                     value = body
             else:
                 text = reply.err.payload.to_bytes()[:500].decode("utf-8", "replace")
-                error = f"ros2: {ps.name}: the ROS 2 server answered an error: {text}"
+                if text == "Timeout":  # Zenoh's own error reply once the query's timeout has passed
+                    error = f"ros2: {ps.name}: no answer from ROS 2 within {self.call_timeout:g} s"
+                else:
+                    error = f"ros2: {ps.name}: the ROS 2 server answered an error: {text}"
             with contextlib.suppress(RuntimeError):
                 loop.call_soon_threadsafe(settle, value, error)
 
