@@ -40,6 +40,7 @@ from mrosd.ros2.keys import (
 from mrosd.ros2.options import Ros2Options, ros2_options, zenoh_config
 from mrosd.ros2.services import Ros2Services
 from mrosd.ros2.srvtypes import HUMBLE_TYPE_HASH
+from mrosd.ros2.status import RateMeter, status_document
 from mrosd.ros2.types import TypeMapper, TypeMapping, UnmappableTypeError
 from mrosd.tcpros.node import Node
 from mrosd.tcpros.subscriber import AnyMsg, RawMessage
@@ -117,9 +118,16 @@ class Ros2Bridge:
 
     def __init__(self, options: Ros2Options, master_uri: str, *, host: str | None = None) -> None:
         self.options = options
-        everything = ("/**",) if options.mode == "all" else ()
-        self.to_ros2 = everything or options.to_ros2
-        self.from_ros2 = everything or options.from_ros2
+        # "all" takes everything; "demand" takes what the globs name, everything if they name nothing
+        everything: tuple[str, ...] = ("/**",)
+        if options.mode == "all":
+            self.to_ros2, self.from_ros2 = everything, everything
+        elif options.mode == "demand":
+            self.to_ros2 = options.to_ros2 or everything
+            self.from_ros2 = options.from_ros2 or everything
+        else:
+            self.to_ros2, self.from_ros2 = options.to_ros2, options.from_ros2
+        self.demand = options.mode == "demand"
         self.filter = NameFilter(include=self.to_ros2)
         self.node = Node(options.node_name, master_uri, argv=[], host=host, rosout=False, logger_services=False)
         self.mapper = TypeMapper()
@@ -137,12 +145,15 @@ class Ros2Bridge:
         self._next_id = 0
         self._tasks: list[asyncio.Task[None]] = []
         self._changed = asyncio.Event()
+        #: set when the graph should be read before the period is over (a ROS 2 subscriber came or went)
+        self._graph_wake = asyncio.Event()
         self._closed = False
         self._lock = threading.Lock()
         #: names refused once (logged once each; cleared when full)
         self._refused: set[str] = set()
         #: completed reads of the ROS 1 graph (tests wait on it)
         self.graph_reads = 0
+        self.rates = RateMeter()
 
     # --- lifecycle ---------------------------------------------------------------------------------
 
@@ -189,7 +200,13 @@ class Ros2Bridge:
         zenoh = self._zenoh
         inbox = self._inbox = Inbox(loop, self._deliver, self.options.queue_size, {TOKENS: TOKEN_QUEUE})
         self.inbound = Inbound(
-            self.from_ros2, self.options.domain_id, self.node, self.mapper, self._zid, humble=self.options.humble
+            self.from_ros2,
+            self.options.domain_id,
+            self.node,
+            self.mapper,
+            self._zid,
+            humble=self.options.humble,
+            demand=self.demand,
         )
 
         def heard(sample: Any) -> None:  # on Zenoh's thread
@@ -225,6 +242,8 @@ class Ros2Bridge:
             await inbound.token(
                 key, alive, session=self.session, inbox=inbox, make_token=self._token, outbound=set(self.topics)
             )
+            if self.demand and "/MS/" in key:
+                self._graph_wake.set()
         self._changed.set()
 
     async def aclose(self) -> None:
@@ -280,12 +299,16 @@ class Ros2Bridge:
         trigger = get_service_class("std_srvs/Trigger")
 
         def answer(_request: Any) -> Any:
-            doc = {
-                "zid": self._zid,
-                "domain_id": self.options.domain_id,
-                "to_ros2": self.status(),
-                "from_ros2": self.inbound_status(),
-            }
+            doc = status_document(
+                zid=self._zid,
+                domain_id=self.options.domain_id,
+                mode=self.options.mode,
+                distro=self.options.distro,
+                router=self.options.router,
+                to_ros2=self.status(),
+                from_ros2=self.inbound_status(),
+                services=self.services.status() if self.services is not None else [],
+            )
             return trigger._response_class(success=True, message=json.dumps(doc))
 
         await self.node.advertise_service("~status", trigger, answer)
@@ -301,11 +324,19 @@ class Ros2Bridge:
                 "ros2_type": rt.ros2_type,
                 "key": rt.key,
                 "received": rt.received,
+                "rate": self.rates.rate("in:" + rt.topic),
                 "dropped": inbox.dropped("in:" + rt.topic) if inbox is not None else 0,
                 "bad": rt.bad,
+                "subscribed": rt.subscriber is not None,
             }
             for rt in inbound.topics.values()
         ]
+
+    def _sample_rates(self) -> None:
+        counts = {"out:" + bt.topic: bt.rmw.sent for bt in self.topics.values() if bt.rmw is not None}
+        if self.inbound is not None:
+            counts.update({"in:" + rt.topic: rt.received for rt in self.inbound.topics.values()})
+        self.rates.sample(time.monotonic(), counts)
 
     def status(self) -> list[dict[str, Any]]:
         """One row per ROS 1 topic shown to ROS 2: names, key, counts and any problem."""
@@ -317,6 +348,7 @@ class Ros2Bridge:
                     "ros2_type": bt.mapping.ros2_type if bt.mapping else "",
                     "key": bt.key,
                     "sent": bt.rmw.sent if bt.rmw else 0,
+                    "rate": self.rates.rate("out:" + bt.topic),
                     "dropped": self._outbox.dropped(bt.key) if self._outbox and bt.key else 0,
                     "latched": bt.latched,
                     "problem": bt.problem,
@@ -376,10 +408,15 @@ class Ros2Bridge:
             try:
                 pubs, _subs, srvs = await self.node.master.call("getSystemState")
                 own = self.node.name
+                received = self.inbound.topics if self.inbound is not None else {}
                 want = {
                     str(topic)
                     for topic, nodes in pubs
-                    if topic in self.filter and any(n != own for n in nodes) and self._carriable(str(topic))
+                    if topic in self.filter
+                    and topic not in received
+                    and any(n != own for n in nodes)
+                    and self._carriable(str(topic))
+                    and self._demanded(str(topic))
                 }
                 for topic in sorted(want - set(self.topics)):
                     if len(self.topics) >= self.options.max_topics:
@@ -390,13 +427,24 @@ class Ros2Bridge:
                     await self._drop(self.topics.pop(topic))
                 if self.services is not None:
                     await self.services.reconcile(srvs)
+                if self.demand and self.inbound is not None and self._inbox is not None:
+                    self.inbound.follow_demand(self.session, self._inbox, self._token)
+                self._sample_rates()
                 self.graph_reads += 1
                 self._changed.set()
             except asyncio.CancelledError:
                 raise
             except (MrosError, OSError, ValueError, TypeError) as exc:
                 _ratelog.warning("graph", "ros2: cannot read the ROS 1 graph: %s", exc)
-            await asyncio.sleep(GRAPH_PERIOD)
+            with contextlib.suppress(TimeoutError):
+                await backports.wait_for(self._graph_wake.wait(), GRAPH_PERIOD)
+            self._graph_wake.clear()
+
+    def _demanded(self, topic: str) -> bool:
+        """Mode "demand": a ROS 1 topic crosses only while a ROS 2 subscriber (another session's) exists."""
+        if not self.demand:
+            return True
+        return self.inbound is not None and topic in self.inbound.remote_subscribers
 
     def _carriable(self, topic: str) -> bool:
         """A ROS name in canonical form: anything else (a Zenoh wildcard, rmw_zenoh's ``%``, an empty chunk) that a
