@@ -1,0 +1,55 @@
+"""``[ros2]`` mode, distro, router and service_timeout -> options, and the status document's bounds (pure)."""
+
+from __future__ import annotations
+
+import pytest
+
+from mrosd.config import parse_config
+from mrosd.errors import ConfigError
+from mrosd.ros2.options import ROUTER_LISTEN, ros2_options
+from mrosd.ros2.status import MAX_ROWS, RateMeter, status_document
+
+
+def test_defaults_are_listed_jazzy_and_a_peer() -> None:
+    opts = ros2_options(parse_config("").ros2, {})
+    assert (opts.mode, opts.distro, opts.router, opts.humble, opts.service_timeout) == (
+        "listed",
+        "jazzy",
+        False,
+        False,
+        10.0,
+    )
+
+
+def test_router_listens_where_rmw_zenohd_does_and_stops_connecting_to_itself() -> None:
+    opts = ros2_options(parse_config("[ros2]\nrouter = true\n").ros2, {})
+    assert opts.router and opts.listen == ROUTER_LISTEN == ("tcp/[::]:7447",) and opts.connect == ()
+    opts = ros2_options(
+        parse_config('[ros2]\nrouter = true\nlisten = ["tcp/0.0.0.0:7448"]\nconnect = ["tcp/up:7447"]\n').ros2, {}
+    )
+    assert opts.listen == ("tcp/0.0.0.0:7448",) and opts.connect == ("tcp/up:7447",)
+
+
+def test_mode_and_distro_are_checked() -> None:
+    opts = ros2_options(parse_config('[ros2]\nmode = "demand"\ndistro = "humble"\n').ros2, {})
+    assert opts.mode == "demand" and opts.humble
+    for bad in ('mode = "some"', 'distro = "iron"', "service_timeout = 0"):
+        with pytest.raises(ConfigError):
+            parse_config(f"[ros2]\n{bad}\n")
+
+
+def test_rates_come_from_two_samples_and_forget_gone_counters() -> None:
+    meter = RateMeter()
+    meter.sample(10.0, {"a": 0})
+    meter.sample(12.0, {"a": 60, "b": 5})
+    assert meter.rate("a") == 30.0 and meter.rate("b") == 0.0
+    meter.sample(13.0, {"b": 6})
+    assert meter.rate("a") == 0.0 and meter.rate("b") == 1.0
+
+
+def test_the_status_document_is_bounded() -> None:
+    rows = [{"topic": f"/t{i}"} for i in range(MAX_ROWS + 7)]
+    doc = status_document(
+        zid="z", domain_id=0, mode="all", distro="jazzy", router=False, to_ros2=rows, from_ros2=[], services=[]
+    )
+    assert len(doc["to_ros2"]) == MAX_ROWS and doc["to_ros2_more"] == 7 and "from_ros2_more" not in doc
