@@ -332,6 +332,14 @@ class Ros2Bridge:
             for rt in inbound.topics.values()
         ]
 
+    def summary(self) -> str:
+        """A few words for the daemon's status line."""
+        services = self.services
+        inbound = len(self.inbound.topics) if self.inbound is not None else 0
+        count = len(services.offered) + len(services.provided) if services is not None else 0
+        where = f"router {' '.join(self.options.listen)}" if self.options.router else f"domain {self.options.domain_id}"
+        return f"ros2 {where}: {len(self.topics)} topic(s) to, {inbound} from, {count} service(s)"
+
     def _sample_rates(self) -> None:
         counts = {"out:" + bt.topic: bt.rmw.sent for bt in self.topics.values() if bt.rmw is not None}
         if self.inbound is not None:

@@ -18,6 +18,7 @@ from mrosd import backports
 from mrosd.msg import get_message_class
 from mrosd.ros2.bridge import Ros2Bridge, Ros2Options
 from mrosd.ros2.keys import EntityKind, parse_token
+from tests.integration.daemon.daemonproc import DaemonRun
 from tests.ros2.test_ros2_interop import _tokens
 from tests.rosenv import Processes, free_port, needs_ros
 
@@ -203,44 +204,51 @@ while True:
 """
 
 
-async def test_the_bridge_is_the_router_two_ros2_client_peers_use(
-    procs: Processes, rosmaster: str, messages_dir: Path, sdk_session: None, monkeypatch: pytest.MonkeyPatch
+async def test_the_daemon_is_the_router_two_ros2_client_peers_use(
+    procs: Processes, tmp_path: Path, messages_dir: Path, sdk_session: None, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """``router = true``: no rmw_zenohd anywhere; two zenoh-ros2-sdk sessions in client mode (one in another
-    process) reach each other and the ROS 1 side through the daemon's router only."""
+    """``[ros2] router = true``: no rmw_zenohd anywhere; two zenoh-ros2-sdk sessions in client mode (one in
+    another process) reach each other and the ROS 1 side through the daemon's router only."""
+    from mros_cli.ros2 import fetch_status, format_status
     from zenoh_ros2_sdk import ROS2Subscriber
+    from zenoh_ros2_sdk.session import ZenohSession
 
     port = free_port()
     monkeypatch.setenv("ZENOH_CONFIG_OVERRIDE", 'mode="client"')
-    options = Ros2Options(
-        domain_id=0, connect=(), listen=(f"tcp/127.0.0.1:{port}",), router=True, to_ros2=("/chatter",)
+    cfg = tmp_path / "mrosd.toml"
+    cfg.write_text(
+        "[ixm]\nenabled = false\n[rosout]\nenabled = false\n"
+        f'[ros2]\nenabled = true\ndomain_id = 0\nrouter = true\nlisten = ["tcp/127.0.0.1:{port}"]\n'
+        'to_ros2 = ["/chatter"]\n'
     )
+    (tmp_path / "d").mkdir()
+    daemon = DaemonRun(procs, tmp_path / "d", "--config", str(cfg))
     got, callback = _string_queue()
     laptop, from_robot = _string_queue()
-    async with (
-        Ros2Bridge(options, rosmaster) as bridge,
-        mrosd.Node("talker", master_uri=rosmaster, argv=[], host="127.0.0.1") as node,
-    ):
+    subs: list[Any] = []
+    try:
+        status_line = await asyncio.to_thread(daemon.ready)
+        assert f"ros2 router tcp/127.0.0.1:{port}" in status_line, status_line
         common: dict[str, Any] = {"domain_id": 0, "router_ip": "127.0.0.1", "router_port": port}
-        subs = [
-            await asyncio.to_thread(
-                ROS2Subscriber, topic="/laptop_chat", msg_type="std_msgs/msg/String", callback=callback, **common
-            ),
-            await asyncio.to_thread(
-                ROS2Subscriber, topic="/chatter", msg_type="std_msgs/msg/String", callback=from_robot, **common
-            ),
-        ]
-        try:
-            env = dict(os.environ, ZENOH_CONFIG_OVERRIDE='mode="client"')
-            procs.our_python(["-c", TALKER, str(port), str(messages_dir)], env)
-            assert await asyncio.to_thread(got.get, True, 30) == "laptop to laptop"
+        for topic, cb in (("/laptop_chat", callback), ("/chatter", from_robot)):
+            subs.append(
+                await asyncio.to_thread(
+                    ROS2Subscriber, topic=topic, msg_type="std_msgs/msg/String", callback=cb, **common
+                )
+            )
+        env = dict(os.environ, ZENOH_CONFIG_OVERRIDE='mode="client"')
+        procs.our_python(["-c", TALKER, str(port), str(messages_dir)], env)
+        assert await asyncio.to_thread(got.get, True, 30) == "laptop to laptop"
+        async with mrosd.Node("talker", master_uri=daemon.uri, argv=[], host="127.0.0.1") as node:
             talker = await node.advertise("/chatter", String)
             assert await _publish_until(talker, laptop, "robot to laptop") == "robot to laptop"
-            from zenoh_ros2_sdk.session import ZenohSession
-
-            # the SDK's session is a client whose one router is the bridge
-            routers = [str(z) for z in ZenohSession.get_instance().session.info.routers_zid()]
-            assert routers == [str(bridge.session.zid())]
-        finally:
-            for sub in subs:
-                sub.close()
+            status = await fetch_status(daemon.uri)
+        # the SDK's session is a client whose one router is the daemon's ros2 part
+        routers = [str(z) for z in ZenohSession.get_instance().session.info.routers_zid()]
+        assert routers == [status["zid"]] and status["router"]
+        assert "mode listed, jazzy, router" in format_status(status)
+    finally:
+        for sub in subs:
+            sub.close()
+        await asyncio.to_thread(daemon.stop)
+        daemon.notify.close()

@@ -136,6 +136,7 @@ async def test_a_service_is_called_in_each_direction(
             assert (EntityKind.CLIENT, "/ros2_flag") in ours
             rows = {r["service"]: r for r in bridge.services.status()}  # type: ignore[union-attr]
             assert rows["/set_flag"]["calls"] == 1 and rows["/ros2_flag"]["calls"] == 1
+            assert bridge.summary().endswith("2 service(s)")
     finally:
         for entity in entities:
             entity.close()
