@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from mrosd import backports
-from mrosd.errors import MrosError, RemoteProtocolError, ServiceError
+from mrosd.errors import MasterUnreachableError, MrosError, RemoteProtocolError, ServiceError
 from mrosd.fleet.keys import NameFilter
 from mrosd.lograte import RateLimitedLog
 from mrosd.names import canonicalize, is_valid_name
@@ -179,6 +179,12 @@ class Ros2Services:
         try:
             fields = await probe_service(self.node.master, name, self.node.name, PROBE_TIMEOUT)
             srv_type, os_.md5sum = fields["type"], fields.get("md5sum", "")
+        except (MrosError, TimeoutError, KeyError) as exc:
+            # the server is not reachable yet (or went): tried again at the next read of the graph
+            _ratelog.warning(f"probe {name}", "ros2: cannot probe service %s: %s", name, exc)
+            self.offered.pop(name, None)
+            return
+        try:
             cls: Any = await asyncio.to_thread(get_service_class, srv_type)
             if os_.md5sum not in ("", "*") and cls._md5sum != os_.md5sum:
                 raise ServiceError(f"its md5 {os_.md5sum} is not that of mrosd's {srv_type} ({cls._md5sum})")
@@ -335,6 +341,15 @@ class Ros2Services:
             )
             return
         if self.closed or name in self.provided:
+            return
+        try:  # a ROS 1 node's service of that name is never taken over (the master would let us)
+            await self.node.master.lookup_service(name)
+        except MasterUnreachableError:
+            return  # tried again when the token is announced anew
+        except MrosError:
+            pass
+        else:
+            _ratelog.warning(f"taken {name}", "ros2: %s is a ROS 1 service already; not provided from ROS 2", name)
             return
         ps = self.provided[name] = ProvidedService(
             name, data_key(self.domain_id, name, mapping.ros2_type, tok.type_hash), mapping, {key}

@@ -6,6 +6,7 @@ bounded time, and nothing stays in flight."""
 from __future__ import annotations
 
 import asyncio
+import logging
 import struct
 import time
 from pathlib import Path
@@ -145,8 +146,10 @@ def _ss_token(zid: str, n: int, mangled: str) -> str:
 
 
 async def test_a_ros2_server_that_never_replies_replies_garbage_or_vanishes_is_a_clear_ros1_error(
-    rosmaster: str, router: int
+    rosmaster: str, router: int, caplog: pytest.LogCaptureFixture
 ) -> None:
+    """...and one announced under the name of a ROS 1 node's service never takes that name over (rosmaster
+    would let a second registration replace the first)."""
     peer = await asyncio.to_thread(_peer, router)
     held: list[Any] = []  # queries kept unanswered
     entities: list[Any] = []
@@ -165,35 +168,44 @@ async def test_a_ros2_server_that_never_replies_replies_garbage_or_vanishes_is_a
         )
         silent = peer.liveliness().declare_token(_ss_token(zid, 1, "%silent"))
         entities.append(peer.liveliness().declare_token(_ss_token(zid, 2, "%garbled")))
+        entities.append(peer.liveliness().declare_token(_ss_token(zid, 3, "%taken")))
         options = Ros2Options(
-            domain_id=0, connect=(f"tcp/127.0.0.1:{router}",), from_ros2=("/silent", "/garbled"), service_timeout=1.0
+            domain_id=0,
+            connect=(f"tcp/127.0.0.1:{router}",),
+            from_ros2=("/silent", "/garbled", "/taken"),
+            service_timeout=1.0,
         )
-        async with (
-            Ros2Bridge(options, rosmaster) as bridge,
-            mrosd.Node("caller", master_uri=rosmaster, argv=[], host="127.0.0.1") as node,
-        ):
-            services = bridge.services
-            assert services is not None
-            await bridge.wait_until(
-                lambda: all(
-                    (p := services.provided.get(n)) is not None and p.service is not None
-                    for n in ("/silent", "/garbled")
-                ),
-                30,
-            )
-            request = SetBool._request_class(data=True)
-            started = time.monotonic()
-            with pytest.raises(MrosError, match="no answer"):
-                await node.service_proxy("/silent", SetBool).call(request, timeout=10)
-            assert time.monotonic() - started < 5.0
-            with pytest.raises(MrosError, match="does not convert"):
-                await node.service_proxy("/garbled", SetBool).call(request, timeout=10)
-            assert services.inflight_out == 0
+        async with mrosd.Node("caller", master_uri=rosmaster, argv=[], host="127.0.0.1") as node:
+            await node.advertise_service("/taken", SetBool, lambda req: SetBool._response_class(message="ROS 1's"))
+            async with Ros2Bridge(options, rosmaster) as bridge:
+                services = bridge.services
+                assert services is not None
+                with caplog.at_level(logging.WARNING, logger="mrosd.ros2.services"):
+                    await bridge.wait_until(
+                        lambda: (
+                            all(
+                                (p := services.provided.get(n)) is not None and p.service is not None
+                                for n in ("/silent", "/garbled")
+                            )
+                            and any("/taken is a ROS 1 service already" in r.getMessage() for r in caplog.records)
+                        ),
+                        30,
+                    )
+                assert "/taken" not in services.provided
+                request = SetBool._request_class(data=True)
+                assert (await node.service_proxy("/taken", SetBool).call(request, timeout=5)).message == "ROS 1's"
+                started = time.monotonic()
+                with pytest.raises(MrosError, match="no answer"):
+                    await node.service_proxy("/silent", SetBool).call(request, timeout=10)
+                assert time.monotonic() - started < 5.0
+                with pytest.raises(MrosError, match="does not convert"):
+                    await node.service_proxy("/garbled", SetBool).call(request, timeout=10)
+                assert services.inflight_out == 0
 
-            silent.undeclare()  # the ROS 2 server vanishes: its ROS 1 service goes with it
-            await bridge.wait_until(lambda: "/silent" not in services.provided, 10)
-            with pytest.raises(MrosError):
-                await node.service_proxy("/silent", SetBool).call(request, timeout=5)
+                silent.undeclare()  # the ROS 2 server vanishes: its ROS 1 service goes with it
+                await bridge.wait_until(lambda: "/silent" not in services.provided, 10)
+                with pytest.raises(MrosError):
+                    await node.service_proxy("/silent", SetBool).call(request, timeout=5)
     finally:
         for entity in entities:
             entity.undeclare()
