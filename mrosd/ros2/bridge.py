@@ -230,15 +230,16 @@ class Ros2Bridge:
         if inbound is None or inbox is None or self._closed:
             return
         for key, alive in items:
-            if "/SS/" in key and self.services is not None:
+            if "/SS/" in key and self.services is not None:  # cheap first look; the kind chunk decides
                 try:
                     tok = parse_token(key)
                 except RemoteProtocolError as exc:
                     _ratelog.warning("token", "ros2: ignoring a liveliness token: %s", exc)
                     continue
-                if tok.kind is EntityKind.SERVICE and tok.zid != self._zid:
-                    await self.services.token(tok, alive, key)
-                continue
+                if tok.kind is EntityKind.SERVICE:
+                    if tok.zid != self._zid:
+                        await self.services.token(tok, alive, key)
+                    continue
             await inbound.token(
                 key, alive, session=self.session, inbox=inbox, make_token=self._token, outbound=set(self.topics)
             )

@@ -169,10 +169,13 @@ async def test_a_ros2_server_that_never_replies_replies_garbage_or_vanishes_is_a
         silent = peer.liveliness().declare_token(_ss_token(zid, 1, "%silent"))
         entities.append(peer.liveliness().declare_token(_ss_token(zid, 2, "%garbled")))
         entities.append(peer.liveliness().declare_token(_ss_token(zid, 3, "%taken")))
+        # a publisher of a node named "SS": its token holds "/SS/" but is no service's
+        string = "std_msgs::msg::dds_::String_/RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
+        entities.append(peer.liveliness().declare_token(f"@ros2_lv/0/{zid}/0/4/MP/%/%/SS/%by_ss/{string}/::,:,:,:,,"))
         options = Ros2Options(
             domain_id=0,
             connect=(f"tcp/127.0.0.1:{router}",),
-            from_ros2=("/silent", "/garbled", "/taken"),
+            from_ros2=("/silent", "/garbled", "/taken", "/by_ss"),
             service_timeout=1.0,
         )
         async with mrosd.Node("caller", master_uri=rosmaster, argv=[], host="127.0.0.1") as node:
@@ -188,6 +191,8 @@ async def test_a_ros2_server_that_never_replies_replies_garbage_or_vanishes_is_a
                                 for n in ("/silent", "/garbled")
                             )
                             and any("/taken is a ROS 1 service already" in r.getMessage() for r in caplog.records)
+                            and bridge.inbound is not None
+                            and "/by_ss" in bridge.inbound.topics
                         ),
                         30,
                     )
