@@ -71,6 +71,8 @@ class OfferedService:
     mapping: ServiceMapping | None = None
     key: str = ""
     md5sum: str = ""
+    #: the raw-body service class its calls go through
+    raw: Any = None
     queryable: Any = None
     token: Any = None
     calls: int = 0
@@ -203,7 +205,10 @@ class Ros2Services:
             return
         if self.closed or self.offered.get(name) is not os_:
             return
+        from mrosd.fleet.raw import raw_service_class
+
         os_.mapping = mapping
+        os_.raw = raw_service_class(mapping.ros1_type, os_.md5sum)
         os_.key = data_key(self.domain_id, name, mapping.ros2_type, self._hash(mapping))
         loop = self._loop
 
@@ -249,15 +254,12 @@ class Ros2Services:
         log.info("ros2: service %s (%s) -> %s", name, mapping.ros1_type, os_.key)
 
     async def _serve(self, os_: OfferedService, query: Any, body: bytes, attachment: Any) -> None:
-        from mrosd.fleet.raw import raw_service_class
-
-        mapping = os_.mapping
+        mapping, raw = os_.mapping, os_.raw
         assert mapping is not None
         try:
             os_.calls += 1
             try:
                 request = bytes(self.mapper.to_ros1(mapping.request_type, body))
-                raw = raw_service_class(mapping.ros1_type, os_.md5sum)
                 proxy = self.node.service_proxy(os_.name, raw)  # one connection per call
                 response = await proxy.call(raw._request_class(request), timeout=self.call_timeout)
                 cdr = bytes(self.mapper.to_cdr(mapping.response_type, response.data))

@@ -133,6 +133,11 @@ async def test_mode_all_follows_the_ros1_graph_both_ways(
             await bridge.wait_until(lambda: bridge.inbound is not None and "/ros2_side" in bridge.inbound.topics, 20)
             await talker.aclose()  # the graph changes: the topic is dropped
             await bridge.wait_until(lambda: "/anything/at_all" not in bridge.topics, 20)
+            pub.close()  # the only ROS 2 publisher goes: so does its ROS 1 publisher
+            await bridge.wait_until(
+                lambda: bridge.inbound is not None and "/ros2_side" not in bridge.inbound.topics, 20
+            )
+            assert "/ros2_side" not in bridge.node.publishers
     finally:
         pub.close()
 
