@@ -53,3 +53,22 @@ def test_the_status_document_is_bounded() -> None:
         zid="z", domain_id=0, mode="all", distro="jazzy", router=False, to_ros2=rows, from_ros2=[], services=[]
     )
     assert len(doc["to_ros2"]) == MAX_ROWS and doc["to_ros2_more"] == 7 and "from_ros2_more" not in doc
+
+
+def test_followed_ros2_subscribers_are_capped_and_forgotten_when_they_go() -> None:
+    """Mode "demand" follows other sessions' ``MS`` tokens: a peer announcing endless topics is held at
+    ``MAX_DEMANDED_TOPICS``, and a topic whose last subscriber goes is forgotten."""
+    from typing import Any
+
+    from mrosd.ros2 import inbound
+
+    none: Any = None
+    follower = inbound.Inbound(("/**",), 0, none, none, "ours", demand=True)
+    for i in range(inbound.MAX_DEMANDED_TOPICS + 50):
+        follower._remote_subscriber(f"/t{i}", f"key{i}", True)
+    assert len(follower.remote_subscribers) == inbound.MAX_DEMANDED_TOPICS
+    follower._remote_subscriber("/t0", "other", True)
+    follower._remote_subscriber("/t0", "key0", False)
+    assert follower.remote_subscribers["/t0"] == {"other"}
+    follower._remote_subscriber("/t0", "other", False)
+    assert "/t0" not in follower.remote_subscribers
