@@ -15,7 +15,7 @@ import pytest
 
 import mrosd
 from mrosd import backports
-from mrosd.msg import get_message_class
+from mrosd.msg import get_message_class, get_service_class
 from mrosd.ros2.bridge import Ros2Bridge, Ros2Options
 from mrosd.ros2.keys import EntityKind, parse_token
 from tests.integration.daemon.daemonproc import DaemonRun
@@ -65,7 +65,7 @@ async def test_humble_puts_its_placeholder_where_jazzy_puts_the_hash(
     options = Ros2Options(
         domain_id=0,
         connect=(f"tcp/127.0.0.1:{router}",),
-        to_ros2=("/chatter",),
+        to_ros2=("/chatter", "/humble_flag"),
         from_ros2=("/from_humble",),
         distro="humble",
     )
@@ -86,8 +86,18 @@ async def test_humble_puts_its_placeholder_where_jazzy_puts_the_hash(
             Ros2Bridge(options, rosmaster) as bridge,
             mrosd.Node("talker", master_uri=rosmaster, argv=[], host="127.0.0.1") as node,
         ):
+            set_bool = get_service_class("std_srvs/SetBool")
+            await node.advertise_service("/humble_flag", set_bool, lambda req: set_bool._response_class())
             talker = await node.advertise("/chatter", String)
             assert await _publish_until(talker, got, "hello humble") == "hello humble"
+            services = bridge.services
+            assert services is not None
+            await bridge.wait_until(
+                lambda: (o := services.offered.get("/humble_flag")) is not None and o.token is not None, 20
+            )
+            assert services.offered["/humble_flag"].key == (
+                "0/humble_flag/std_srvs::srv::dds_::SetBool_/TypeHashNotSupported"
+            )
             assert bridge.topics["/chatter"].key == "0/chatter/std_msgs::msg::dds_::String_/TypeHashNotSupported"
             await bridge.wait_until(lambda: bridge.inbound is not None and "/from_humble" in bridge.inbound.topics, 20)
             ours = [t for t in map(parse_token, await asyncio.to_thread(_tokens, router)) if t.node == "mrosd_ros2"]
