@@ -140,6 +140,8 @@ class Ros2Bridge:
         self.inbound: Inbound | None = None
         self.services: Ros2Services | None = None
         self._background: set[asyncio.Task[None]] = set()
+        #: the latest task handling liveliness tokens (the next one waits for it)
+        self._last_tokens: asyncio.Task[None] | None = None
         self._node_token: Any = None
         self._zid = ""
         self._next_id = 0
@@ -218,14 +220,20 @@ class Ros2Bridge:
 
     def _deliver(self, name: str, items: list[Any]) -> None:
         if name == TOKENS:
-            task = asyncio.create_task(self._tokens(items))
+            # Batches are handled one after the other, in arrival order: a token's going must never be
+            # handled before its coming (handling one may wait for types loaded off the loop).
+            task = asyncio.create_task(self._tokens(items, self._last_tokens))
+            self._last_tokens = task
             self._background.add(task)
             task.add_done_callback(self._background.discard)
         elif self.inbound is not None and name.startswith("in:"):
             self.inbound.deliver(name[3:], items)
             self._changed.set()
 
-    async def _tokens(self, items: list[tuple[str, bool]]) -> None:
+    async def _tokens(self, items: list[tuple[str, bool]], previous: asyncio.Task[None] | None) -> None:
+        if previous is not None:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await asyncio.shield(previous)
         inbound, inbox = self.inbound, self._inbox
         if inbound is None or inbox is None or self._closed:
             return

@@ -131,6 +131,8 @@ class Ros2Services:
         self.max_calls = max(1, max_calls)
         self.offered: dict[str, OfferedService] = {}
         self.provided: dict[str, ProvidedService] = {}
+        #: services being set up -> the liveliness keys of their servers seen meanwhile
+        self._providing: dict[str, set[str]] = {}
         self.inflight_in = 0
         self.inflight_out = 0
         self.closed = False
@@ -296,7 +298,10 @@ class Ros2Services:
         """An ``SS`` token of another session appeared or went."""
         name = tok.topic
         ps = self.provided.get(name)
+        pending = self._providing.get(name)
         if not alive:
+            if pending is not None:
+                pending.discard(key)
             if ps is not None:
                 ps.servers.discard(key)
                 if not ps.servers:
@@ -307,14 +312,21 @@ class Ros2Services:
         if ps is not None:
             ps.servers.add(key)
             return
+        if pending is not None:  # being set up (its types load off the loop): one ROS 1 service per name
+            pending.add(key)
+            return
         if tok.domain_id != self.domain_id or name not in self.from_filter or name in self.offered:
             return
         if not self._carriable(name) or len(self.provided) >= MAX_SERVICES:
             _ratelog.warning(f"svc {name[:200]}", "ros2: service %r from ROS 2 is not provided on ROS 1", name[:200])
             return
-        await self._provide(tok, key)
+        self._providing[name] = {key}
+        try:
+            await self._provide(tok)
+        finally:
+            self._providing.pop(name, None)
 
-    async def _provide(self, tok: LivelinessToken, key: str) -> None:
+    async def _provide(self, tok: LivelinessToken) -> None:
         from mrosd.fleet.raw import RawBody, raw_service_class
         from mrosd.msg import get_service_class
 
@@ -353,8 +365,11 @@ class Ros2Services:
         else:
             _ratelog.warning(f"taken {name}", "ros2: %s is a ROS 1 service already; not provided from ROS 2", name)
             return
+        servers = self._providing.get(name)
+        if not servers:
+            return  # every server went while its types were loading
         ps = self.provided[name] = ProvidedService(
-            name, data_key(self.domain_id, name, mapping.ros2_type, tok.type_hash), mapping, {key}
+            name, data_key(self.domain_id, name, mapping.ros2_type, tok.type_hash), mapping, set(servers)
         )
         raw = raw_service_class(ros1_type, cls._md5sum)
 
@@ -370,7 +385,11 @@ class Ros2Services:
             ps.service = await self.node.advertise_service(name, raw, handler)
         except Exception as exc:
             _ratelog.warning(f"provide {name}", "ros2: cannot provide %s on ROS 1: %s", name, exc)
-            self.provided.pop(name, None)
+            if self.provided.get(name) is ps:
+                del self.provided[name]
+            await self._unprovide(ps)
+            return
+        if self.provided.get(name) is not ps:  # its last server went while the master registered it
             await self._unprovide(ps)
             return
         log.info("ros2: service %s <- %s (%s)", name, ps.key, ros1_type)

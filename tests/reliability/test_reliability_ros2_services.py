@@ -211,6 +211,17 @@ async def test_a_ros2_server_that_never_replies_replies_garbage_or_vanishes_is_a
                 await bridge.wait_until(lambda: "/silent" not in services.provided, 10)
                 with pytest.raises(MrosError):
                     await node.service_proxy("/silent", SetBool).call(request, timeout=5)
+
+                # a server that flaps: at most one ROS 1 service, none once it is gone for good
+                for n in range(20):
+                    peer.liveliness().declare_token(_ss_token(zid, 100 + n, "%silent")).undeclare()
+                last = peer.liveliness().declare_token(_ss_token(zid, 200, "%silent"))
+                await bridge.wait_until(
+                    lambda: (p := services.provided.get("/silent")) is not None and p.service is not None, 10
+                )
+                last.undeclare()
+                await bridge.wait_until(lambda: "/silent" not in services.provided and not services._providing, 10)
+                assert "/silent" not in bridge.node.services
     finally:
         for entity in entities:
             entity.undeclare()
