@@ -72,3 +72,31 @@ def test_followed_ros2_subscribers_are_capped_and_forgotten_when_they_go() -> No
     assert follower.remote_subscribers["/t0"] == {"other"}
     follower._remote_subscriber("/t0", "other", False)
     assert "/t0" not in follower.remote_subscribers
+
+
+def test_mros_ros2_status_prints_rates_services_and_what_was_left_out() -> None:
+    from mros_cli.ros2 import format_status
+
+    row = {"topic": "/chatter", "ros2_type": "std_msgs/msg/String", "key": "k", "sent": 40, "rate": 20.0}
+    services = [
+        {"service": "/set_flag", "direction": "to_ros2", "ros2_type": "std_srvs/srv/SetBool", "calls": 3}
+        | {"errors": 1, "refused": 0, "problem": ""},
+        {"service": "/odd", "direction": "from_ros2", "ros2_type": "", "calls": 0, "errors": 0, "refused": 0}
+        | {"problem": "ros2: service /odd is not offered to ROS 2: unknown srv type"},
+    ]
+    doc = status_document(
+        zid="z",
+        domain_id=3,
+        mode="demand",
+        distro="humble",
+        router=True,
+        to_ros2=[row | {"dropped": 2, "latched": False, "problem": ""}] * (MAX_ROWS + 1),
+        from_ros2=[],
+        services=services,
+    )
+    text = format_status(doc)
+    assert text.splitlines()[0] == "zenoh id z, domain 3, mode demand, humble, router"
+    assert "  /chatter  std_msgs/msg/String  20 Hz  sent 40  dropped 2" in text
+    assert "  ... and 1 more" in text
+    assert "  /set_flag -> ROS 2  std_srvs/srv/SetBool  calls 3  errors 1  refused 0" in text
+    assert "  /odd <- ROS 2  ros2: service /odd is not offered to ROS 2: unknown srv type" in text
