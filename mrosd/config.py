@@ -223,6 +223,16 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     to_ros2: list[str] = msgspec.field(default_factory=list)
     from_ros2: list[str] = msgspec.field(default_factory=list)
     queue_size: Count = 16
+    #: "listed" (the globs), "all" (every ROS 1 topic with a publisher and every ROS 2 one, at most
+    #: ``max_topics``) or "demand" (a topic crosses only while the other side subscribes)
+    mode: Literal["listed", "all", "demand"] = "listed"
+    #: "jazzy" (RIHS01 hashes: Jazzy, Kilted, Lyrical) or "humble" (``TypeHashNotSupported``)
+    distro: Literal["jazzy", "humble"] = "jazzy"
+    #: be the Zenoh router rmw_zenoh's nodes connect to (``listen`` defaults to tcp/[::]:7447)
+    router: bool = False
+    max_topics: Count = 256
+    #: seconds a bridged service call may take, either way (rmw_zenoh's clients wait 10 s)
+    service_timeout: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 10.0
 
 
 class LogConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

@@ -355,6 +355,7 @@ class Daemon:
                 parts.append(f"rosbridge {' '.join(self.web.rosbridge_urls)}")
         if self.fleet is not None:
             parts.append(f"fleet {self.cfg.fleet.robot}")
+        parts += [part.summary() for name, part in self._parts if name == "ros2"]
         line = ", ".join(parts)
         if not self.failed:
             return "running: " + line

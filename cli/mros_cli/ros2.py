@@ -46,6 +46,16 @@ def group() -> None:
     "--domain-id", type=click.IntRange(-1, 232), default=-1, show_default=True, help="-1: $ROS_DOMAIN_ID, else 0"
 )
 @click.option("--queue-size", type=click.IntRange(1, 10000), default=16, show_default=True)
+@click.option(
+    "--mode",
+    type=click.Choice(["listed", "all", "demand"]),
+    default="listed",
+    show_default=True,
+    help="listed: the globs; all: every topic; demand: only while the other side subscribes",
+)
+@click.option("--distro", type=click.Choice(["jazzy", "humble"]), default="jazzy", show_default=True)
+@click.option("--router", is_flag=True, help="Be the Zenoh router ROS 2 nodes connect to (listens on tcp/[::]:7447)")
+@click.option("--service-timeout", type=click.FloatRange(0.1, 3600), default=10.0, show_default=True)
 def bridge(
     *,
     to_ros2: tuple[str, ...],
@@ -54,22 +64,30 @@ def bridge(
     listen: tuple[str, ...],
     domain_id: int,
     queue_size: int,
+    mode: str,
+    distro: str,
+    router: bool,
+    service_timeout: float,
 ) -> None:
     """Put the chosen ROS 1 topics on Zenoh as an rmw_zenoh ROS 2 node publishes them, and back."""
     from mrosd.config import Ros2Config
     from mrosd.errors import ConfigError
     from mrosd.ros2.bridge import Ros2Bridge, ros2_options
 
-    if not to_ros2 and not from_ros2:
-        raise click.UsageError("name topics with --to-ros2 and/or --from-ros2")
+    if not to_ros2 and not from_ros2 and mode == "listed":
+        raise click.UsageError("name topics with --to-ros2 and/or --from-ros2 (or use --mode all or demand)")
     cfg = Ros2Config(
         enabled=True,
         domain_id=domain_id,
-        connect=list(connect),
         listen=list(listen),
         to_ros2=list(to_ros2),
         from_ros2=list(from_ros2),
         queue_size=queue_size,
+        mode=mode,  # type: ignore[arg-type]
+        distro=distro,  # type: ignore[arg-type]
+        router=router,
+        connect=list(connect),
+        service_timeout=service_timeout,
     )
     try:
         options = ros2_options(cfg)
@@ -80,7 +98,8 @@ def bridge(
         async with Ros2Bridge(options, master_uri()):
             click.echo(
                 f"ros2: to ROS 2 {', '.join(to_ros2) or '-'}, from ROS 2 {', '.join(from_ros2) or '-'}; "
-                f"Zenoh {', '.join(connect)} domain {options.domain_id} (master {master_uri()}); Ctrl-C to stop",
+                f"Zenoh {'router on ' + ', '.join(options.listen) if router else ', '.join(options.connect)} "
+                f"domain {options.domain_id}, mode {mode}, {distro} (master {master_uri()}); Ctrl-C to stop",
                 err=True,
             )
             await asyncio.Event().wait()
@@ -104,18 +123,41 @@ async def fetch_status(uri: str, timeout: float = 5.0) -> dict[str, Any]:
     return status
 
 
+def _more(st: dict[str, Any], section: str) -> list[str]:
+    more = st.get(section + "_more", 0)
+    return [f"  ... and {more} more"] if more else []
+
+
 def format_status(st: dict[str, Any]) -> str:
-    """One line per bridged topic, each direction."""
-    lines = [f"zenoh id {st['zid']}, domain {st['domain_id']}", "to ROS 2:"]
+    """One line per bridged topic and service, each direction, with rates (Hz), drops and type problems."""
+    head = f"zenoh id {st['zid']}, domain {st['domain_id']}"
+    if "mode" in st:
+        head += f", mode {st['mode']}, {st['distro']}{', router' if st.get('router') else ''}"
+    lines = [head, "to ROS 2:"]
     for row in st["to_ros2"]:
         what = row["problem"] or f"{row['ros2_type']}{' (latched)' if row.get('latched') else ''}"
-        lines.append(f"  {row['topic']}  {what}  sent {row['sent']}  dropped {row['dropped']}")
+        lines.append(
+            f"  {row['topic']}  {what}  {row.get('rate', 0.0):g} Hz  sent {row['sent']}  dropped {row['dropped']}"
+        )
+    lines += _more(st, "to_ros2")
     lines.append("from ROS 2:")
     for row in st["from_ros2"]:
         lines.append(
-            f"  {row['topic']}  {row['ros2_type']}  received {row['received']}  "
+            f"  {row['topic']}  {row['ros2_type']}  {row.get('rate', 0.0):g} Hz  received {row['received']}  "
             f"dropped {row['dropped']}  bad {row['bad']}"
         )
+    lines += _more(st, "from_ros2")
+    services = st.get("services", [])
+    if services:
+        lines.append("services:")
+        for row in services:
+            arrow = "->" if row["direction"] == "to_ros2" else "<-"
+            what = row["problem"] or row["ros2_type"]
+            lines.append(
+                f"  {row['service']} {arrow} ROS 2  {what}  calls {row['calls']}  errors {row['errors']}  "
+                f"refused {row['refused']}"
+            )
+        lines += _more(st, "services")
     return "\n".join(lines)
 
 

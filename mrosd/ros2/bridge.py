@@ -14,30 +14,36 @@ import asyncio
 import contextlib
 import json
 import logging
-import os
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
-
-import msgspec
+from typing import Any
 
 from mrosd import backports
-from mrosd.errors import ConfigError, MrosError
+from mrosd.errors import ConfigError, MrosError, RemoteProtocolError
 from mrosd.fleet.handoff import Inbox, Outbox
 from mrosd.fleet.keys import NameFilter
 from mrosd.lograte import RateLimitedLog
 from mrosd.names import canonicalize, is_valid_name
 from mrosd.ros2.attachment import encode_attachment, gid_of
 from mrosd.ros2.inbound import Inbound
-from mrosd.ros2.keys import DURABILITY_TRANSIENT_LOCAL, EntityKind, LivelinessToken, Qos, data_key, dds_type_name
+from mrosd.ros2.keys import (
+    DURABILITY_TRANSIENT_LOCAL,
+    EntityKind,
+    LivelinessToken,
+    Qos,
+    data_key,
+    dds_type_name,
+    parse_token,
+)
+from mrosd.ros2.options import Ros2Options, ros2_options, zenoh_config
+from mrosd.ros2.services import Ros2Services
+from mrosd.ros2.srvtypes import HUMBLE_TYPE_HASH
+from mrosd.ros2.status import RateMeter, status_document
 from mrosd.ros2.types import TypeMapper, TypeMapping, UnmappableTypeError
 from mrosd.tcpros.node import Node
 from mrosd.tcpros.subscriber import AnyMsg, RawMessage
-
-if TYPE_CHECKING:
-    from mrosd.config import Ros2Config
 
 __all__ = ["Ros2Bridge", "Ros2Options", "ros2_options"]
 
@@ -46,48 +52,11 @@ _ratelog = RateLimitedLog(log, period=60.0, burst=3)
 
 #: seconds between two reads of the ROS 1 graph
 GRAPH_PERIOD = 1.0
-#: the bridge node's name on both sides
-NODE_NAME = "mrosd_ros2"
 #: refused names remembered so each is logged once (a stranger can register any number of them)
 MAX_REFUSED_NAMES = 1024
 #: the inbox's name for liveliness tokens, and how many may wait for the loop
 TOKENS = "@tokens"
 TOKEN_QUEUE = 4096
-
-
-class Ros2Options(msgspec.Struct, frozen=True, kw_only=True):
-    """The checked settings of the ros2 part (``ros2_options`` builds them from ``[ros2]``)."""
-
-    domain_id: int = 0
-    connect: tuple[str, ...] = ("tcp/localhost:7447",)
-    listen: tuple[str, ...] = ()
-    to_ros2: tuple[str, ...] = ()
-    from_ros2: tuple[str, ...] = ()
-    queue_size: int = 16
-    node_name: str = NODE_NAME
-
-
-def ros2_options(cfg: Ros2Config, environ: Mapping[str, str] | None = None) -> Ros2Options:
-    """``[ros2]`` -> options; ``domain_id`` -1 reads ``ROS_DOMAIN_ID`` (else 0).
-
-    Raises:
-        ConfigError: ``ROS_DOMAIN_ID`` is not a number from 0 to 232.
-    """
-    env = os.environ if environ is None else environ
-    domain = cfg.domain_id
-    if domain < 0:
-        text = env.get("ROS_DOMAIN_ID", "") or "0"
-        if not text.isdigit() or int(text) > 232:
-            raise ConfigError(f"ROS_DOMAIN_ID={text!r}: a ROS 2 domain is a number from 0 to 232")
-        domain = int(text)
-    return Ros2Options(
-        domain_id=domain,
-        connect=tuple(cfg.connect),
-        listen=tuple(cfg.listen),
-        to_ros2=tuple(cfg.to_ros2),
-        from_ros2=tuple(cfg.from_ros2),
-        queue_size=cfg.queue_size,
-    )
 
 
 class RmwPublisher:
@@ -149,7 +118,17 @@ class Ros2Bridge:
 
     def __init__(self, options: Ros2Options, master_uri: str, *, host: str | None = None) -> None:
         self.options = options
-        self.filter = NameFilter(include=options.to_ros2)
+        # "all" takes everything; "demand" takes what the globs name, everything if they name nothing
+        everything: tuple[str, ...] = ("/**",)
+        if options.mode == "all":
+            self.to_ros2, self.from_ros2 = everything, everything
+        elif options.mode == "demand":
+            self.to_ros2 = options.to_ros2 or everything
+            self.from_ros2 = options.from_ros2 or everything
+        else:
+            self.to_ros2, self.from_ros2 = options.to_ros2, options.from_ros2
+        self.demand = options.mode == "demand"
+        self.filter = NameFilter(include=self.to_ros2)
         self.node = Node(options.node_name, master_uri, argv=[], host=host, rosout=False, logger_services=False)
         self.mapper = TypeMapper()
         self.topics: dict[str, BridgedTopic] = {}
@@ -159,18 +138,24 @@ class Ros2Bridge:
         self._inbox: Inbox | None = None
         self._token_sub: Any = None
         self.inbound: Inbound | None = None
+        self.services: Ros2Services | None = None
         self._background: set[asyncio.Task[None]] = set()
+        #: the latest task handling liveliness tokens (the next one waits for it)
+        self._last_tokens: asyncio.Task[None] | None = None
         self._node_token: Any = None
         self._zid = ""
         self._next_id = 0
         self._tasks: list[asyncio.Task[None]] = []
         self._changed = asyncio.Event()
+        #: set when the graph should be read before the period is over (a ROS 2 subscriber came or went)
+        self._graph_wake = asyncio.Event()
         self._closed = False
         self._lock = threading.Lock()
         #: names refused once (logged once each; cleared when full)
         self._refused: set[str] = set()
         #: completed reads of the ROS 1 graph (tests wait on it)
         self.graph_reads = 0
+        self.rates = RateMeter()
 
     # --- lifecycle ---------------------------------------------------------------------------------
 
@@ -180,16 +165,7 @@ class Ros2Bridge:
         except ImportError:
             raise ConfigError("the ros2 part needs Eclipse Zenoh for Python: pip install 'mrosd[ros2]'") from None
         self._zenoh = zenoh
-        config = zenoh.Config()
-        try:
-            config.insert_json5("mode", '"peer"')
-            config.insert_json5("connect/endpoints", msgspec.json.encode(list(self.options.connect)).decode())
-            config.insert_json5("listen/endpoints", msgspec.json.encode(list(self.options.listen)).decode())
-            config.insert_json5("scouting/multicast/enabled", "false")
-            # rmw_zenoh's session config stamps every sample; TRANSIENT_LOCAL's advanced publisher needs it
-            config.insert_json5("timestamping/enabled", "true")
-        except Exception as exc:
-            raise ConfigError(f"ros2: Zenoh refused the configuration: {exc}") from exc
+        config = zenoh_config(zenoh, self.options)
         await self.node.start()
         try:
             try:
@@ -200,7 +176,20 @@ class Ros2Bridge:
             self._outbox = Outbox(self.session, self.options.queue_size, {})
             self._outbox.start()
             self._node_token = self.session.liveliness().declare_token(self._token(EntityKind.NODE).key())
-            if self.options.from_ros2:
+            self.services = Ros2Services(
+                node=self.node,
+                mapper=self.mapper,
+                session=self.session,
+                zenoh=zenoh,
+                domain_id=self.options.domain_id,
+                humble=self.options.humble,
+                to_ros2=self.to_ros2,
+                from_ros2=self.from_ros2,
+                make_token=self._token,
+                changed=self._changed.set,
+                call_timeout=self.options.service_timeout,
+            )
+            if self.from_ros2:
                 self._start_inbound(asyncio.get_running_loop())
             await self._advertise_status()
         except BaseException:
@@ -212,7 +201,15 @@ class Ros2Bridge:
     def _start_inbound(self, loop: asyncio.AbstractEventLoop) -> None:
         zenoh = self._zenoh
         inbox = self._inbox = Inbox(loop, self._deliver, self.options.queue_size, {TOKENS: TOKEN_QUEUE})
-        self.inbound = Inbound(self.options.from_ros2, self.options.domain_id, self.node, self.mapper, self._zid)
+        self.inbound = Inbound(
+            self.from_ros2,
+            self.options.domain_id,
+            self.node,
+            self.mapper,
+            self._zid,
+            humble=self.options.humble,
+            demand=self.demand,
+        )
 
         def heard(sample: Any) -> None:  # on Zenoh's thread
             inbox.put(TOKENS, (str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
@@ -223,21 +220,39 @@ class Ros2Bridge:
 
     def _deliver(self, name: str, items: list[Any]) -> None:
         if name == TOKENS:
-            task = asyncio.create_task(self._tokens(items))
+            # Batches are handled one after the other, in arrival order: a token's going must never be
+            # handled before its coming (handling one may wait for types loaded off the loop).
+            task = asyncio.create_task(self._tokens(items, self._last_tokens))
+            self._last_tokens = task
             self._background.add(task)
             task.add_done_callback(self._background.discard)
         elif self.inbound is not None and name.startswith("in:"):
             self.inbound.deliver(name[3:], items)
             self._changed.set()
 
-    async def _tokens(self, items: list[tuple[str, bool]]) -> None:
+    async def _tokens(self, items: list[tuple[str, bool]], previous: asyncio.Task[None] | None) -> None:
+        if previous is not None:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await asyncio.shield(previous)
         inbound, inbox = self.inbound, self._inbox
         if inbound is None or inbox is None or self._closed:
             return
         for key, alive in items:
+            if "/SS/" in key and self.services is not None:  # cheap first look; the kind chunk decides
+                try:
+                    tok = parse_token(key)
+                except RemoteProtocolError as exc:
+                    _ratelog.warning("token", "ros2: ignoring a liveliness token: %s", exc)
+                    continue
+                if tok.kind is EntityKind.SERVICE:
+                    if tok.zid != self._zid:
+                        await self.services.token(tok, alive, key)
+                    continue
             await inbound.token(
                 key, alive, session=self.session, inbox=inbox, make_token=self._token, outbound=set(self.topics)
             )
+            if self.demand and "/MS/" in key:
+                self._graph_wake.set()
         self._changed.set()
 
     async def aclose(self) -> None:
@@ -255,6 +270,8 @@ class Ros2Bridge:
         self._undeclare(self._token_sub)
         if self.inbound is not None:
             await self.inbound.aclose()
+        if self.services is not None:
+            await self.services.aclose()
         for bt in list(self.topics.values()):
             await self._drop(bt)
         self.topics.clear()
@@ -291,12 +308,16 @@ class Ros2Bridge:
         trigger = get_service_class("std_srvs/Trigger")
 
         def answer(_request: Any) -> Any:
-            doc = {
-                "zid": self._zid,
-                "domain_id": self.options.domain_id,
-                "to_ros2": self.status(),
-                "from_ros2": self.inbound_status(),
-            }
+            doc = status_document(
+                zid=self._zid,
+                domain_id=self.options.domain_id,
+                mode=self.options.mode,
+                distro=self.options.distro,
+                router=self.options.router,
+                to_ros2=self.status(),
+                from_ros2=self.inbound_status(),
+                services=self.services.status() if self.services is not None else [],
+            )
             return trigger._response_class(success=True, message=json.dumps(doc))
 
         await self.node.advertise_service("~status", trigger, answer)
@@ -312,11 +333,27 @@ class Ros2Bridge:
                 "ros2_type": rt.ros2_type,
                 "key": rt.key,
                 "received": rt.received,
+                "rate": self.rates.rate("in:" + rt.topic),
                 "dropped": inbox.dropped("in:" + rt.topic) if inbox is not None else 0,
                 "bad": rt.bad,
+                "subscribed": rt.subscriber is not None,
             }
             for rt in inbound.topics.values()
         ]
+
+    def summary(self) -> str:
+        """A few words for the daemon's status line."""
+        services = self.services
+        inbound = len(self.inbound.topics) if self.inbound is not None else 0
+        count = len(services.offered) + len(services.provided) if services is not None else 0
+        where = f"router {' '.join(self.options.listen)}" if self.options.router else f"domain {self.options.domain_id}"
+        return f"ros2 {where}: {len(self.topics)} topic(s) to, {inbound} from, {count} service(s)"
+
+    def _sample_rates(self) -> None:
+        counts = {"out:" + bt.topic: bt.rmw.sent for bt in self.topics.values() if bt.rmw is not None}
+        if self.inbound is not None:
+            counts.update({"in:" + rt.topic: rt.received for rt in self.inbound.topics.values()})
+        self.rates.sample(time.monotonic(), counts)
 
     def status(self) -> list[dict[str, Any]]:
         """One row per ROS 1 topic shown to ROS 2: names, key, counts and any problem."""
@@ -328,6 +365,7 @@ class Ros2Bridge:
                     "ros2_type": bt.mapping.ros2_type if bt.mapping else "",
                     "key": bt.key,
                     "sent": bt.rmw.sent if bt.rmw else 0,
+                    "rate": self.rates.rate("out:" + bt.topic),
                     "dropped": self._outbox.dropped(bt.key) if self._outbox and bt.key else 0,
                     "latched": bt.latched,
                     "problem": bt.problem,
@@ -337,7 +375,17 @@ class Ros2Bridge:
 
     # --- names -------------------------------------------------------------------------------------
 
-    def _token(self, kind: EntityKind, topic: str = "", mapping: TypeMapping | None = None, **qos: Any) -> Any:
+    def _token(
+        self,
+        kind: EntityKind,
+        topic: str = "",
+        mapping: TypeMapping | Any = None,
+        *,
+        qos: Qos | None = None,
+        type_hash: str = "",
+    ) -> LivelinessToken:
+        """The liveliness token of the bridge node (``mapping`` None) or of one of its endpoints; ``mapping``
+        has ``ros2_type`` and ``type_hash`` (a message's or a service's); Humble's placeholder replaces the hash."""
         with self._lock:
             self._next_id += 1
             entity_id = "0" if kind is EntityKind.NODE else str(self._next_id)
@@ -357,9 +405,12 @@ class Ros2Bridge:
             **common,
             topic=topic,
             type_name=dds_type_name(mapping.ros2_type),
-            type_hash=mapping.type_hash,
-            qos=Qos(**qos),
+            type_hash=type_hash or self._type_hash(mapping),
+            qos=qos or Qos(),
         )
+
+    def _type_hash(self, mapping: TypeMapping | Any) -> str:
+        return HUMBLE_TYPE_HASH if self.options.humble else str(mapping.type_hash)
 
     @staticmethod
     def _undeclare(entity: Any) -> None:
@@ -372,24 +423,45 @@ class Ros2Bridge:
     async def _graph_loop(self) -> None:
         while True:
             try:
-                pubs, _subs, _srvs = await self.node.master.call("getSystemState")
+                pubs, _subs, srvs = await self.node.master.call("getSystemState")
                 own = self.node.name
+                received = self.inbound.topics if self.inbound is not None else {}
                 want = {
                     str(topic)
                     for topic, nodes in pubs
-                    if topic in self.filter and any(n != own for n in nodes) and self._carriable(str(topic))
+                    if topic in self.filter
+                    and topic not in received
+                    and any(n != own for n in nodes)
+                    and self._carriable(str(topic))
+                    and self._demanded(str(topic))
                 }
-                for topic in want - set(self.topics):
+                for topic in sorted(want - set(self.topics)):
+                    if len(self.topics) >= self.options.max_topics:
+                        _ratelog.warning("max topics", "ros2: over %d topics to bridge", self.options.max_topics)
+                        break
                     await self._add(topic)
                 for topic in set(self.topics) - want:
                     await self._drop(self.topics.pop(topic))
+                if self.services is not None:
+                    await self.services.reconcile(srvs)
+                if self.demand and self.inbound is not None and self._inbox is not None:
+                    self.inbound.follow_demand(self.session, self._inbox, self._token)
+                self._sample_rates()
                 self.graph_reads += 1
                 self._changed.set()
             except asyncio.CancelledError:
                 raise
             except (MrosError, OSError, ValueError, TypeError) as exc:
                 _ratelog.warning("graph", "ros2: cannot read the ROS 1 graph: %s", exc)
-            await asyncio.sleep(GRAPH_PERIOD)
+            with contextlib.suppress(TimeoutError):
+                await backports.wait_for(self._graph_wake.wait(), GRAPH_PERIOD)
+            self._graph_wake.clear()
+
+    def _demanded(self, topic: str) -> bool:
+        """Mode "demand": a ROS 1 topic crosses only while a ROS 2 subscriber (another session's) exists."""
+        if not self.demand:
+            return True
+        return self.inbound is not None and topic in self.inbound.remote_subscribers
 
     def _carriable(self, topic: str) -> bool:
         """A ROS name in canonical form: anything else (a Zenoh wildcard, rmw_zenoh's ``%``, an empty chunk) that a
@@ -457,13 +529,13 @@ class Ros2Bridge:
         import zenoh.ext as zenoh_ext
 
         bt.mapping = mapping
-        bt.key = data_key(self.options.domain_id, bt.topic, mapping.ros2_type, mapping.type_hash)
+        bt.key = data_key(self.options.domain_id, bt.topic, mapping.ros2_type, self._type_hash(mapping))
         try:
             if latched:
                 # A latched ROS 1 topic is TRANSIENT_LOCAL: as rmw_zenoh does, an advanced publisher detectable
                 # through liveliness whose cache (depth 1: the latched message) answers late joiners' queries.
                 token = self._token(
-                    EntityKind.PUBLISHER, bt.topic, mapping, durability=DURABILITY_TRANSIENT_LOCAL, depth=1
+                    EntityKind.PUBLISHER, bt.topic, mapping, qos=Qos(durability=DURABILITY_TRANSIENT_LOCAL, depth=1)
                 )
                 publisher = zenoh_ext.declare_advanced_publisher(
                     self.session,
@@ -473,7 +545,7 @@ class Ros2Bridge:
                     publisher_detection=True,
                 )
             else:
-                token = self._token(EntityKind.PUBLISHER, bt.topic, mapping, depth=self.options.queue_size)
+                token = self._token(EntityKind.PUBLISHER, bt.topic, mapping, qos=Qos(depth=self.options.queue_size))
                 publisher = self.session.declare_publisher(bt.key, congestion_control=zenoh.CongestionControl.BLOCK)
         except Exception as exc:  # Zenoh refused the key or the options: this topic alone does not cross
             bt.problem = f"ros2: {bt.topic}: Zenoh refused the publisher on {bt.key}: {exc}"

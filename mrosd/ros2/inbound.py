@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from mrosd.errors import MrosError, RemoteProtocolError
@@ -19,6 +19,7 @@ from mrosd.fleet.keys import NameFilter
 from mrosd.lograte import RateLimitedLog
 from mrosd.names import canonicalize, is_valid_name
 from mrosd.ros2.keys import EntityKind, LivelinessToken, data_key, parse_token, ros2_type_of_dds
+from mrosd.ros2.srvtypes import HUMBLE_TYPE_HASH
 
 if TYPE_CHECKING:
     from mrosd.fleet.handoff import Inbox
@@ -35,6 +36,8 @@ _ratelog = RateLimitedLog(log, period=60.0, burst=3)
 MAX_RECEIVED_TOPICS = 256
 #: refused names remembered so each is logged once
 MAX_REFUSED_NAMES = 1024
+#: ROS 2 topics whose subscribers are followed for mode "demand" at most
+MAX_DEMANDED_TOPICS = 4096
 
 #: ROS 2 names whose ROS 1 name is not ``pkg/Type``
 _RENAMED_BACK = {"tf2_msgs/msg/TFMessage": "tf2_msgs/TFMessage"}
@@ -67,13 +70,31 @@ class ReceivedTopic:
     token: Any = None
     received: int = 0
     bad: int = 0
+    mapping: Any = None
+    #: the liveliness keys of the ROS 2 publishers seen: the topic stays on ROS 1 while one is left
+    sources: set[str] = field(default_factory=set)
 
 
 class Inbound:
     """The ROS 2 -> ROS 1 half of ``Ros2Bridge``; runs on the loop, but for what Zenoh hands to the ``Inbox``."""
 
-    def __init__(self, include: tuple[str, ...], domain_id: int, node: Node, mapper: TypeMapper, own_zid: str) -> None:
+    def __init__(
+        self,
+        include: tuple[str, ...],
+        domain_id: int,
+        node: Node,
+        mapper: TypeMapper,
+        own_zid: str,
+        *,
+        humble: bool = False,
+        demand: bool = False,
+    ) -> None:
         self.filter = NameFilter(include=include)
+        self.humble = humble
+        #: mode "demand": a topic's Zenoh subscription exists only while a ROS 1 node subscribes
+        self.demand = demand
+        #: topic -> liveliness keys of the ROS 2 subscribers of other sessions (what "demand" sends to)
+        self.remote_subscribers: dict[str, set[str]] = {}
         self.domain_id = domain_id
         self.node = node
         self.mapper = mapper
@@ -91,7 +112,24 @@ class Inbound:
         except RemoteProtocolError as exc:
             _ratelog.warning("token", "ros2: ignoring a liveliness token: %s", exc)
             return None
-        if not alive or tok.kind is not EntityKind.PUBLISHER or tok.zid == self.own_zid:
+        if tok.zid == self.own_zid or tok.domain_id != self.domain_id:
+            return None
+        if tok.kind is EntityKind.SUBSCRIPTION:
+            self._remote_subscriber(tok.topic, key, alive)
+            return None
+        if tok.kind is not EntityKind.PUBLISHER:
+            return None
+        known = self.topics.get(tok.topic)
+        if not alive:
+            if known is not None and key in known.sources:
+                known.sources.discard(key)
+                if not known.sources:  # the last ROS 2 publisher went: so does the ROS 1 one
+                    del self.topics[tok.topic]
+                    await self._close(known)
+            return None
+        if known is not None:
+            if known.key.rsplit("/", 1)[-1] == tok.type_hash:
+                known.sources.add(key)
             return None
         if tok.domain_id != self.domain_id or tok.topic not in self.filter or tok.topic in self.topics:
             return None
@@ -106,7 +144,23 @@ class Inbound:
                     "ros2: ROS 2 announces more than %d topics for ROS 1; the rest are not bridged", MAX_RECEIVED_TOPICS
                 )
             return None
-        return await self._start(tok, session, inbox, make_token)
+        rt = await self._start(tok, session, inbox, make_token)
+        if rt is not None:
+            rt.sources.add(key)
+        return rt
+
+    def _remote_subscriber(self, topic: str, key: str, alive: bool) -> None:
+        keys = self.remote_subscribers.get(topic)
+        if alive:
+            if keys is None:
+                if len(self.remote_subscribers) >= MAX_DEMANDED_TOPICS:
+                    return
+                keys = self.remote_subscribers[topic] = set()
+            keys.add(key)
+        elif keys is not None:
+            keys.discard(key)
+            if not keys:
+                del self.remote_subscribers[topic]
 
     def _carriable(self, topic: str) -> bool:
         """A canonical global ROS name; anything else a peer announces is refused, one line per name."""
@@ -131,14 +185,15 @@ class Inbound:
         except (MrosError, ValueError) as exc:
             _ratelog.warning(f"in {tok.topic}", "ros2: %s from ROS 2 is not bridged: %s", tok.topic, exc)
             return None
-        if mapping.type_hash != tok.type_hash:
+        ours = HUMBLE_TYPE_HASH if self.humble else mapping.type_hash
+        if ours != tok.type_hash:
             _ratelog.warning(
                 f"hash {tok.topic}",
                 "ros2: %s: the ROS 2 publisher's %s hash %s is not ours (%s); not bridged",
                 tok.topic,
                 ros2_type,
                 tok.type_hash,
-                mapping.type_hash,
+                ours,
             )
             return None
         rt = ReceivedTopic(
@@ -153,11 +208,42 @@ class Inbound:
             _ratelog.warning(f"adv {tok.topic}", "ros2: cannot publish %s on ROS 1: %s", tok.topic, exc)
             self.topics.pop(tok.topic, None)
             return None
-        name = "in:" + tok.topic
-        rt.subscriber = session.declare_subscriber(rt.key, lambda sample: inbox.put(name, sample.payload.to_bytes()))
-        rt.token = session.liveliness().declare_token(make_token(EntityKind.SUBSCRIPTION, tok.topic, mapping).key())
+        rt.mapping = mapping
+        if not self.demand:
+            self._attach(rt, session, inbox, make_token)
         log.info("ros2: %s <- %s (%s)", tok.topic, rt.key, ros1_type)
         return rt
+
+    @staticmethod
+    def _attach(rt: ReceivedTopic, session: Any, inbox: Inbox, make_token: Any) -> None:
+        """Subscribe on Zenoh (with an ``MS`` token) to ``rt``'s samples."""
+        name = "in:" + rt.topic
+        rt.subscriber = session.declare_subscriber(rt.key, lambda sample: inbox.put(name, sample.payload.to_bytes()))
+        rt.token = session.liveliness().declare_token(make_token(EntityKind.SUBSCRIPTION, rt.topic, rt.mapping).key())
+
+    @staticmethod
+    def _detach(rt: ReceivedTopic) -> None:
+        for entity in (rt.token, rt.subscriber):
+            if entity is not None:
+                with contextlib.suppress(Exception):
+                    entity.undeclare()
+        rt.token = rt.subscriber = None
+
+    def follow_demand(self, session: Any, inbox: Inbox, make_token: Any) -> None:
+        """Mode "demand": subscribe on Zenoh to the topics a ROS 1 node subscribes to, and only those."""
+        for rt in self.topics.values():
+            wanted = rt.publisher is not None and rt.publisher.get_num_connections() > 0
+            if wanted and rt.subscriber is None:
+                self._attach(rt, session, inbox, make_token)
+                log.info("ros2: %s has a ROS 1 subscriber: subscribing on Zenoh", rt.topic)
+            elif not wanted and rt.subscriber is not None:
+                self._detach(rt)
+
+    async def _close(self, rt: ReceivedTopic) -> None:
+        self._detach(rt)
+        if rt.publisher is not None:
+            with contextlib.suppress(MrosError, OSError):
+                await rt.publisher.aclose()
 
     def deliver(self, topic: str, bodies: list[bytes]) -> None:
         """CDR bodies of ``topic`` (on the loop): converted and published on ROS 1."""
@@ -176,11 +262,5 @@ class Inbound:
 
     async def aclose(self) -> None:
         for rt in self.topics.values():
-            for entity in (rt.token, rt.subscriber):
-                if entity is not None:
-                    with contextlib.suppress(Exception):
-                        entity.undeclare()
-            if rt.publisher is not None:
-                with contextlib.suppress(MrosError, OSError):
-                    await rt.publisher.aclose()
+            await self._close(rt)
         self.topics.clear()

@@ -69,8 +69,14 @@ class TypeMapper:
         self._store: Any = get_typestore(Stores.ROS2_JAZZY)
         self._mappings: dict[str, TypeMapping] = {}
 
-    def mapping(self, ros1_type: str, message_definition: str = "") -> TypeMapping:
-        """The ROS 2 name and hash of ``ros1_type``; custom types are derived from ``message_definition``.
+    @property
+    def store(self) -> Any:
+        """The rosbags type store (services add their wrapper types to it: ``mrosd.ros2.srvtypes``)."""
+        return self._store
+
+    def mapping(self, ros1_type: str, message_definition: str = "", *, ros2_type: str = "") -> TypeMapping:
+        """The ROS 2 name and hash of ``ros1_type``; custom types are derived from ``message_definition``;
+        ``ros2_type`` names the ROS 2 type when it is not ``pkg/msg/Type`` (a service's ``pkg/srv/X_Request``).
 
         Raises:
             UnmappableTypeError: no standard ROS 2 type and no usable definition, or a field ROS 2 cannot have.
@@ -78,7 +84,7 @@ class TypeMapper:
         known = self._mappings.get(ros1_type)
         if known is not None:
             return known
-        ros2_type = ros2_type_name(ros1_type)
+        ros2_type = ros2_type or ros2_type_name(ros1_type)
         if ros2_type not in self._store.types:
             self._register(ros1_type, ros2_type, message_definition)
         try:
@@ -127,7 +133,12 @@ class TypeMapper:
         if len(definition) > MAX_DEFINITION_SIZE:
             raise UnmappableTypeError(f"ros2: {ros1_type}: message_definition over {MAX_DEFINITION_SIZE} bytes")
         try:
-            parsed = get_types_from_msg(definition, ros2_type)
+            # rosbags reads ``pkg/srv/X_Request`` as ``pkg/srv/msg/X_Request``: parse as a msg, then rename
+            pkg, _, name = ros2_type.rpartition("/")
+            as_msg = f"{pkg.partition('/')[0]}/msg/{name}"
+            parsed = get_types_from_msg(definition, as_msg)
+            if as_msg != ros2_type and as_msg in parsed:
+                parsed[ros2_type] = parsed.pop(as_msg)
         except Exception as exc:
             raise UnmappableTypeError(f"ros2: {ros1_type}: message_definition does not parse: {exc}") from exc
         fresh: dict[str, Any] = {}

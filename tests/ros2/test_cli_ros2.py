@@ -96,7 +96,7 @@ async def test_mros_ros2_status_lists_the_bridged_topic(
             check=False,
         )
     assert done.returncode == 0, done.stderr
-    assert "/chatter  std_msgs/msg/String  sent" in done.stdout
+    assert "/chatter  std_msgs/msg/String  " in done.stdout and " Hz  sent " in done.stdout
 
 
 def test_mros_ros2_status_without_a_bridge_is_one_error_line(rosmaster: str) -> None:
