@@ -109,7 +109,7 @@ class FoxgloveRequests(ClientSession):
         hub = self.hub
         while self._stats is not None:
             stats = self._stats
-            wanted = set(hub.topics)
+            wanted = set(hub.topics) - hub.compressed.virtual.keys()  # held open, they would encode
             for topic in [t for t in stats if t not in wanted]:
                 del stats[topic]
                 await hub.remove_sink(topic, self._stats_sink)
@@ -137,7 +137,7 @@ class FoxgloveRequests(ClientSession):
                         "bps": None if rate is None else round(rate[1], 1),
                     }
                 )
-            self._send_json(fg.encode_json("x-mrosd.topicStats", topics=report))
+            self._send_json(fg.encode_json("x-mrosd.topicStats", topics=report, compressed=hub.compressed.status()))
             await asyncio.sleep(STATS_PERIOD)
 
     async def _stop_stats(self) -> None:
