@@ -51,6 +51,7 @@ __all__ = [
     "ImageSettings",
     "VirtualSubscriptions",
     "compress_image_body",
+    "rules_from_config",
 ]
 
 log = logging.getLogger(__name__)
@@ -103,6 +104,14 @@ class ImageRule:
 
     topics: tuple[str, ...]
     settings: ImageSettings
+
+
+def rules_from_config(tables: Iterable[Any]) -> list[ImageRule]:
+    """``[[web.images]]`` tables (``mrosd.config.WebImagesConfig``, already checked) as rules."""
+    return [
+        ImageRule(tuple(t.topics), ImageSettings(quality=t.quality, max_width=t.max_width, max_rate=t.max_rate))
+        for t in tables
+    ]
 
 
 @dataclass(slots=True)
@@ -231,7 +240,7 @@ class CompressedSource:
                     out = await loop.run_in_executor(
                         owner.executor(), compress_image_body, body, settings.encode_settings(), owner.image_cls
                     )
-                except MrosError as exc:
+                except (MrosError, ValueError, RuntimeError, OSError) as exc:  # an encoder's own refusal too
                     self.stats.refused += 1
                     self.stats.encode_ns += time.perf_counter_ns() - started
                     _ratelog.warning(self.name, "web: %s: a frame of %s was not encoded: %s", self.name, self.raw, exc)

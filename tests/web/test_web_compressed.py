@@ -208,3 +208,41 @@ async def test_rospy_camera_compressed_for_foxglove_roslibpy_and_rosbridge_cbor(
                 await c.close()
         rospy_proc.kill()
         await rospy_proc.wait()
+
+
+async def test_image_settings_from_config_and_from_a_client_shared_and_bounded(master: Master) -> None:
+    from mrosd.config import WebImagesConfig
+    from mrosd.web.compressed import rules_from_config
+    from tests.web.test_web_foxglove_integration import connect
+
+    async with (
+        WebServer(master.uri, port=0, node_host="127.0.0.1") as server,
+        node("camera", master.uri) as robot,
+        aiohttp.ClientSession() as http,
+    ):
+        server.hub.compressed.rules = rules_from_config([WebImagesConfig(topics=["/cam3/*"], quality=50, max_width=32)])
+        cam = await robot.advertise("/cam3/image", Image)
+        client = await connect(http, server)
+        ch = await client.until_channel("/cam3/image/compressed")
+        await client.send(op="x-mrosd.imageSettings", topic="/cam3/image/compressed")
+        got = await client.until_json("x-mrosd.imageSettings")
+        assert (got["quality"], got["maxWidth"], got["maxRate"]) == (50, 32, 0)
+        await client.send(op="subscribe", subscriptions=[{"id": 1, "channelId": ch["id"]}])
+        await cam.wait_for_subscribers(1, timeout=10)
+        await cam.publish(rgb_image(0))
+        pic = PIL.open(io.BytesIO(bytes(CompressedImage.deserialize((await client.until_binary())[13:]).data)))
+        assert pic.size == (32, 24)  # the rule's max_width: 64 -> 32
+        # a client changes it for everyone (the last writer wins): one encoder, one setting per topic
+        await client.send(op="x-mrosd.imageSettings", topic="/cam3/image/compressed", maxWidth=0, quality=90)
+        got = await client.until_json("x-mrosd.imageSettings")
+        assert (got["quality"], got["maxWidth"]) == (90, 0)
+        await cam.publish(rgb_image(1))
+        pic = PIL.open(io.BytesIO(bytes(CompressedImage.deserialize((await client.until_binary())[13:]).data)))
+        assert pic.size == (W, H)
+        # bounded: out-of-range values and topics not made here are refused, with a status
+        for bad in ({"quality": 0}, {"maxWidth": 8}, {"maxRate": 1e9}):
+            await client.send(op="x-mrosd.imageSettings", topic="/cam3/image/compressed", **bad)
+            assert (await client.until_json("status"))["level"] == 2
+        await client.send(op="x-mrosd.imageSettings", topic="/not/made/compressed", quality=10)
+        assert "not a compressed topic" in (await client.until_json("status"))["message"]
+        assert list(server.hub.compressed.overrides) == ["/cam3/image/compressed"]
