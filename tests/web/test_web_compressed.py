@@ -224,6 +224,12 @@ async def test_image_settings_from_config_and_from_a_client_shared_and_bounded(m
         cam = await robot.advertise("/cam3/image", Image)
         client = await connect(http, server)
         ch = await client.until_channel("/cam3/image/compressed")
+        # the counters as clients see them; the stats' own counting sinks do not make it encode
+        await client.send(op="x-mrosd.subscribeStats")
+        stats = (await client.until_json("x-mrosd.topicStats"))["compressed"]["/cam3/image/compressed"]
+        assert (stats["encoded"], stats["active"], stats["quality"]) == (0, False, 50)
+        assert server.hub.sink_count("/cam3/image") == 1  # the stats' own, not an encoder's
+        await client.send(op="x-mrosd.unsubscribeStats")
         await client.send(op="x-mrosd.imageSettings", topic="/cam3/image/compressed")
         got = await client.until_json("x-mrosd.imageSettings")
         assert (got["quality"], got["maxWidth"], got["maxRate"]) == (50, 32, 0)
