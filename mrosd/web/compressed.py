@@ -214,7 +214,8 @@ class CompressedSource:
         """Stop encoding (the task leaves ``T``'s shared subscription on its way out, after the caller's lock)."""
         if self.task is not None:
             self.task.cancel()
-        self.owner.sources.pop(self.name, None)
+        if self.owner.sources.get(self.name) is self:  # not a newer source of the same name
+            del self.owner.sources[self.name]
 
     async def run(self) -> None:
         owner = self.owner
@@ -400,3 +401,17 @@ class VirtualSubscriptions(SharedSubscriptions):
             # duck-typed as the fan-out uses a subscriber: ``links`` (none to pause) and ``aclose``
             return cast("Subscriber", source)
         return await super().subscribe(topic)
+
+    async def reconcile(self, topic: str) -> None:
+        """``topic`` became virtual or stopped being so while sinks hold it (a rosbridge subscription is by
+        name and outlives the channel): give its sinks the right upstream, the real topic's or an encoder."""
+        async with self._lock:
+            entry = self.entries.get(topic)
+            if entry is None:
+                return
+            made = isinstance(entry.subscriber, CompressedSource)
+            if made == (topic in self.compressed.virtual):
+                return
+            await entry.subscriber.aclose()
+            entry.subscriber = await self.subscribe(topic)
+            entry.paused = False

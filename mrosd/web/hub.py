@@ -119,6 +119,8 @@ class WebHub:
         self.subs = VirtualSubscriptions(
             self.node, self.compressed, max_queued_bytes=max_queued_bytes, before_subscribe=self._unprobe
         )
+        #: subscriptions being moved between a made T/compressed and a real one
+        self._reconciles: set[asyncio.Task[None]] = set()
         self.probes = ProbePool()
         self.local_master: GraphSource | None = None
         self.graph = LiveGraph()
@@ -209,7 +211,7 @@ class WebHub:
 
     async def aclose(self) -> None:
         """Stop watching and probing, close every shared subscription and publisher, and the node."""
-        tasks = [t for t in (self._watch, self._state_task, self._sim_task) if t is not None]
+        tasks = [t for t in (self._watch, self._state_task, self._sim_task, *self._reconciles) if t is not None]
         for task in tasks:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
@@ -279,6 +281,9 @@ class WebHub:
         removed: list[TopicInfo] = []
         for name in names | self.compressed.affected(names):
             changed = self.compressed.update(name, self.graph.topics, self.graph.publishers, self.policy.allows_topic)
+            if changed is not None and name in self.subs.entries:
+                self._reconciles.add(asyncio.get_running_loop().create_task(self.subs.reconcile(name)))
+                self._reconciles = {t for t in self._reconciles if not t.done()}
             msg_type = COMPRESSED_TYPE if name in self.compressed.virtual else self.graph.topics.get(name)
             info = self.topics.get(name)
             if info is not None and info.type == msg_type and changed is None:

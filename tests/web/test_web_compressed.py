@@ -57,6 +57,25 @@ def decoded(hex_body: str) -> tuple[str, Any]:
     return msg.format, PIL.open(io.BytesIO(bytes(msg.data)))
 
 
+class Collect:
+    """A sink on the hub as a client's (queues nothing): every body it is given."""
+
+    def __init__(self) -> None:
+        self.bodies: asyncio.Queue[bytes] = asyncio.Queue()
+
+    def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
+        self.bodies.put_nowait(bytes(body))
+
+    def backlog(self, topic: str) -> int:
+        return 0
+
+    def queued(self) -> int:
+        return 0
+
+    def shed_oldest(self) -> None:
+        pass
+
+
 async def until(cond: Any, timeout: float = 10.0) -> None:
     async with backports.timeout(timeout):
         while not cond():  # noqa: ASYNC110 - the conditions are the server's own state
@@ -126,9 +145,15 @@ async def test_a_real_compressed_topic_is_passed_through_not_encoded(master: Mas
         WebServer(master.uri, port=0, node_host="127.0.0.1") as server,
         node("camera", master.uri) as robot,
     ):
-        await robot.advertise("/cam2/image", Image)
+        cam = await robot.advertise("/cam2/image", Image)
         client = await client_of(server)
         await client.until("channel", topic="/cam2/image/compressed")
+        # a client whose subscription outlives the channel (rosbridge's are by name) holds the made one
+        held = Collect()
+        await server.hub.add_sink("/cam2/image/compressed", held)
+        await cam.wait_for_subscribers(1, timeout=10)
+        await cam.publish(rgb_image(0))
+        assert CompressedImage.deserialize(await asyncio.wait_for(held.bodies.get(), 10)).format.startswith("rgb8")
         real = await robot.advertise("/cam2/image/compressed", CompressedImage)
         await until(lambda: "/cam2/image/compressed" not in server.hub.compressed.virtual)
         await client.until("channel", topic="/cam2/image/compressed")  # advertised again, as the real one
@@ -138,7 +163,11 @@ async def test_a_real_compressed_topic_is_passed_through_not_encoded(master: Mas
         await real.publish(CompressedImage(format="rgb8; jpeg compressed bgr8", data=b"\xff\xd8real"))
         got = CompressedImage.deserialize(bytes.fromhex((await client.until("message"))["hex"]))
         assert bytes(got.data) == b"\xff\xd8real"
+        # the held subscription was moved to the real topic: the same message, nothing encoded any more
+        assert bytes(CompressedImage.deserialize(await asyncio.wait_for(held.bodies.get(), 10)).data) == b"\xff\xd8real"
         assert not server.hub.compressed.sources
+        await until(lambda: server.hub.sink_count("/cam2/image") == 0)
+        await server.hub.remove_sink("/cam2/image/compressed", held)
 
 
 ROSPY_CAMERA = f"""
