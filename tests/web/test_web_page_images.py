@@ -40,7 +40,11 @@ def page(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Browser, st
         }
         camera = [sys.executable, str(HERE / "stamped_camera.py"), str(W), str(H), str(HZ), "0"]
         procs.start(camera, env, stdout=None, stderr=None)
-        yield Browser(procs), page_url(status)
+        browser = Browser(procs)
+        yield browser, page_url(status)
+        assert browser.proc.stdin is not None
+        browser.proc.stdin.close()  # page_browser.mjs closes Chromium and exits (a kill waits its grace period)
+        browser.proc.wait(10)
     finally:
         run.close()
         procs.close()
