@@ -94,3 +94,27 @@ def test_on_loopback_the_default_is_raw(page: tuple[Browser, str]) -> None:
     browser.until("mrosdPage.state.current && mrosdPage.meter.fps > 0", timeout=30)
     assert browser.eval("mrosdPage.state.current.topic") == "/camera/image"
     assert url.startswith("http://127.0.0.1:")
+
+
+def test_quality_and_width_set_from_the_page_reach_the_encoder(page: tuple[Browser, str]) -> None:
+    browser, url = page
+    browser.do("goto", url=url + "?images=compressed#topic=/camera/image")
+    # the [[web.images]] rule's quality, as the daemon answers it
+    browser.until("!document.querySelector('#image-settings').hidden")
+    assert browser.eval("document.querySelector('#image-quality').value") == "70"
+    browser.eval(
+        "(() => { const w = document.querySelector('#image-width'); w.value = '320';"
+        " w.dispatchEvent(new Event('change')); })()"
+    )
+    # 320 wide already: the width stays; 160 halves it
+    browser.eval(
+        "(() => { const w = document.querySelector('#image-width'); w.add(new Option('160', '160')); w.value = '160';"
+        " w.dispatchEvent(new Event('change')); })()"
+    )
+    browser.until("document.querySelector('#image').width === 160", timeout=20)
+    browser.shot("image_settings.png")
+    browser.eval(
+        "(() => { const w = document.querySelector('#image-width'); w.value = '0';"
+        " w.dispatchEvent(new Event('change')); })()"
+    )
+    browser.until(f"document.querySelector('#image').width === {W}", timeout=20)

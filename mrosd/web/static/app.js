@@ -81,6 +81,7 @@ function onJson(m) {
       break;
     }
     case "parameterValues": if (m.id === "page") renderParams(m.parameters); break;
+    case "x-mrosd.imageSettings": showImageSettings(m); break;
     case "status": if (m.level >= 2) console.warn("mrosd:", m.message); break;
   }
 }
@@ -250,6 +251,23 @@ function imageControls(topic, type, mode, rate, isImage) {
   $("#image-mode").hidden = !mode;
   $("#image-mode").textContent = mode === "compressed" ? "compressed (JPEG) · show raw" : "raw · show compressed";
   $("#image-rate").value = String(rate);
+  // a T/compressed made by mrosd answers with its settings (then shown); a real one is refused (stay hidden)
+  $("#image-settings").hidden = true;
+  if (mode === "compressed") send({ op: "x-mrosd.imageSettings", topic: topic + "/compressed" });
+}
+function showImageSettings(m) {
+  if (m.topic !== $("#topic-pick").value + "/compressed") return;
+  $("#image-settings").hidden = false;
+  for (const [id, value] of [["#image-quality", m.quality], ["#image-width", m.maxWidth]]) {
+    const pick = $(id);
+    if (![...pick.options].some((o) => o.value === String(value))) pick.add(new Option(String(value), String(value)));
+    pick.value = String(value);
+  }
+}
+for (const [id, key] of [["#image-quality", "quality"], ["#image-width", "maxWidth"]]) {
+  $(id).addEventListener("change", () => {
+    send({ op: "x-mrosd.imageSettings", topic: $("#topic-pick").value + "/compressed", [key]: Number($(id).value) });
+  });
 }
 $("#image-mode").addEventListener("click", () => {
   const topic = $("#topic-pick").value, type = state.byTopic.get(topic)?.schemaName;
