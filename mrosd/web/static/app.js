@@ -203,6 +203,7 @@ function openTopic(topic) {
   $("#image").hidden = !isImage && !isScan;
   state.plotPath = null; plot.reset("");
   images.frames = 0; meter.reset();
+  if (images.pending) { images.pending.resolve(false); images.pending = null; } // a frame of the last topic
   const cv = $("#image"); cv.getContext("2d").clearRect(0, 0, cv.width, cv.height);
   let latest = null, count = 0, t0 = performance.now();
   const rate = isImage ? imageChoice.rate.get(topic) ?? IMAGE_HZ : isScan ? IMAGE_HZ : TREE_HZ;

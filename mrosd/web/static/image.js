@@ -65,22 +65,35 @@ export class ImageView {
     this.frames++;
   }
 
-  // Compressed: decoded by the browser as sent (JPEG/PNG); a frame arriving while one decodes is skipped
-  // (false: not drawn).
-  async drawCompressed(msg) {
-    if (this.busy) return false;
-    this.busy = true;
-    try {
-      const fmt = msg.format.toLowerCase().includes("png") ? "image/png" : "image/jpeg";
-      const bitmap = await createImageBitmap(new Blob([msg.data], { type: fmt }));
-      if (this.canvas.width !== bitmap.width || this.canvas.height !== bitmap.height) {
-        this.canvas.width = bitmap.width; this.canvas.height = bitmap.height;
+  // Compressed: decoded by the browser as sent (JPEG/PNG), one at a time. A frame arriving meanwhile waits as
+  // the next (a newer one replaces it: its promise gives false), so a decode that takes most of a frame period
+  // does not halve the rate. Resolves true once this frame is drawn.
+  drawCompressed(msg) {
+    return new Promise((resolve, reject) => {
+      if (this.busy) {
+        if (this.pending) this.pending.resolve(false);
+        this.pending = { msg, resolve, reject };
+        return;
       }
-      this.ctx.drawImage(bitmap, 0, 0);
-      bitmap.close();
-      this.frames++;
-      return true;
-    } finally { this.busy = false; }
+      this.busy = true;
+      this._decode(msg).then(() => resolve(true), reject).finally(() => {
+        this.busy = false;
+        const next = this.pending;
+        this.pending = null;
+        if (next) this.drawCompressed(next.msg).then(next.resolve, next.reject);
+      });
+    });
+  }
+
+  async _decode(msg) {
+    const fmt = msg.format.toLowerCase().includes("png") ? "image/png" : "image/jpeg";
+    const bitmap = await createImageBitmap(new Blob([msg.data], { type: fmt }));
+    if (this.canvas.width !== bitmap.width || this.canvas.height !== bitmap.height) {
+      this.canvas.width = bitmap.width; this.canvas.height = bitmap.height;
+    }
+    this.ctx.drawImage(bitmap, 0, 0);
+    bitmap.close();
+    this.frames++;
   }
 }
 
