@@ -102,6 +102,19 @@ class RosoutConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     enabled: bool = True
 
 
+class WebImagesConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """``[[web.images]]``: how the ``T/compressed`` topics the web part makes for browser clients are encoded,
+    for the raw Image topics ``T`` matching one of ``topics`` (the first matching table wins; docs/web.md)."""
+
+    topics: list[str]
+    #: JPEG quality 1..100 (image_transport's default, 80)
+    quality: Annotated[int, msgspec.Meta(ge=1, le=100)] = 80
+    #: wider images are scaled down by a whole factor to fit (0: never; else at least 16)
+    max_width: Annotated[int, msgspec.Meta(ge=0, le=16384)] = 0
+    #: at most this many frames encoded a second (0: every frame the camera sends)
+    max_rate: Annotated[float, msgspec.Meta(ge=0, le=240)] = 0.0
+
+
 class WebConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """``[web]``: browser clients over WebSocket (Foxglove protocol; ``mrosd.web``, docs/web.md).
 
@@ -142,6 +155,8 @@ class WebConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     max_clients: Count | None = None
     #: answer tf2_web_republisher's service and action (roslibjs/roslibpy ``TFClient``) from the daemon
     tf_republisher: bool = True
+    #: ``[[web.images]]`` tables: encoder settings of the ``T/compressed`` topics offered to clients
+    images: list[WebImagesConfig] = msgspec.field(default_factory=list)
 
     def hosts(self) -> list[str]:
         """``host`` as a list, in the order given (the first is the one URLs name)."""
@@ -359,6 +374,16 @@ def _validate_web(web: WebConfig, where: str) -> None:
         raise ConfigError(f"{where}: web.foxglove_port must be 0..65535, got {web.foxglove_port}")
     if not -1 <= web.rosbridge_port <= 65535:
         raise ConfigError(f"{where}: web.rosbridge_port must be 0..65535 (or -1: off), got {web.rosbridge_port}")
+    for i, rule in enumerate(web.images):
+        for j, pattern in enumerate(rule.topics):
+            if not pattern.startswith("/"):
+                raise ConfigError(
+                    f"{where}: web.images[{i}].topics[{j}] must be a global name glob (/camera/*), got {pattern!r}"
+                )
+        if 0 < rule.max_width < 16:
+            raise ConfigError(
+                f"{where}: web.images[{i}].max_width must be 0 (keep) or at least 16, got {rule.max_width}"
+            )
     hosts = web.hosts()
     if not hosts:
         raise ConfigError(f"{where}: web.host is an empty list: name at least one address")

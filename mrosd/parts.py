@@ -267,6 +267,7 @@ class Daemon:
 
     async def _start_web(self) -> None:
         from mrosd.web.access import AccessPolicy
+        from mrosd.web.compressed import rules_from_config
         from mrosd.web.foxglove_server import SessionLimits
         from mrosd.web.server import WebServer
 
@@ -293,6 +294,7 @@ class Daemon:
             max_queued_bytes=web.total_bytes,
             asset_bytes=web.asset_bytes,
         )
+        server.hub.compressed.rules = rules_from_config(web.images)
         if self.master is not None:  # the hub follows the graph from the master's own change notes
             server.hub.use_master(self.master)
         if web.max_clients is not None:

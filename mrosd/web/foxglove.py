@@ -204,8 +204,20 @@ class NodeDetails(_Op, tag="x-mrosd.nodeDetails", frozen=True):
     id: str | None = None
 
 
+class ImageSettings(_Op, tag="x-mrosd.imageSettings", frozen=True):
+    """mrosd's extension: the encoder settings of a ``T/compressed`` topic mrosd makes (``mrosd.web.compressed``),
+    one per topic, shared by every client, the last writer wins; the fields left out keep their value. The
+    answer (also to an op with none of them) is ``x-mrosd.imageSettings`` with the topic's settings now."""
+
+    topic: Name
+    quality: Annotated[int, msgspec.Meta(ge=1, le=100)] | None = None
+    maxWidth: Annotated[int, msgspec.Meta(ge=0, le=16384)] | None = None
+    maxRate: Annotated[float, msgspec.Meta(ge=0, le=240)] | None = None
+
+
 ClientOp = (
     Throttle
+    | ImageSettings
     | SubscribeStats
     | UnsubscribeStats
     | NodeDetails
@@ -239,6 +251,7 @@ _OP_NAMES = frozenset(
         "x-mrosd.subscribeStats",
         "x-mrosd.unsubscribeStats",
         "x-mrosd.nodeDetails",
+        "x-mrosd.imageSettings",
     }
 )
 _op_decoder: msgspec.json.Decoder[ClientOp] = msgspec.json.Decoder(ClientOp)  # type: ignore[arg-type]

@@ -19,6 +19,7 @@ from mrosd.errors import MrosError
 from mrosd.master.cleanup import Probe, probe_get_pid
 from mrosd.web import foxglove as fg
 from mrosd.web.assets import AssetRefused
+from mrosd.web.compressed import ImageSettings
 from mrosd.web.hub import HoldingSink, ServiceInfo
 from mrosd.web.rates import RateWindow
 from mrosd.web.session import ClientSession
@@ -109,7 +110,7 @@ class FoxgloveRequests(ClientSession):
         hub = self.hub
         while self._stats is not None:
             stats = self._stats
-            wanted = set(hub.topics)
+            wanted = set(hub.topics) - hub.compressed.virtual.keys()  # held open, they would encode
             for topic in [t for t in stats if t not in wanted]:
                 del stats[topic]
                 await hub.remove_sink(topic, self._stats_sink)
@@ -137,8 +138,28 @@ class FoxgloveRequests(ClientSession):
                         "bps": None if rate is None else round(rate[1], 1),
                     }
                 )
-            self._send_json(fg.encode_json("x-mrosd.topicStats", topics=report))
+            self._send_json(fg.encode_json("x-mrosd.topicStats", topics=report, compressed=hub.compressed.status()))
             await asyncio.sleep(STATS_PERIOD)
+
+    def _image_settings(self, op: fg.ImageSettings) -> None:
+        """x-mrosd.imageSettings: change a ``T/compressed`` topic's shared settings, answer with them."""
+        compressed = self.hub.compressed
+        now = compressed.settings_for(op.topic)
+        try:
+            if op.quality is not None or op.maxWidth is not None or op.maxRate is not None:
+                compressed.set_settings(
+                    op.topic,
+                    ImageSettings(
+                        quality=now.quality if op.quality is None else op.quality,
+                        max_width=now.max_width if op.maxWidth is None else op.maxWidth,
+                        max_rate=now.max_rate if op.maxRate is None else op.maxRate,
+                    ),
+                )
+        except (MrosError, ValueError) as exc:
+            self.status(fg.STATUS_ERROR, f"x-mrosd.imageSettings: {exc}")
+            return
+        settings = compressed.settings_for(op.topic).as_dict()
+        self._send_json(fg.encode_json("x-mrosd.imageSettings", topic=op.topic, **settings))
 
     async def _stop_stats(self) -> None:
         stats, self._stats = self._stats, None

@@ -376,6 +376,8 @@ class FoxgloveSession(FoxgloveRequests):
                 sub.period_ns = int(1e9 / op.maxRate) if op.maxRate > 0 else 0
                 while sub.period_ns and len(sub.queue) > 1:
                     sub.queue.get()  # from now on only the latest is kept
+        elif isinstance(op, fg.ImageSettings):
+            self._image_settings(op)
         elif isinstance(op, fg.SubscribeStats):
             if self._stats is None:
                 self._stats = {}

@@ -22,18 +22,19 @@ import asyncio
 import itertools
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 from mrosd import backports
 from mrosd.errors import MrosError, MsgError, RemoteProtocolError
 from mrosd.lograte import RateLimitedLog
 from mrosd.master.client import MasterClient
-from mrosd.msg import get_service_class, load_type, load_type_async
+from mrosd.msg import get_service_class, load_type_async
 from mrosd.msg.loader import default_store
 from mrosd.tcpros import Node
 from mrosd.web.access import AccessPolicy
 from mrosd.web.assets import AssetReader
+from mrosd.web.clientwrites import ClientWrites
+from mrosd.web.compressed import COMPRESSED_TYPE, CompressedTopics, VirtualSubscriptions
 from mrosd.web.foxglove import SystemState
 from mrosd.web.graphwatch import (
     ClientSet,
@@ -46,7 +47,7 @@ from mrosd.web.graphwatch import (
 )
 from mrosd.web.probes import Attempt, ProbePool, definition_from_publisher, service_type, split_rosrpc
 from mrosd.web.queue import Ledger
-from mrosd.web.shared import MAX_QUEUED_BYTES, PAUSE_BYTES, HoldingSink, Shared, SharedSubscriptions, TopicSink
+from mrosd.web.shared import MAX_QUEUED_BYTES, PAUSE_BYTES, HoldingSink, Shared, TopicSink
 
 log = logging.getLogger(__name__)
 #: a rogue node can make every one of its hundreds of services fail a probe: a few lines, then a count
@@ -87,13 +88,6 @@ class _ClockSink(HoldingSink):
                 log.exception("web: a time listener failed")
 
 
-@dataclass(slots=True)
-class _SharedPublisher:
-    publisher: Any
-    msg_class: Any
-    owners: int = 0
-
-
 class WebHub:
     """The ROS node behind the browser protocols (``name`` is its node name in the graph).
 
@@ -118,7 +112,15 @@ class WebHub:
         self.policy = policy or AccessPolicy()
         self.poll_interval = poll_interval
         self.node = Node(name, master_uri=master_uri, argv=[], rosout=False, logger_services=False, host=host)
-        self.subs = SharedSubscriptions(self.node, max_queued_bytes=max_queued_bytes, before_subscribe=self._unprobe)
+        #: ``T/compressed`` for every Image topic ``T`` that has no real one (``mrosd.web.compressed``)
+        self.compressed = CompressedTopics(
+            lambda topic, sink: self.add_sink(topic, sink, check=False), self.remove_sink
+        )
+        self.subs = VirtualSubscriptions(
+            self.node, self.compressed, max_queued_bytes=max_queued_bytes, before_subscribe=self._unprobe
+        )
+        #: subscriptions being moved between a made T/compressed and a real one
+        self._reconciles: set[asyncio.Task[None]] = set()
         self.probes = ProbePool()
         self.local_master: GraphSource | None = None
         self.graph = LiveGraph()
@@ -128,7 +130,6 @@ class WebHub:
         self.services: dict[str, ServiceInfo] = {}
         self.listeners: set[GraphListener] = ClientSet(self._client_arrived)
         self._ids = itertools.count(1)
-        self._publishers: dict[str, _SharedPublisher] = {}
         self._unresolved: dict[str, str] = {}
         #: topics whose type only a publisher can tell (name -> type), and the publishers a probe failed for
         self._topic_wanted: dict[str, str] = {}
@@ -138,12 +139,12 @@ class WebHub:
         self._service_failed: dict[str, str] = {}
         self._watch: asyncio.Task[None] | None = None
         self._first_graph: asyncio.Future[None] | None = None
-        self._lock = asyncio.Lock()
         #: called with the full system state after every graph change, while any is registered
         self.state_listeners: set[Callable[[SystemState], None]] = set()
         self._state_again = False
         self._state_task: asyncio.Task[None] | None = None
-        self._params: dict[str, set[Callable[[str, Any], None]]] = {}
+        #: the publishers and parameter watches clients asked for
+        self.writes = ClientWrites(self.node, self.policy)
         #: /use_sim_time is true (followed through the master's paramUpdate, as it changes): /clock is
         #: followed and its time handed out
         self.sim_time = False
@@ -210,14 +211,15 @@ class WebHub:
 
     async def aclose(self) -> None:
         """Stop watching and probing, close every shared subscription and publisher, and the node."""
-        tasks = [t for t in (self._watch, self._state_task, self._sim_task) if t is not None]
+        tasks = [t for t in (self._watch, self._state_task, self._sim_task, *self._reconciles) if t is not None]
         for task in tasks:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
         await self.probes.aclose()
+        await self.compressed.aclose()
         self._watch = None
         self.subs.close()
-        self._publishers.clear()
+        self.writes.publishers.clear()
         if self.assets is not None:
             self.assets.close()
         await self.node.aclose()
@@ -277,10 +279,14 @@ class WebHub:
     def _topics_changed(self, names: set[str]) -> None:
         added: list[TopicInfo] = []
         removed: list[TopicInfo] = []
-        for name in names:
-            msg_type = self.graph.topics.get(name)
+        for name in names | self.compressed.affected(names):
+            changed = self.compressed.update(name, self.graph.topics, self.graph.publishers, self.policy.allows_topic)
+            if changed is not None and name in self.subs.entries:
+                self._reconciles.add(asyncio.get_running_loop().create_task(self.subs.reconcile(name)))
+                self._reconciles = {t for t in self._reconciles if not t.done()}
+            msg_type = COMPRESSED_TYPE if name in self.compressed.virtual else self.graph.topics.get(name)
             info = self.topics.get(name)
-            if info is not None and info.type == msg_type:
+            if info is not None and info.type == msg_type and changed is None:
                 continue
             if info is not None:
                 removed.append(self.topics.pop(name))
@@ -328,6 +334,12 @@ class WebHub:
             self._probe_topic(name)
         for name in list(self._service_wanted):
             self._probe_service(name)
+
+    def topic_types(self) -> dict[str, str]:
+        """Every topic of the graph with its type, and the ``T/compressed`` topics made here (rosapi lists both)."""
+        types = dict(self.graph.topics)
+        types.update(dict.fromkeys(self.compressed.virtual, COMPRESSED_TYPE))
+        return types
 
     async def system_state(self) -> SystemState:
         """Publishers, subscribers and services with their nodes (one getSystemState), filtered by the policy."""
@@ -508,92 +520,26 @@ class WebHub:
     def sink_count(self, topic: str) -> int:
         return self.subs.sink_count(topic)
 
-    # --- client publishers -----------------------------------------------------------------------
+    # --- what clients write: publishers and parameter watches (``mrosd.web.clientwrites``) -----------
+
+    @property
+    def _publishers(self) -> dict[str, Any]:
+        return self.writes.publishers
 
     def message_class(self, msg_type: str) -> Any:
-        """The class of a type a client names, from the type search path.
-
-        Raises:
-            MsgError: unknown type (the message names where it was looked for).
-        """
-        return load_type(msg_type, "")
+        return self.writes.message_class(msg_type)
 
     async def client_class(self, msg_type: str, definition: str | None = None) -> Any:
-        """The class of a type a client names with its own definition (built off the event loop), else
-        from the type search path.
-
-        Raises:
-            MsgError: unknown type (the message names where it was looked for) or a malformed definition.
-        """
-        return await load_type_async(msg_type, definition or "")
+        return await self.writes.client_class(msg_type, definition)
 
     async def acquire_publisher(self, topic: str, msg_class: Any) -> Any:
-        """The shared publisher of ``topic`` (advertised at the first owner).
-
-        Raises:
-            MrosError: not allowed, another type already published here, or the master refused.
-        """
-        if not self.policy.allows_topic(topic):
-            raise MrosError(f"topic {topic} is not allowed by the [web] topics allow-list")
-        async with self._lock:
-            entry = self._publishers.get(topic)
-            if entry is None:
-                pub = await self.node.advertise(topic, msg_class, queue_size=100)
-                entry = _SharedPublisher(pub, msg_class)
-                self._publishers[topic] = entry
-            elif entry.msg_class._md5sum != msg_class._md5sum:
-                raise MrosError(f"{topic} is already published by a web client as {entry.msg_class._type}")
-            entry.owners += 1
-            return entry.publisher
+        return await self.writes.acquire_publisher(topic, msg_class)
 
     async def release_publisher(self, topic: str) -> None:
-        async with self._lock:
-            entry = self._publishers.get(topic)
-            if entry is None:
-                return
-            entry.owners -= 1
-            if entry.owners <= 0:
-                del self._publishers[topic]
-                await entry.publisher.aclose()
-
-    # --- parameters ------------------------------------------------------------------------------
+        await self.writes.release_publisher(topic)
 
     async def watch_param(self, name: str, callback: Callable[[str, Any], None], *, check: bool = True) -> Any:
-        """Call ``callback(key, value)`` on every update of ``name`` (one master subscription per name).
-
-        ``check=False`` is the hub's own watch (``/use_sim_time``), not a client's: the allow-list does not
-        apply. Returns the value the master answered the subscription with (``{}``: unset), or None when the
-        name was already watched.
-
-        Raises:
-            MrosError: not allowed, or the master refused the subscription.
-        """
-        if check and not self.policy.allows_param(name):
-            raise MrosError(f"parameter {name} is not allowed by the [web] params allow-list")
-        callbacks = self._params.get(name)
-        value = None
-        if callbacks is None:
-            callbacks = self._params[name] = set()
-            try:
-                value = await self.node.subscribe_param(name, lambda key, value: self._param_update(name, key, value))
-            except BaseException:
-                del self._params[name]
-                raise
-        callbacks.add(callback)
-        return value
-
-    def _param_update(self, name: str, key: str, value: Any) -> None:
-        for cb in list(self._params.get(name, ())):
-            try:
-                cb(key, value)
-            except Exception:
-                log.exception("web: a parameter listener failed")
+        return await self.writes.watch_param(name, callback, check=check)
 
     async def unwatch_param(self, name: str, callback: Callable[[str, Any], None]) -> None:
-        callbacks = self._params.get(name)
-        if callbacks is None:
-            return
-        callbacks.discard(callback)
-        if not callbacks:
-            del self._params[name]
-            await self.node.unsubscribe_param(name)
+        await self.writes.unwatch_param(name, callback)

@@ -138,7 +138,7 @@ async def answer(hub: WebHub, method: str, args: dict[str, Any]) -> dict[str, An
 
 
 async def _topics(hub: WebHub, args: dict[str, Any]) -> dict[str, Any]:
-    topics = sorted((t, ty) for t, ty in hub.graph.topics.items() if hub.policy.allows_topic(t))
+    topics = sorted((t, ty) for t, ty in hub.topic_types().items() if hub.policy.allows_topic(t))
     return {"topics": [t for t, _ in topics], "types": [ty for _, ty in topics]}
 
 
@@ -167,12 +167,13 @@ def _full_text(hub: WebHub, topic: str, msg_type: str) -> str:
 
 async def _topic_type(hub: WebHub, args: dict[str, Any]) -> dict[str, Any]:
     topic = str(args.get("topic", ""))
-    return {"type": hub.graph.topics.get(topic, "") if hub.policy.allows_topic(topic) else ""}
+    return {"type": hub.topic_types().get(topic, "") if hub.policy.allows_topic(topic) else ""}
 
 
 async def _topics_for_type(hub: WebHub, args: dict[str, Any]) -> dict[str, Any]:
     wanted = str(args.get("type", ""))
-    return {"topics": sorted(t for t, ty in hub.graph.topics.items() if ty == wanted and hub.policy.allows_topic(t))}
+    topics = hub.topic_types().items()
+    return {"topics": sorted(t for t, ty in topics if ty == wanted and hub.policy.allows_topic(t))}
 
 
 async def _action_servers(hub: WebHub, args: dict[str, Any]) -> dict[str, Any]:

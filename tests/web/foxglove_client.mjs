@@ -3,6 +3,7 @@
 // Usage: node foxglove_client.mjs ws://127.0.0.1:PORT/
 // Commands (one JSON object per line):
 //   {"cmd":"subscribe","topic":"/t"}                      -> events {"event":"message","topic","len","sha256","head"}
+//     ("full":true adds "hex": the whole payload, for small messages)
 //   {"cmd":"advertise","topic":"/t","schemaName":"pkg/T"}  -> {"event":"advertised","topic","channel"}
 //   {"cmd":"publish","channel":N,"hex":"..."}
 //   {"cmd":"getParameters","names":[...],"id":"x"}          -> {"event":"parameterValues",...}
@@ -20,6 +21,7 @@ const url = process.argv[2];
 const channels = new Map(); // topic -> channel
 const services = new Map(); // name -> service
 const subscriptions = new Map(); // subscription id -> topic
+const full = new Set(); // subscription ids whose whole payloads are printed
 const out = (obj) => process.stdout.write(JSON.stringify(obj) + "\n");
 
 const ws = new WebSocket(url, [FoxgloveClient.SUPPORTED_SUBPROTOCOL], { maxPayload: 0 });
@@ -56,6 +58,7 @@ client.on("message", ({ subscriptionId, timestamp, data }) => {
     sha256: createHash("sha256").update(bytes).digest("hex"),
     head: Buffer.from(bytes.subarray(0, 64)).toString("hex"),
     timestamp: timestamp.toString(),
+    ...(full.has(subscriptionId) ? { hex: Buffer.from(bytes).toString("hex") } : {}),
   });
 });
 client.on("parameterValues", (ev) => out({ event: "parameterValues", parameters: ev.parameters, id: ev.id }));
@@ -84,6 +87,7 @@ rl.on("line", (line) => {
       if (!ch) return out({ event: "noChannel", topic: c.topic });
       const id = client.subscribe(ch.id);
       subscriptions.set(id, c.topic);
+      if (c.full) full.add(id);
       out({ event: "subscribed", topic: c.topic, id });
     } else if (c.cmd === "advertise") {
       const id = client.advertise({ topic: c.topic, encoding: "ros1", schemaName: c.schemaName });

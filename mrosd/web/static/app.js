@@ -1,7 +1,7 @@
 // mrosd's page: one Foxglove WebSocket client (plus mrosd's x-mrosd.* ops) showing the graph, topics,
 // a topic's live message, a plot, images and /rosout. Everything is decoded here from the raw ROS 1 bodies.
 import { parseDefinition, deserialize, serialize, defaultValue } from "./ros1.js";
-import { ImageView } from "./image.js";
+import { ImageView, ImageMeter, preferCompressed } from "./image.js";
 import { Plot } from "./plot.js";
 import { drawGraph } from "./graph.js";
 import { drawScan, drawCloud } from "./scan.js";
@@ -17,8 +17,11 @@ const state = {
 };
 const plot = new Plot($("#plot"));
 const images = new ImageView($("#image"));
+const meter = new ImageMeter();
+// Per raw Image topic: "raw" or "compressed" as the user toggled it, and the rate limit asked (Hz).
+const imageChoice = { mode: new Map(), rate: new Map() };
 // For tests and the curious: what the page has drawn.
-window.mrosdPage = { state, plot, images, treeUpdates: 0, decodeErrors: 0 };
+window.mrosdPage = { state, plot, images, meter, treeUpdates: 0, decodeErrors: 0 };
 
 const params = new URLSearchParams(location.search);
 const wsUrl = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/${params.has("token") ? "?token=" + encodeURIComponent(params.get("token")) : ""}`;
@@ -78,6 +81,7 @@ function onJson(m) {
       break;
     }
     case "parameterValues": if (m.id === "page") renderParams(m.parameters); break;
+    case "x-mrosd.imageSettings": showImageSettings(m); break;
     case "status": if (m.level >= 2) console.warn("mrosd:", m.message); break;
   }
 }
@@ -183,7 +187,8 @@ function refreshTopicPick() {
   const pick = $("#topic-pick"), keep = pick.value || pendingTopic;
   pick.replaceChildren(...[...state.byTopic.keys()].sort().map((t) => new Option(t, t)));
   if (keep && state.byTopic.has(keep)) pick.value = keep;
-  if (state.view === "topic" && (!state.current || state.current.topic !== pick.value)) openTopic(pick.value);
+  const shown = pick.value && imageSource(pick.value, state.byTopic.get(pick.value)?.schemaName).shown;
+  if (state.view === "topic" && (!state.current || state.current.topic !== shown)) openTopic(pick.value);
 }
 $("#topic-pick").addEventListener("change", () => show("topic"));
 
@@ -191,29 +196,37 @@ function openTopic(topic) {
   unsubscribe(state.current); state.current = null;
   $("#tree").replaceChildren(); $("#topic-meta").textContent = "";
   if (!topic || !state.byTopic.has(topic)) return;
-  const type = state.byTopic.get(topic).schemaName;
+  const picked = state.byTopic.get(topic).schemaName;
+  const { shown, type, mode } = imageSource(topic, picked);
   const isImage = type === "sensor_msgs/Image" || type === "sensor_msgs/CompressedImage";
   const isScan = type === "sensor_msgs/LaserScan" || type === "sensor_msgs/PointCloud2";
   $("#image").hidden = !isImage && !isScan;
   state.plotPath = null; plot.reset("");
-  images.frames = 0;
+  images.frames = 0; meter.reset();
+  if (images.pending) { images.pending.resolve(false); images.pending = null; } // a frame of the last topic
   const cv = $("#image"); cv.getContext("2d").clearRect(0, 0, cv.width, cv.height);
   let latest = null, count = 0, t0 = performance.now();
-  state.current = subscribe(topic, (msg, t) => {
+  const rate = isImage ? imageChoice.rate.get(topic) ?? IMAGE_HZ : isScan ? IMAGE_HZ : TREE_HZ;
+  state.current = subscribe(shown, (msg, t) => {
     latest = msg; count++;
     if (state.plotPath) plot.add(t, getPath(msg, state.plotPath));
-    if (type === "sensor_msgs/Image") { try { images.drawRaw(msg); } catch (e) { $("#topic-meta").textContent = e.message; } }
-    else if (type === "sensor_msgs/CompressedImage") images.drawCompressed(msg).catch((e) => ($("#topic-meta").textContent = e.message));
-    else if (isScan) {
+    if (isImage) meter.arrived(t * 1e3);
+    if (type === "sensor_msgs/Image") {
+      try { images.drawRaw(msg); meter.drawn(msg.header?.stamp); } catch (e) { $("#topic-meta").textContent = e.message; }
+    } else if (type === "sensor_msgs/CompressedImage") {
+      images.drawCompressed(msg).then((drawn) => drawn && meter.drawn(msg.header?.stamp)).catch((e) => ($("#topic-meta").textContent = e.message));
+    } else if (isScan) {
       try { (type === "sensor_msgs/LaserScan" ? drawScan : drawCloud)($("#image"), msg); images.frames++; }
       catch (e) { $("#topic-meta").textContent = e.message; }
     }
-  }, isImage || isScan ? IMAGE_HZ : TREE_HZ);
+  }, rate);
+  imageControls(topic, picked, mode, rate, isImage);
   const sub = state.current;
   const tick = () => {
     if (state.current !== sub) return;
+    if (isImage) $("#image-overlay").textContent = meter.text(mode);
     if (latest) {
-      renderTree(latest);
+      if (!isImage || performance.now() - (sub.treeAt || 0) > 250) { renderTree(latest); sub.treeAt = performance.now(); }
       plot.draw();
       const dt = (performance.now() - t0) / 1000;
       if (dt >= 1) { $("#topic-meta").textContent = `${type} · ${(count / dt).toFixed(1)} shown/s`; count = 0; t0 = performance.now(); }
@@ -223,6 +236,50 @@ function openTopic(topic) {
   };
   tick();
 }
+
+// --- image view: raw or T/compressed, its rate limit ----------------------------------------------
+// A raw Image topic T with T/compressed advertised is shown from T/compressed by default when the link is
+// slow (preferCompressed: the page not loaded over loopback), or as the user toggled it.
+function imageSource(topic, type) {
+  const twin = topic + "/compressed";
+  if (type !== "sensor_msgs/Image" || !state.byTopic.has(twin)) return { shown: topic, type, mode: "" };
+  const mode = imageChoice.mode.get(topic) ?? (preferCompressed() ? "compressed" : "raw");
+  return mode === "compressed" ? { shown: twin, type: "sensor_msgs/CompressedImage", mode } : { shown: topic, type, mode };
+}
+function imageControls(topic, type, mode, rate, isImage) {
+  $("#image-bar").hidden = !isImage;
+  $("#image-overlay").hidden = !isImage;
+  $("#image-mode").hidden = !mode;
+  $("#image-mode").textContent = mode === "compressed" ? "compressed (JPEG) · show raw" : "raw · show compressed";
+  $("#image-rate").value = String(rate);
+  // a T/compressed made by mrosd answers with its settings (then shown); a real one is refused (stay hidden)
+  $("#image-settings").hidden = true;
+  if (mode === "compressed") send({ op: "x-mrosd.imageSettings", topic: topic + "/compressed" });
+}
+function showImageSettings(m) {
+  if (m.topic !== $("#topic-pick").value + "/compressed") return;
+  $("#image-settings").hidden = false;
+  for (const [id, value] of [["#image-quality", m.quality], ["#image-width", m.maxWidth]]) {
+    const pick = $(id);
+    if (![...pick.options].some((o) => o.value === String(value))) pick.add(new Option(String(value), String(value)));
+    pick.value = String(value);
+  }
+}
+for (const [id, key] of [["#image-quality", "quality"], ["#image-width", "maxWidth"]]) {
+  $(id).addEventListener("change", () => {
+    send({ op: "x-mrosd.imageSettings", topic: $("#topic-pick").value + "/compressed", [key]: Number($(id).value) });
+  });
+}
+$("#image-mode").addEventListener("click", () => {
+  const topic = $("#topic-pick").value, type = state.byTopic.get(topic)?.schemaName;
+  imageChoice.mode.set(topic, imageSource(topic, type).mode === "compressed" ? "raw" : "compressed");
+  openTopic(topic);
+});
+$("#image-rate").addEventListener("change", () => {
+  const topic = $("#topic-pick").value, hz = Math.max(0, Math.min(240, Number($("#image-rate").value) || 0));
+  imageChoice.rate.set(topic, hz);
+  if (state.current) send({ op: "x-mrosd.throttle", subscriptionId: state.current.id, maxRate: hz });
+});
 
 function getPath(msg, path) { let v = msg; for (const k of path) v = v?.[k]; return typeof v === "bigint" ? Number(v) : v; }
 

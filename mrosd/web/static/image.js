@@ -65,19 +65,71 @@ export class ImageView {
     this.frames++;
   }
 
-  // Compressed: decoded by the browser as sent (JPEG/PNG); a frame arriving while one decodes is skipped.
-  async drawCompressed(msg) {
-    if (this.busy) return;
-    this.busy = true;
-    try {
-      const fmt = msg.format.toLowerCase().includes("png") ? "image/png" : "image/jpeg";
-      const bitmap = await createImageBitmap(new Blob([msg.data], { type: fmt }));
-      if (this.canvas.width !== bitmap.width || this.canvas.height !== bitmap.height) {
-        this.canvas.width = bitmap.width; this.canvas.height = bitmap.height;
+  // Compressed: decoded by the browser as sent (JPEG/PNG), one at a time. A frame arriving meanwhile waits as
+  // the next (a newer one replaces it: its promise gives false), so a decode that takes most of a frame period
+  // does not halve the rate. Resolves true once this frame is drawn.
+  drawCompressed(msg) {
+    return new Promise((resolve, reject) => {
+      if (this.busy) {
+        if (this.pending) this.pending.resolve(false);
+        this.pending = { msg, resolve, reject };
+        return;
       }
-      this.ctx.drawImage(bitmap, 0, 0);
-      bitmap.close();
-      this.frames++;
-    } finally { this.busy = false; }
+      this.busy = true;
+      this._decode(msg).then(() => resolve(true), reject).finally(() => {
+        this.busy = false;
+        const next = this.pending;
+        this.pending = null;
+        if (next) this.drawCompressed(next.msg).then(next.resolve, next.reject);
+      });
+    });
+  }
+
+  async _decode(msg) {
+    const fmt = msg.format.toLowerCase().includes("png") ? "image/png" : "image/jpeg";
+    const bitmap = await createImageBitmap(new Blob([msg.data], { type: fmt }));
+    if (this.canvas.width !== bitmap.width || this.canvas.height !== bitmap.height) {
+      this.canvas.width = bitmap.width; this.canvas.height = bitmap.height;
+    }
+    this.ctx.drawImage(bitmap, 0, 0);
+    bitmap.close();
+    this.frames++;
+  }
+}
+
+// Whether a raw Image topic T is shown from T/compressed (made by mrosd, or image_transport's): ?images=raw or
+// ?images=compressed in the page's URL decides; otherwise compressed unless the page was loaded over loopback
+// (the browser on the robot itself: any link carries raw frames there).
+export function preferCompressed(loc = location) {
+  const asked = new URLSearchParams(loc.search).get("images");
+  if (asked === "raw" || asked === "compressed") return asked === "compressed";
+  return !["127.0.0.1", "localhost", "[::1]", "::1"].includes(loc.hostname);
+}
+
+// An image view's frames per second and age (now - header.stamp) as drawn. The stamp is on the robot's clock,
+// the browser's clock may differ: each message's receipt time (messageData's timestamp, the daemon's clock)
+// bounds the offset, offset >= receipt - arrival, with equality for a message that took no time on the way;
+// the largest of the last 64 is taken, so the age shown includes the link's delay above its fastest message.
+export class ImageMeter {
+  constructor() { this.reset(); }
+  reset() { this.offsets = []; this.offsetMs = 0; this.times = []; this.fps = 0; this.ageMs = null; }
+  // a message arrived: its receipt time on the daemon's clock (ms), now on the browser's (ms)
+  arrived(receiptMs, nowMs = Date.now()) {
+    this.offsets.push(receiptMs - nowMs);
+    if (this.offsets.length > 64) this.offsets.shift();
+    this.offsetMs = Math.max(...this.offsets);
+  }
+  // a frame was drawn: its header.stamp ({secs, nsecs}); returns the age in ms on the daemon's clock
+  drawn(stamp, nowMs = Date.now()) {
+    const t = performance.now();
+    this.times.push(t);
+    while (this.times.length && this.times[0] < t - 1000) this.times.shift();
+    this.fps = this.times.length;
+    if (stamp && (stamp.secs || stamp.nsecs)) this.ageMs = nowMs + this.offsetMs - (stamp.secs * 1e3 + stamp.nsecs / 1e6);
+    return this.ageMs;
+  }
+  text(mode) {
+    const age = this.ageMs === null ? "age ?" : `age ${Math.round(this.ageMs)} ms`;
+    return `${this.fps} fps · ${age}${mode ? " · " + mode : ""}`;
   }
 }
