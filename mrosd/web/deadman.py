@@ -120,6 +120,8 @@ class DeadMan:
                 log.warning("web: dead-man: could not stop %s for %s: %s", publisher.topic, self.client, exc)
                 continue
             sent += 1
-            log.info("web: dead-man: %s disconnected while driving %s: published a zero", self.client, publisher.topic)
+            log.warning(
+                "web: dead-man: %s disconnected while driving %s: published a zero", self.client, publisher.topic
+            )
         self._last.clear()
         return sent
