@@ -132,6 +132,7 @@ export class TfTab {
   }
   now() { return performance.now() / 1000; }
   show() {
+    if (this.on) return; // shown already (a reconnect, a second hash change)
     this.on = true;
     for (const [topic, isStatic] of [["/tf", false], ["/tf_static", true]]) this.follow(topic, isStatic);
     this.channels();
