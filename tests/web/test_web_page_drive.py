@@ -86,12 +86,19 @@ async def main():
 asyncio.run(main())
 """
 
-#: rospy (Debian): every /cmd_vel Twist and every /test_action/result as a JSON line.
+#: rospy (Debian): every /cmd_vel Twist and every /test_action/result as a JSON line; tf2_ros's static
+#: broadcaster puts "world" under "map".
 WATCH = """
-import json, sys, rospy
-from geometry_msgs.msg import Twist
+import json, sys, rospy, tf2_ros
+from geometry_msgs.msg import Twist, TransformStamped
 from actionlib.msg import TestActionResult
 rospy.init_node("watch")
+static = tf2_ros.StaticTransformBroadcaster()
+t = TransformStamped()
+t.header.stamp = rospy.Time.now()
+t.header.frame_id, t.child_frame_id = "map", "world"
+t.transform.translation.x, t.transform.rotation.w = -3.0, 1.0
+static.sendTransform(t)
 out = lambda d: (sys.stdout.write(json.dumps(d) + "\\n"), sys.stdout.flush())
 rospy.Subscriber("/cmd_vel", Twist, lambda m: out({"x": m.linear.x, "z": m.angular.z, "t": rospy.get_time()}))
 rospy.Subscriber("/test_action/result", TestActionResult,
@@ -366,9 +373,11 @@ def test_tf_tab_shows_the_tree_with_rates_and_draws_frames_scan_and_cloud(robot:
     assert laser[1:3] == ["base", "static"], laser
     rate = float(b.eval(f"{row.format('base')}.dataset.rate"))
     assert 14 <= rate <= 26, rate  # broadcast at 20 Hz
-    # The tree: world a root, base under it, laser under base.
+    # The tree: map (tf2_ros's static broadcaster, rospy) the root, world under it, base under world, laser under base.
+    b.until(f"{row.format('world')} && {row.format('world')}.children[1].textContent === 'map'")
+    assert b.eval(f"{row.format('world')}.children[2].textContent") == "static"
     order = b.eval("[...document.querySelectorAll('#tf-tree tbody tr')].map(r => r.dataset.frame)")
-    assert order.index("world") < order.index("base") < order.index("laser"), order
+    assert order.index("map") < order.index("world") < order.index("base") < order.index("laser"), order
     # Scan (in laser) and cloud (in base) drawn in the fixed frame world: laser sits at (1.5, 2) in world.
     b.eval("document.querySelector('#tf-fixed').value = 'world'")
     for topic in ("/scan", "/cloud"):
@@ -445,7 +454,10 @@ def test_the_daemon_stops_the_robot_when_the_driving_browser_dies(robot: Robot, 
             except ProcessLookupError:
                 pass
         _twists(watch, 1, False)
-        assert "dead-man" in robot.daemon.log()
+        deadline = time.monotonic() + 5
+        while "dead-man" not in robot.daemon.log() and time.monotonic() < deadline:
+            time.sleep(0.05)  # the daemon's line is written right after the zero, by another process
+        assert "dead-man" in robot.daemon.log(), (watch.seen[-8:], robot.daemon.log()[-1500:])
         b.close()
     finally:
         procs.close()
