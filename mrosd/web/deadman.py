@@ -14,6 +14,7 @@ the Foxglove and rosbridge servers are one call on publish and one as the sessio
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import struct
 import time
@@ -29,6 +30,8 @@ TWIST_STAMPED = "geometry_msgs/TwistStamped"
 DRIVE_TYPES = frozenset((TWIST, TWIST_STAMPED))
 #: a client counts as driving when its last non-zero command is at most this old as it disconnects
 WINDOW_S = 1.0
+#: how long a session's end waits for the zeros to leave (a subscriber that was behind reads them first)
+SETTLE_S = 2.0
 #: a Twist is six float64: linear xyz, angular xyz (it ends a TwistStamped too)
 _TWIST_BYTES = 48
 _SIX = struct.Struct("<6d")
@@ -110,18 +113,40 @@ class DeadMan:
                 out.append((cmd.publisher, zero_body(cmd.type_name, cmd.body, self._wall_ns())))
         return out
 
-    def stop(self) -> int:
-        """The client is gone: publish the zeros owed (once; what cannot be sent is logged). Returns how many."""
-        sent = 0
+    async def stop(self, settle: float = SETTLE_S) -> int:
+        """The client is gone: publish the zeros owed (once; what cannot be sent is logged), then wait (at most
+        ``settle`` s) until they have left for the kernel: the client's publisher is released next, and a
+        publisher's close drops what a slow subscriber has not taken yet. Returns how many zeros were sent."""
+        sent = []
         for publisher, body in self.due():
             try:
                 publisher.publish_serialized(body)
             except Exception as exc:  # a closed publisher: nothing left to stop through
                 log.warning("web: dead-man: could not stop %s for %s: %s", publisher.topic, self.client, exc)
                 continue
-            sent += 1
+            sent.append(publisher)
             log.warning(
                 "web: dead-man: %s disconnected while driving %s: published a zero", self.client, publisher.topic
             )
         self._last.clear()
-        return sent
+        if sent:
+            await _settle(sent, settle)
+        return len(sent)
+
+
+def _backlog(publisher: Any) -> bool:
+    """Whether a subscriber connection of ``publisher`` still holds frames not handed to the kernel."""
+    for link in getattr(publisher, "links", ()):
+        proto = getattr(link, "proto", None)
+        transport = getattr(proto, "transport", None)
+        if getattr(link, "queue", None) or (transport is not None and transport.get_write_buffer_size()):
+            return True
+    return False
+
+
+async def _settle(publishers: list[Any], timeout: float) -> None:
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    # a publisher offers no event for "flushed": poll
+    while any(_backlog(p) for p in publishers) and loop.time() < deadline:  # noqa: ASYNC110
+        await asyncio.sleep(0.01)

@@ -296,7 +296,7 @@ class FoxgloveSession(FoxgloveRequests):
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
-            self._deadman.stop()
+            await self._deadman.stop()
             await self._release()
 
     async def _release(self) -> None:

@@ -240,7 +240,7 @@ class RosbridgeSession(ClientSession):
             await asyncio.gather(sender, *self._calls, return_exceptions=True)
             self._fragment_rest = None
             self._unhold()
-            self._deadman.stop()
+            await self._deadman.stop()
             await self._release()
 
     async def _release(self) -> None:

@@ -133,3 +133,41 @@ async def test_a_rosbridge_client_that_drops_while_driving_is_followed_by_one_ze
         assert (zero.linear.x, zero.angular.z) == (0.0, 0.0)
         await asyncio.sleep(0.3)
         assert got.empty()
+
+
+async def test_the_zero_reaches_a_subscriber_that_was_behind_when_the_client_dropped(
+    master: Master, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The zero queues behind what the subscriber has not read yet; releasing the client's publisher right
+    after must not throw it away (a publisher's close drops what it still queues)."""
+    monkeypatch.setenv("MROSD_SHM", "0")  # TCPROS, as to a robot's rospy or roscpp node
+    async with (
+        WebServer(master.uri, port=0, node_host="127.0.0.1") as server,
+        node("robot", master.uri) as robot,
+        aiohttp.ClientSession() as http,
+    ):
+        got = await _received("/cmd_vel", TwistStamped, robot)
+        drive = TwistStamped()
+        drive.header.frame_id = "x" * (1024 * 1024)  # big commands fill the socket buffers in a few messages
+        drive.twist.linear.x = 0.5
+        ws, _ = await _foxglove_drive(server, http, got, TwistStamped, drive)
+        (sub,) = robot.subscribers.values()
+        (link,) = sub.links.values()
+        assert link.proto is not None and link.proto.transport is not None
+        link.proto.transport.pause_reading()  # the robot falls behind
+        frame = struct.pack("<BI", 1, 1) + drive.serialize()
+        for _ in range(40):
+            await ws.send_bytes(frame)
+        (pub,) = [p for p in server.hub.node.publishers.values() if p.topic == "/cmd_vel"]
+        async with backports.timeout(10):
+            while not any(lk.queue for lk in pub.links):  # noqa: ASYNC110 - the publisher's state, no event
+                await asyncio.sleep(0.01)
+        assert ws._response.connection is not None
+        ws._response.connection.transport.abort()  # type: ignore[union-attr]
+        await asyncio.sleep(0.3)  # the session ends and queues its zero behind what the robot has not read
+        link.proto.transport.resume_reading()
+        last = None
+        async with backports.timeout(10):
+            while last is None or last.twist.linear.x != 0.0:
+                last = await got.get()
+        assert last.header.frame_id == drive.header.frame_id

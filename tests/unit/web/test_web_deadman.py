@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import math
 from typing import Any
 
@@ -68,12 +69,12 @@ def test_only_a_recent_moving_command_is_owed_a_zero_and_only_once() -> None:
     dm.published(stopped, "geometry_msgs/Twist", twist().serialize())
     dm.published_message(chat, String(data="hi"))
     clock.now += 0.5
-    assert dm.stop() == 1
+    assert asyncio.run(dm.stop()) == 1
     assert drive.sent == [bytes(48)] and not stopped.sent and not old.sent and not chat.sent
-    assert dm.stop() == 0
+    assert asyncio.run(dm.stop()) == 0
 
 
 def test_a_closed_publisher_is_logged_not_raised() -> None:
     dm = DeadMan("test", clock=FakeClock())
     dm.published_message(Pub("/cmd_vel", fail=True), twist(1.0))
-    assert dm.stop() == 0
+    assert asyncio.run(dm.stop()) == 0
