@@ -28,6 +28,7 @@ from aiohttp.abc import AbstractStreamWriter
 from mrosd.errors import MrosError
 from mrosd.master.client import GraphSnapshot
 from mrosd.web import foxglove as fg
+from mrosd.web.deadman import DeadMan
 from mrosd.web.foxglove_requests import FoxgloveRequests, service_json
 from mrosd.web.hub import PAUSE_BYTES, ServiceInfo, TopicInfo, WebHub
 from mrosd.web.limits import SessionLimits
@@ -94,6 +95,7 @@ class FoxgloveSession(FoxgloveRequests):
         #: its messages are stamped with it, as the protocol asks, for as long as sim time stays on
         self._offered_time = False
         self._throttle_timer: asyncio.TimerHandle | None = None
+        self._deadman = DeadMan(f"{self.KIND} {peer}")
 
     # --- hub callbacks (never block) -------------------------------------------------------------
 
@@ -294,6 +296,7 @@ class FoxgloveSession(FoxgloveRequests):
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
+            await self._deadman.stop()
             await self._release()
 
     async def _release(self) -> None:
@@ -480,6 +483,7 @@ class FoxgloveSession(FoxgloveRequests):
             return
         try:
             channel.publisher.publish_serialized(body)
+            self._deadman.published(channel.publisher, channel.msg_class._type, body)
         except MrosError as exc:
             self.status(fg.STATUS_ERROR, f"messageData on {channel.topic}: {exc}")
 

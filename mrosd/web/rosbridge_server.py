@@ -41,6 +41,7 @@ from mrosd.msg import get_service_class, load_type_async
 from mrosd.web import rosapi
 from mrosd.web import rosbridge as rb
 from mrosd.web import rosbridge_publishers as publishers
+from mrosd.web.deadman import DeadMan
 from mrosd.web.foxglove_server import SessionLimits
 from mrosd.web.hub import PAUSE_BYTES, ServiceInfo, TopicInfo, WebHub
 from mrosd.web.queue import ByteQueue, Ledger, trim_to_budget
@@ -106,6 +107,7 @@ class RosbridgeSession(ClientSession):
         self._token = token
         self.subs: dict[str, _Sub] = {}
         self._published: dict[str, Any] = {}  # topic -> publisher
+        self._deadman = DeadMan(f"rosbridge client {self.peer}")
         #: services this client provides (advertise_service), and the calls waiting for its service_response
         self._provided: dict[str, Any] = {}
         self._pending: dict[str, asyncio.Future[tuple[bool, Any]]] = {}
@@ -238,6 +240,7 @@ class RosbridgeSession(ClientSession):
             await asyncio.gather(sender, *self._calls, return_exceptions=True)
             self._fragment_rest = None
             self._unhold()
+            await self._deadman.stop()
             await self._release()
 
     async def _release(self) -> None:
@@ -428,6 +431,7 @@ class RosbridgeSession(ClientSession):
         msg = rb.message_from_json(pub.msg_class, op.msg)
         pub.publish_nowait(msg)
         publishers.published(pub, msg)
+        self._deadman.published_message(pub, msg)
 
     # --- services this client provides ----------------------------------------------------------
 

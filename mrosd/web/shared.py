@@ -69,6 +69,10 @@ class HoldingSink:
         pass
 
 
+#: caller id -> latched message body (named here: ``Shared``'s own ``bytes`` field shadows the type inside it)
+LatchedBodies = dict[str, bytes]
+
+
 @dataclass(slots=True)
 class Shared:
     """One raw subscription and the sinks that share it."""
@@ -79,6 +83,20 @@ class Shared:
     bytes: int = 0
     #: reading from the publishers is paused: every sink is behind (see ``resume``)
     paused: bool = False
+    #: the last message of each latching publisher (by caller id): a publisher sends it once, as the shared
+    #: connection opens, so a sink that joins later gets it from here (rosbridge opens a new subscriber for it)
+    latched: LatchedBodies = field(default_factory=dict)
+
+
+#: latching publishers remembered per topic (a dict keeps insertion order: the oldest goes first)
+MAX_LATCHED_PUBLISHERS = 64
+
+
+def _keep_latched(entry: Shared, callerid: str, body: bytes | bytearray) -> None:
+    entry.latched.pop(callerid, None)
+    entry.latched[callerid] = bytes(body)  # the frame decoder may reuse a large body's buffer
+    while len(entry.latched) > MAX_LATCHED_PUBLISHERS:
+        del entry.latched[next(iter(entry.latched))]
 
 
 class SharedSubscriptions:
@@ -114,6 +132,8 @@ class SharedSubscriptions:
             body = msg.data
             entry.messages += 1
             entry.bytes += len(body)
+            if msg.header.latching == "1":
+                _keep_latched(entry, msg.header.callerid or "", body)
             behind = True
             for sink in entry.sinks:
                 try:
@@ -169,6 +189,12 @@ class SharedSubscriptions:
                     await self._before(topic)
                 entry = Shared(await self.subscribe(topic))
                 self.entries[topic] = entry
+            elif sink not in entry.sinks and entry.latched:
+                connected = {link.header.callerid for link in entry.subscriber.links.values() if link.header}
+                now = time.time_ns()
+                for callerid, body in entry.latched.items():
+                    if callerid in connected:
+                        sink.deliver(topic, body, now)
             if sink not in entry.sinks:
                 entry.sinks.append(sink)
             if entry.paused:

@@ -5,6 +5,10 @@ import { ImageView, ImageMeter, preferCompressed } from "./image.js";
 import { Plot } from "./plot.js";
 import { drawGraph } from "./graph.js";
 import { drawScan, drawCloud } from "./scan.js";
+import { TfTab } from "./tf.js";
+import { ActionsTab } from "./actions.js";
+import { ReconfigureTab } from "./reconfigure.js";
+import { TeleopTab } from "./teleop.js";
 
 const $ = (s) => document.querySelector(s);
 const TREE_HZ = 20, IMAGE_HZ = 30, MAX_ARRAY = 32, MAX_LOG = 1000;
@@ -34,6 +38,7 @@ function connect() {
   ws.onopen = () => { $("#conn").textContent = "connected"; $("#conn").className = "ok"; send({ op: "subscribeConnectionGraph" }); show(state.view); };
   ws.onclose = () => {
     $("#conn").textContent = "disconnected: retrying"; $("#conn").className = "bad";
+    tabsDisconnected();
     state.channels.clear(); state.byTopic.clear(); state.services.clear(); state.calls.clear(); state.mine.clear(); state.current = null; state.rosoutSub = null;
     setTimeout(connect, 2000);
   };
@@ -48,10 +53,11 @@ function onJson(m) {
     case "advertise":
       for (const c of m.channels) { state.channels.set(c.id, c); state.byTopic.set(c.topic, c); }
       refreshTopicPick(); renderTopics(); if (state.view === "log") ensureRosout();
+      tabsChannels();
       break;
     case "unadvertise":
       for (const id of m.channelIds) { const c = state.channels.get(id); if (c) state.byTopic.delete(c.topic); state.channels.delete(id); }
-      refreshTopicPick(); renderTopics();
+      refreshTopicPick(); renderTopics(); tabsChannels();
       break;
     case "connectionGraphUpdate":
       for (const t of m.publishedTopics || []) state.pubs.set(t.name, new Set(t.publisherIds));
@@ -69,13 +75,14 @@ function onJson(m) {
       break;
     case "advertiseServices":
       for (const sv of m.services) state.services.set(sv.id, sv);
-      refreshServices();
+      refreshServices(); tabsChannels();
       break;
     case "unadvertiseServices":
       for (const id of m.serviceIds) state.services.delete(id);
-      refreshServices();
+      refreshServices(); tabsChannels();
       break;
     case "serviceCallFailure": {
+      if (tabCallDone(m.callId, null, m.message)) break;
       const call = state.calls.get(m.callId);
       if (call) { state.calls.delete(m.callId); $("#service-status").textContent = "failed: " + m.message; }
       break;
@@ -115,6 +122,7 @@ function show(view) {
   if (state.view === "topics" && view !== "topics") send({ op: "x-mrosd.unsubscribeStats" });
   if (state.view === "topic" && view !== "topic") { unsubscribe(state.current); state.current = null; }
   if (state.view === "log" && view !== "log") { unsubscribe(state.rosoutSub); state.rosoutSub = null; }
+  if (tabs[state.view] && state.view !== view) tabs[state.view].hide();
   state.view = view;
   document.querySelectorAll("nav button").forEach((b) => b.classList.toggle("on", b.dataset.view === view));
   document.querySelectorAll(".view").forEach((s) => s.classList.toggle("on", s.id === "view-" + view));
@@ -124,6 +132,7 @@ function show(view) {
   if (view === "params") send({ op: "getParameters", parameterNames: [], id: "page" });
   if (view === "services" && $("#service-pick").value !== state.formFor) buildForm();
   if (view === "graph") { renderGraph(); setTimeout(probeNodes, 500); }
+  if (tabs[view] && ws && ws.readyState === 1) tabs[view].show();
   const hash = view === "topic" && $("#topic-pick").value ? `#topic=${$("#topic-pick").value}` : `#${view}`;
   if (location.hash !== hash) history.replaceState(null, "", hash);
 }
@@ -450,6 +459,7 @@ function callService() {
 
 function onServiceResponse(v, buf) {
   const callId = v.getUint32(5, true), encLen = v.getUint32(9, true);
+  if (tabCallDone(callId, new Uint8Array(buf, 13 + encLen))) return;
   const call = state.calls.get(callId);
   if (!call) return;
   state.calls.delete(callId);
@@ -464,8 +474,65 @@ function onServiceResponse(v, buf) {
   } catch (e) { $("#service-status").textContent = "response: " + e.message; }
 }
 
+// --- the TF, Actions, Reconfigure and Teleop tabs (tf.js, actions.js, reconfigure.js, teleop.js) ----------
+// What they use of the connection: subscriptions, client channels (clientPublish) and service calls.
+let nextChannel = 1;
+const tabCalls = new Map();
+const api = {
+  state, subscribe, unsubscribe,
+  advertise(topic, schemaName, schema) {
+    const id = nextChannel++;
+    send({ op: "advertise", channels: [{ id, topic, encoding: "ros1", schemaName, schema, schemaEncoding: "ros1msg" }] });
+    return id;
+  },
+  unadvertise(id) { send({ op: "unadvertise", channelIds: [id] }); },
+  publish(id, payload) {
+    if (!ws || ws.readyState !== 1) return false;
+    const frame = new Uint8Array(5 + payload.length);
+    frame[0] = 1; new DataView(frame.buffer).setUint32(1, id, true); frame.set(payload, 5);
+    ws.send(frame);
+    return true;
+  },
+  // Call a service by name with a request object; resolves to the decoded response (10 s at most).
+  callService(name, request) {
+    const sv = serviceByName(name);
+    if (!sv || !ws || ws.readyState !== 1) return Promise.reject(new Error(`${name} is not offered`));
+    const req = parseDefinition(sv.type + "Request", sv.request?.schema ?? sv.requestSchema ?? "");
+    const payload = serialize(req, request), id = state.nextCall++;
+    const frame = new Uint8Array(13 + ENC.length + payload.length), v = new DataView(frame.buffer);
+    v.setUint8(0, 2); v.setUint32(1, sv.id, true); v.setUint32(5, id, true); v.setUint32(9, ENC.length, true);
+    frame.set(ENC, 13); frame.set(payload, 13 + ENC.length);
+    return new Promise((resolve, reject) => {
+      const timer = setTimeout(() => tabCallDone(id, null, "no answer in 10 s"), 10000);
+      tabCalls.set(id, { sv, resolve, reject, timer });
+      ws.send(frame);
+    });
+  },
+};
+function tabCallDone(id, body, error) {
+  const call = tabCalls.get(id);
+  if (!call) return false;
+  tabCalls.delete(id); clearTimeout(call.timer);
+  if (body === null) { call.reject(new Error(error)); return true; }
+  try {
+    const def = parseDefinition(call.sv.type + "Response", call.sv.response?.schema ?? call.sv.responseSchema ?? "");
+    call.resolve(deserialize(def, body));
+  } catch (e) { call.reject(e); }
+  return true;
+}
+const tabs = {
+  tf: new TfTab(api, $("#view-tf")), actions: new ActionsTab(api, $("#view-actions")),
+  reconfigure: new ReconfigureTab(api, $("#view-reconfigure")), teleop: new TeleopTab(api, $("#view-teleop")),
+};
+window.mrosdPage.tabs = tabs;
+function tabsChannels() { for (const t of Object.values(tabs)) if (t.channels) t.channels(); }
+function tabsDisconnected() {
+  for (const id of tabCalls.keys()) tabCallDone(id, null, "disconnected");
+  for (const [name, t] of Object.entries(tabs)) { if (t.disconnected) t.disconnected(); if (name === state.view) t.hide(); }
+}
+
 // #topic=/name opens a topic, #topics the table, ... (bookmarkable, and how the tests open a view)
-const VIEWS = ["graph", "topics", "topic", "log", "params", "services"];
+const VIEWS = ["graph", "topics", "topic", "log", "params", "services", "tf", "actions", "reconfigure", "teleop"];
 const viewOfHash = () => {
   const topic = decodeURIComponent(location.hash.startsWith("#topic=") ? location.hash.slice(7) : "");
   const view = topic ? "topic" : location.hash.slice(1) || "graph";

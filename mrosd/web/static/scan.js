@@ -23,36 +23,50 @@ function frame(canvas, points, colour) {
   }
 }
 
-export function drawScan(canvas, msg) {
-  const pts = [];
+// A scan's points in its own frame, as x, y, z triplets (z = 0); readings outside [range_min, range_max] left out.
+export function scanPoints(msg) {
+  const out = [];
   msg.ranges.forEach((range, i) => {
     if (!(range >= msg.range_min && range <= msg.range_max)) return;
     const a = msg.angle_min + i * msg.angle_increment;
-    pts.push(range * Math.cos(a), range * Math.sin(a));
+    out.push(range * Math.cos(a), range * Math.sin(a), 0);
   });
+  return Float64Array.from(out);
+}
+
+const xyOf = (xyz) => { const xy = new Float64Array(2 * (xyz.length / 3)); for (let i = 0, k = 0; i < xyz.length; i += 3, k += 2) { xy[k] = xyz[i]; xy[k + 1] = xyz[i + 1]; } return xy; };
+
+export function drawScan(canvas, msg) {
+  const pts = xyOf(scanPoints(msg));
   frame(canvas, pts, () => "#4fc3f7");
   return pts.length / 2;
 }
 
 const READ = { 7: ["getFloat32", 4], 8: ["getFloat64", 8] };
 
-export function drawCloud(canvas, msg) {
+// A cloud's points (float x, y and z when present: 0 without) as x, y, z triplets, at most MAX_POINTS.
+export function cloudPoints(msg) {
   const field = (n) => msg.fields.find((f) => f.name === n && READ[f.datatype]);
   const fx = field("x"), fy = field("y"), fz = field("z");
   if (!fx || !fy) throw new Error("PointCloud2 without float x and y fields");
   const view = new DataView(msg.data.buffer, msg.data.byteOffset, msg.data.byteLength);
   const le = !msg.is_bigendian;
   const n = Math.min(msg.width * msg.height, Math.floor(msg.data.length / msg.point_step), MAX_POINTS);
-  const pts = new Float64Array(2 * n), zs = new Float64Array(n);
-  let lo = Infinity, hi = -Infinity;
+  const xyz = new Float64Array(3 * n);
   for (let i = 0; i < n; i++) {
     const o = i * msg.point_step;
-    pts[2 * i] = view[READ[fx.datatype][0]](o + fx.offset, le);
-    pts[2 * i + 1] = view[READ[fy.datatype][0]](o + fy.offset, le);
-    const z = fz ? view[READ[fz.datatype][0]](o + fz.offset, le) : 0;
-    zs[i] = z; if (z < lo) lo = z; if (z > hi) hi = z;
+    xyz[3 * i] = view[READ[fx.datatype][0]](o + fx.offset, le);
+    xyz[3 * i + 1] = view[READ[fy.datatype][0]](o + fy.offset, le);
+    xyz[3 * i + 2] = fz ? view[READ[fz.datatype][0]](o + fz.offset, le) : 0;
   }
+  return xyz;
+}
+
+export function drawCloud(canvas, msg) {
+  const xyz = cloudPoints(msg), n = xyz.length / 3;
+  let lo = Infinity, hi = -Infinity;
+  for (let i = 2; i < xyz.length; i += 3) { if (xyz[i] < lo) lo = xyz[i]; if (xyz[i] > hi) hi = xyz[i]; }
   const span = hi > lo ? hi - lo : 1;
-  frame(canvas, pts, (k) => `hsl(${240 - 240 * ((zs[k] - lo) / span)},80%,60%)`);
+  frame(canvas, xyOf(xyz), (k) => `hsl(${240 - 240 * ((xyz[3 * k + 2] - lo) / span)},80%,60%)`);
   return n;
 }
