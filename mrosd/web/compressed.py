@@ -252,6 +252,8 @@ class CompressedSource:
                 self.emit(_Body(out))
         except MrosError as exc:  # the raw topic could not be subscribed
             _ratelog.warning(self.name, "web: %s cannot be made: %s", self.name, exc)
+        except Exception:  # a bug, not a peer's doing: said once, loudly, rather than a task that just stops
+            log.exception("web: the encoder of %s stopped", self.name)
         finally:
             self.latest = None
             with contextlib.suppress(MrosError):

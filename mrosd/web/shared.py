@@ -132,8 +132,9 @@ class SharedSubscriptions:
             body = msg.data
             entry.messages += 1
             entry.bytes += len(body)
-            if msg.header.latching == "1":
-                _keep_latched(entry, msg.header.callerid or "", body)
+            header = getattr(msg, "header", None)  # a made topic's bodies (``compressed``) come without one
+            if header is not None and header.latching == "1":
+                _keep_latched(entry, header.callerid or "", body)
             behind = True
             for sink in entry.sinks:
                 try:
