@@ -65,10 +65,11 @@ class ByteQueue(Generic[T]):
     """FIFO of ``(item, size)`` whose total size stays within ``max_bytes`` (plus one oversized item).
 
     ``dropped``/``dropped_bytes`` count what ``put`` pushed out (drop-oldest); ``unreported`` is the part of
-    ``dropped`` nobody has reported to the client yet (``take_unreported`` resets it).
+    ``dropped`` nobody has reported to the client yet (``take_unreported`` resets it). ``newest_only``: ``put``
+    drops every item before the new one (a big topic's frames: what waits is replaced by the newest).
     """
 
-    __slots__ = ("_items", "dropped", "dropped_bytes", "ledger", "max_bytes", "size", "unreported")
+    __slots__ = ("_items", "dropped", "dropped_bytes", "ledger", "max_bytes", "newest_only", "size", "unreported")
 
     def __init__(self, max_bytes: int, ledger: Ledger | None = None) -> None:
         if max_bytes < 1:
@@ -81,6 +82,7 @@ class ByteQueue(Generic[T]):
         self.dropped = 0
         self.dropped_bytes = 0
         self.unreported = 0
+        self.newest_only = False
 
     def __len__(self) -> int:
         return len(self._items)
@@ -90,7 +92,7 @@ class ByteQueue(Generic[T]):
         items = self._items
         dropped = 0
         before = self.size
-        while items and self.size + size > self.max_bytes:
+        while items and (self.newest_only or self.size + size > self.max_bytes):
             _, old = items.popleft()
             self.size -= old
             self.dropped_bytes += old
@@ -102,6 +104,10 @@ class ByteQueue(Generic[T]):
         self.dropped += dropped
         self.unreported += dropped
         return dropped
+
+    def peek_size(self) -> int | None:
+        """The size of the oldest item, None when empty."""
+        return self._items[0][1] if self._items else None
 
     def get(self) -> T:
         """The oldest item. Raises IndexError when empty."""

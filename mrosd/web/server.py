@@ -214,16 +214,17 @@ class WebServer:
         from mrosd.web.rosbridge_server import RosbridgeSession
 
         address = str(request.remote)
+        writer = None
         if self.policy.token_ok(self._token(request)):
-            ws = web.WebSocketResponse(compress=False, max_msg_size=self.max_frame, heartbeat=30.0)
+            ws = web.WebSocketResponse(compress=True, max_msg_size=self.max_frame, heartbeat=30.0)
             why = self.admission.admit(address)
             if why is not None:
                 raise web.HTTPServiceUnavailable(text=why + "\n")
         else:
             pending = AuthFirstResponse(
-                max_frame=self.max_frame, token_ok=self.policy.token_ok, compress=False, heartbeat=30.0
+                max_frame=self.max_frame, token_ok=self.policy.token_ok, compress=True, heartbeat=30.0
             )
-            await pending.prepare(request)
+            writer = await pending.prepare(request)
             for old in self.admission.pend(pending, address):
                 refuse_later(old, "too many connections waiting to authenticate")  # type: ignore[arg-type]
             try:
@@ -240,13 +241,14 @@ class WebServer:
             ws = pending
         try:
             if not ws.prepared:
-                await ws.prepare(request)
+                writer = await ws.prepare(request)
             session = RosbridgeSession(
                 self.hub,
                 ws,
                 self.limits,
                 peer=address,
                 fragments=(self.rosbridge_fragments, self.max_fragment_bytes),
+                writer=writer,
             )
             self.rosbridge_sessions.add(session)
             try:
@@ -280,7 +282,7 @@ class WebServer:
             raise web.HTTPServiceUnavailable(text=why + "\n")
         try:
             ws = web.WebSocketResponse(
-                protocols=fg.SUBPROTOCOLS, compress=False, max_msg_size=self.max_frame, heartbeat=30.0
+                protocols=fg.SUBPROTOCOLS, compress=True, max_msg_size=self.max_frame, heartbeat=30.0
             )
             writer = await ws.prepare(request)
             session = FoxgloveSession(self.hub, ws, writer, self.limits, peer=address)

@@ -238,13 +238,19 @@ class FoxgloveProbe:
             self.send(cmd="subscribe", topic=topic)
             self.wait(lambda ev, t=topic: ev.get("event") == "subscribed" and ev.get("topic") == t, timeout)
 
-    def collect(self, seconds: float, warmup: float = 0.0) -> dict[str, TopicStats]:
-        """Message events of the next ``seconds`` (after ``warmup`` seconds dropped), by topic."""
-        start = time.monotonic() + warmup
+    def collect(self, seconds: float, warmup: float = 0.0, settle: float = 1.5) -> dict[str, TopicStats]:
+        """What arrived of the messages published during ``seconds`` (after ``warmup``), by topic.
+
+        Messages are counted by their publish stamp, not by their arrival: behind a slow link small messages
+        arrive in bursts (each after a camera frame), and a window of arrivals would cut a burst at either end.
+        Collection goes on for ``settle`` seconds after the window, for the messages still in flight.
+        """
+        start = time.time() + warmup
         end = start + seconds
+        stop = time.monotonic() + warmup + seconds + settle
         got: dict[str, list[tuple[float, float]]] = {}
         while True:
-            remaining = end - time.monotonic()
+            remaining = stop - time.monotonic()
             if remaining <= 0:
                 break
             try:
@@ -252,10 +258,10 @@ class FoxgloveProbe:
             except queue.Empty:
                 break
             self._note(ev)
-            if ev.get("event") != "message" or time.monotonic() < start:
+            if ev.get("event") != "message":
                 continue
             stamp = _stamp(ev["topic"], bytes.fromhex(ev["head"]))
-            if stamp is not None:
+            if stamp is not None and start <= stamp < end:
                 got.setdefault(ev["topic"], []).append((ev["at"] / 1000.0 - stamp, stamp))
         return {
             topic: TopicStats(len(rows), len(rows) / seconds, [a for a, _ in rows], [s for _, s in rows])

@@ -1,0 +1,175 @@
+"""What both servers' senders share to be fair to a client over a slow link: the deficit round robin of its
+subscriptions (``mrosd.web.delivery``), the gate that hands a big message to the socket only when the link is
+clear, the frames written past aiohttp's compressor, and the per-topic delivery counts.
+
+Why a gate on big messages: a camera frame written to the socket sits in the kernel's send buffer (Linux
+autotunes it up to 4 MiB, seconds of a Wi-Fi link) and in the transport's buffer until it has crossed the link;
+frames queued there cannot be replaced by newer ones, so a client would see frames seconds old. The next big
+message is handed over only when what the socket has not yet delivered (the transport's buffer plus the
+kernel's unacknowledged bytes, ``TIOCOUTQ``) is under ``LINK_CLEAR_BYTES``; until then it waits in OUR queue,
+newest-only, where a newer frame replaces it (counted as dropped) and small topics go ahead of it. No event
+says that the kernel's queue has drained, so a blocked big message is retried on a short timer (2 ms doubling
+to 16 ms, reset when the link clears), and on every wake-up of the sender.
+
+Why some frames bypass aiohttp's writer: once permessage-deflate is negotiated, aiohttp deflates every message
+it sends (its per-message ``compress`` argument picks another window size, never "off"). A message that is
+already compressed (a JPEG or PNG ``CompressedImage``, a rosbridge ``png`` op) or big (deflate at level 1 costs
+about 10 ms per MB on this machine's cores: a 2.7 MB camera frame at 30 Hz would take a core per client, for
+images that shrink little) is written as an uncompressed frame (RSV1 clear, which RFC 7692 allows per
+message), by us, with the head before the payload and no copy of it. aiohttp's compressor keeps its own
+window: frames it did not compress are not part of its stream, so the client's inflater stays in step.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import fcntl
+import struct
+import termios
+from collections.abc import Callable, Hashable, Mapping
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
+
+from mrosd.web.delivery import BIG_MESSAGE_BYTES, DeficitRoundRobin
+
+if TYPE_CHECKING:
+    from mrosd.web.queue import ByteQueue
+
+__all__ = [
+    "DEFLATE_MAX_BYTES",
+    "LINK_CLEAR_BYTES",
+    "FairSender",
+    "frame_head",
+    "is_precompressed",
+    "unsent_bytes",
+]
+
+#: A big message goes to the socket only when less than this is still to be delivered: 0.1 s of a 20 Mbit/s
+#: link, about 1 ms of loopback (where it does not hold anything back: a reading client acknowledges at once).
+LINK_CLEAR_BYTES = 256 * 1024
+#: Messages from this size on are never deflated (see the module's docstring): the CPU a client can make the
+#: daemon spend on deflate is then at most its small topics' rates, not its cameras'.
+DEFLATE_MAX_BYTES = BIG_MESSAGE_BYTES
+#: message types whose payload is already compressed (deflating it again costs CPU and saves nothing)
+PRECOMPRESSED_TYPES = frozenset({"sensor_msgs/CompressedImage", "theora_image_transport/Packet"})
+_POLL_MIN = 0.002
+_POLL_MAX = 0.016
+_OUTQ = struct.Struct("i")
+
+
+def is_precompressed(msg_type: str) -> bool:
+    return msg_type in PRECOMPRESSED_TYPES
+
+
+def unsent_bytes(transport: asyncio.BaseTransport | None) -> int:
+    """Bytes written to ``transport`` that the peer has not yet acknowledged: the transport's own buffer plus
+    the kernel's send queue (``TIOCOUTQ``, as ``SIOCOUTQ``: unsent and unacknowledged bytes of a TCP socket)."""
+    if transport is None:
+        return 0
+    size = 0
+    with contextlib.suppress(AttributeError, NotImplementedError):
+        size = transport.get_write_buffer_size()  # type: ignore[attr-defined]
+    sock = transport.get_extra_info("socket")
+    if sock is not None:
+        with contextlib.suppress(OSError, ValueError):
+            size += _OUTQ.unpack(fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0\0\0\0"))[0]
+    return size
+
+
+def frame_head(opcode: int, length: int) -> bytes:
+    """The head of an unmasked, uncompressed (RSV1 clear) final WebSocket frame of ``length`` payload bytes."""
+    first = 0x80 | opcode
+    if length < 126:
+        return struct.pack("!BB", first, length)
+    if length < 65536:
+        return struct.pack("!BBH", first, 126, length)
+    return struct.pack("!BBQ", first, 127, length)
+
+
+class _Lane(Protocol):
+    """A subscription as the fair sender sees it: its queue and its counts."""
+
+    queue: ByteQueue[Any]
+    sent: int
+
+
+K = TypeVar("K", bound=Hashable)
+S = TypeVar("S", bound=_Lane)
+
+
+class FairSender(Generic[K, S]):
+    """One client's fair-delivery state; its session's sender task asks ``pick`` for each message."""
+
+    __slots__ = ("_interval", "_poll", "_wake", "drr", "transport")
+
+    def __init__(self, wake: Callable[[], None]) -> None:
+        self.drr: DeficitRoundRobin[K] = DeficitRoundRobin()
+        self._wake = wake
+        self._poll: asyncio.TimerHandle | None = None
+        self._interval = _POLL_MIN
+        #: the client's connection (None: no gate, e.g. a test's fake socket)
+        self.transport: asyncio.BaseTransport | None = None
+
+    @staticmethod
+    def queued(queue: ByteQueue[Any], size: int) -> None:
+        """Called after a message of ``size`` bytes was put on ``queue``: from the first big message on, the
+        queue keeps only its newest (the older messages it holds now are dropped, counted)."""
+        if size >= BIG_MESSAGE_BYTES and not queue.newest_only:
+            queue.newest_only = True
+            while len(queue) > 1:
+                queue.drop_oldest()
+
+    def link_clear(self) -> bool:
+        return unsent_bytes(self.transport) < LINK_CLEAR_BYTES
+
+    def pick(self, subs: Mapping[K, S], ready: Callable[[S], bool] | None = None) -> S | None:
+        """The subscription whose oldest message goes next (the caller takes it off the queue), or None.
+
+        ``ready(sub)``: False while a subscription may not send (throttled). A big subscription waits for a
+        clear link; while one waits and nothing else can go, the sender is woken again on a timer.
+        """
+        clear: bool | None = None
+        blocked = False
+
+        def head(key: K) -> int | None:
+            nonlocal clear, blocked
+            sub = subs[key]
+            size = sub.queue.peek_size()
+            if size is None or (ready is not None and not ready(sub)):
+                return None
+            if sub.queue.newest_only:
+                if clear is None:
+                    clear = self.link_clear()
+                if not clear:
+                    blocked = True
+                    return None
+            return size
+
+        key = self.drr.pick(subs, head)
+        if clear:
+            self._interval = _POLL_MIN
+        if key is None:
+            if blocked and self._poll is None:
+                self._poll = asyncio.get_running_loop().call_later(self._interval, self._poll_due)
+                self._interval = min(self._interval * 2, _POLL_MAX)
+            return None
+        sub = subs[key]
+        sub.sent += 1
+        return sub
+
+    def _poll_due(self) -> None:
+        self._poll = None
+        self._wake()
+
+    def close(self) -> None:
+        if self._poll is not None:
+            self._poll.cancel()
+            self._poll = None
+
+
+def delivery_counts(subs: Mapping[Any, Any], topic_of: Callable[[Any], str]) -> list[dict[str, Any]]:
+    """Per subscription: its topic, messages sent, dropped (queue bound, newest-only, link) and bytes queued."""
+    return [
+        {"topic": topic_of(sub), "sent": sub.sent, "dropped": sub.queue.dropped, "queued": sub.queue.size}
+        for sub in subs.values()
+    ]
