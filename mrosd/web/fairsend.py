@@ -37,6 +37,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "DEFLATE_MAX_BYTES",
+    "IN_FLIGHT_BYTES",
     "LINK_CLEAR_BYTES",
     "FairSender",
     "frame_head",
@@ -52,6 +53,11 @@ LINK_CLEAR_BYTES = 256 * 1024
 DEFLATE_MAX_BYTES = BIG_MESSAGE_BYTES
 #: message types whose payload is already compressed (deflating it again costs CPU and saves nothing)
 PRECOMPRESSED_TYPES = frozenset({"sensor_msgs/CompressedImage", "theora_image_transport/Packet"})
+#: Bytes of small frames a sender may have in flight (written, not yet acknowledged) beyond the big message
+#: on the wire before it waits for the transport to drain: a big frame takes a second to cross a Wi-Fi link,
+#: and the small topics' messages of that second go behind it rather than wait in the sender (a rosbridge
+#: client's ``queue_length`` of 1 would otherwise drop them). aiohttp's writer gets the same limit.
+IN_FLIGHT_BYTES = 1024 * 1024
 _POLL_MIN = 0.002
 _POLL_MAX = 0.016
 _OUTQ = struct.Struct("i")
@@ -100,13 +106,15 @@ S = TypeVar("S", bound=_Lane)
 class FairSender(Generic[K, S]):
     """One client's fair-delivery state; its session's sender task asks ``pick`` for each message."""
 
-    __slots__ = ("_interval", "_poll", "_wake", "drr", "transport")
+    __slots__ = ("_big", "_interval", "_poll", "_wake", "drr", "transport")
 
     def __init__(self, wake: Callable[[], None]) -> None:
         self.drr: DeficitRoundRobin[K] = DeficitRoundRobin()
         self._wake = wake
         self._poll: asyncio.TimerHandle | None = None
         self._interval = _POLL_MIN
+        #: the size of the last big frame written (what may be on the wire ahead of small ones)
+        self._big = 0
         #: the client's connection (None: no gate, e.g. a test's fake socket)
         self.transport: asyncio.BaseTransport | None = None
 
@@ -118,6 +126,18 @@ class FairSender(Generic[K, S]):
             queue.newest_only = True
             while len(queue) > 1:
                 queue.drop_oldest()
+
+    def must_drain(self, size: int) -> bool:
+        """After a frame of ``size`` bytes was written past aiohttp's writer: wait for the transport to drain?
+
+        Not after a big frame (the gate holds the next big one back until the link is clear); after a small
+        one only when more than ``IN_FLIGHT_BYTES`` beyond the last big frame are still to be delivered (the
+        client is not reading at all, or the small topics alone exceed the link).
+        """
+        if size >= BIG_MESSAGE_BYTES:
+            self._big = size
+            return False
+        return unsent_bytes(self.transport) > self._big + IN_FLIGHT_BYTES
 
     def link_clear(self) -> bool:
         return unsent_bytes(self.transport) < LINK_CLEAR_BYTES

@@ -116,7 +116,7 @@ class FoxgloveSender(ClientSession):
         aiohttp's ``send_bytes`` takes a frame's whole payload as one buffer, which would mean copying every
         message behind its 13-byte prefix (a quarter of the bridge's CPU at 8 MB images). The frame is the
         same bytes written in two parts, with no await between them, so nothing aiohttp itself writes (pongs,
-        the close frame) can come in between; ``drain`` is aiohttp's own flow control.
+        the close frame) can come in between. Flow control: ``FairSender.must_drain``.
         """
         head = fg.message_data_head(sub_id, receipt_ns, len(body))
         if deflate:
@@ -131,7 +131,8 @@ class FoxgloveSender(ClientSession):
         else:
             transport.write(head)
             transport.write(body)
-        await self._writer.drain()
+        if self._fair.must_drain(len(body)):
+            await self._writer.drain()
 
     async def _reporter(self) -> None:
         last: list[dict[str, Any]] = []

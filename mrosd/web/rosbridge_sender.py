@@ -105,7 +105,8 @@ class RosbridgeSender(ClientSession):
             raise ConnectionResetError("the client's connection is closing")
         transport.write(frame_head(opcode, len(data)))
         transport.write(data)
-        await writer.drain()
+        if self._fair.must_drain(len(data)):
+            await writer.drain()
 
     async def _send_loop(self) -> None:
         ws = self.ws

@@ -4,7 +4,7 @@ Subscriptions take the hub's raw bodies like every other client; a body is decod
 to be sent (a message dropped by the client's queue or its ``throttle_rate`` is never decoded). Several
 ``subscribe`` ops for one topic merge as rosbridge merges them: one stream, the smallest throttle_rate,
 the largest queue_length, and it ends with the last ``unsubscribe``. Each subscription's queue is bounded in
-messages (``queue_length``, at least 1) and in bytes (the session limits), drop-oldest. Answers go only to
+messages (``queue_length``, when not 0) and in bytes (the session limits), drop-oldest. Answers go only to
 what the client asked: ``service_response`` to a ``call_service``, ``status`` to a refused op. A long ``png``
 op is compressed in a small thread pool, off the loop; a client's ``fragment`` ops are joined by the session's
 ``Defragmenter`` (bounded per client and, with the server's ledger, for all clients) and handled as one op.
@@ -73,7 +73,9 @@ class _Sub:
 
     @property
     def queue_length(self) -> int:
-        return max(1, max(self.length.values(), default=1))
+        """Messages kept per subscription; 0 (rosbridge's default): no count, only the byte bound (rosbridge
+        passes such a subscription's every message on to its socket; its queue exists only from 1 on)."""
+        return max(self.length.values(), default=0)
 
 
 class RosbridgeSession(RosbridgeSender):
@@ -128,7 +130,7 @@ class RosbridgeSession(RosbridgeSender):
             return
         sub.queue.put((body, receipt_ns), len(body))
         FairSender.queued(sub.queue, len(body))
-        while len(sub.queue) > sub.queue_length:
+        while sub.queue_length and len(sub.queue) > sub.queue_length:
             sub.queue.drop_oldest()
         trim_to_budget([s.queue for s in self.subs.values()], self.limits.client_bytes, sub.queue)
         self._wake.set()

@@ -24,6 +24,7 @@ from mrosd.web import foxglove as fg
 from mrosd.web.access import AccessPolicy
 from mrosd.web.admission import Admission, OriginGate
 from mrosd.web.assets import MAX_ASSET_BYTES, AssetReader
+from mrosd.web.fairsend import IN_FLIGHT_BYTES
 from mrosd.web.foxglove_server import FoxgloveSession
 from mrosd.web.handshake import AuthFirstResponse, gate_middleware, read_auth, refuse_later
 from mrosd.web.hub import WebHub
@@ -216,13 +217,19 @@ class WebServer:
         address = str(request.remote)
         writer = None
         if self.policy.token_ok(self._token(request)):
-            ws = web.WebSocketResponse(compress=True, max_msg_size=self.max_frame, heartbeat=30.0)
+            ws = web.WebSocketResponse(
+                compress=True, max_msg_size=self.max_frame, heartbeat=30.0, writer_limit=IN_FLIGHT_BYTES
+            )
             why = self.admission.admit(address)
             if why is not None:
                 raise web.HTTPServiceUnavailable(text=why + "\n")
         else:
             pending = AuthFirstResponse(
-                max_frame=self.max_frame, token_ok=self.policy.token_ok, compress=True, heartbeat=30.0
+                max_frame=self.max_frame,
+                token_ok=self.policy.token_ok,
+                compress=True,
+                heartbeat=30.0,
+                writer_limit=IN_FLIGHT_BYTES,
             )
             writer = await pending.prepare(request)
             for old in self.admission.pend(pending, address):
@@ -282,7 +289,11 @@ class WebServer:
             raise web.HTTPServiceUnavailable(text=why + "\n")
         try:
             ws = web.WebSocketResponse(
-                protocols=fg.SUBPROTOCOLS, compress=True, max_msg_size=self.max_frame, heartbeat=30.0
+                protocols=fg.SUBPROTOCOLS,
+                compress=True,
+                max_msg_size=self.max_frame,
+                heartbeat=30.0,
+                writer_limit=IN_FLIGHT_BYTES,
             )
             writer = await ws.prepare(request)
             session = FoxgloveSession(self.hub, ws, writer, self.limits, peer=address)

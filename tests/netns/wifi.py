@@ -170,6 +170,9 @@ class TopicStats:
         return statistics.quantiles(self.ages, n=10)[-1] if len(self.ages) >= 2 else self.median_age
 
 
+ROSLIBPY_CLIENT = Path(__file__).resolve().parent / "roslibpy_wifi.py"
+
+
 def _stamp(topic: str, head: bytes) -> float | None:
     """The publish time the scene wrote into a message's first bytes (header.stamp, or the Float64's value)."""
     if topic == FLOAT and len(head) >= 8:
@@ -260,9 +263,10 @@ class FoxgloveProbe:
             self._note(ev)
             if ev.get("event") != "message":
                 continue
-            stamp = _stamp(ev["topic"], bytes.fromhex(ev["head"]))
+            stamp = ev["stamp"] if "stamp" in ev else _stamp(ev["topic"], bytes.fromhex(ev["head"]))
             if stamp is not None and start <= stamp < end:
-                got.setdefault(ev["topic"], []).append((ev["at"] / 1000.0 - stamp, stamp))
+                at = ev["at"] if "stamp" in ev else ev["at"] / 1000.0  # roslibpy's seconds, node's ms
+                got.setdefault(ev["topic"], []).append((at - stamp, stamp))
         return {
             topic: TopicStats(len(rows), len(rows) / seconds, [a for a, _ in rows], [s for _, s in rows])
             for topic, rows in got.items()
@@ -347,6 +351,14 @@ class WifiScene:
             argv.append("--no-deflate")
         probe = FoxgloveProbe(self.procs, self.client_argv(argv, shaped))
         probe.wait(lambda ev: ev.get("event") == "open")
+        return probe
+
+    def roslibpy(self, topics: dict[str, str], shaped: bool = True) -> FoxgloveProbe:
+        """roslibpy (asyncio transport, offering permessage-deflate) subscribed to ``topics`` (name: type) with
+        ``compression: cbor`` on the rosbridge port; the same event reader as the Foxglove client's."""
+        argv = [sys.executable, str(ROSLIBPY_CLIENT), self.host(shaped), str(self.rosbridge_port), TOKEN]
+        probe = FoxgloveProbe(self.procs, self.client_argv([*argv, *(f"{t}:{ty}" for t, ty in topics.items())], shaped))
+        probe.wait(lambda ev: ev.get("event") == "subscribed")
         return probe
 
     def daemon_cpu(self) -> float:
