@@ -216,7 +216,10 @@ class FoxgloveProbe:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise TimeoutError(f"no such event within {timeout} s")
-            ev = self.events.get(timeout=remaining)
+            try:
+                ev = self.events.get(timeout=remaining)
+            except queue.Empty:
+                raise TimeoutError(f"no such event within {timeout} s") from None
             self._note(ev)
             if ev.get("event") == "eof":
                 err = self.proc.stderr.read().decode() if self.proc.stderr is not None else ""
