@@ -6,11 +6,12 @@ One scene (namespaces, daemon, publisher) for the whole module; each test runs i
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 
 import pytest
 
-from tests.netns.wifi import CAMERA, FLOAT, ODOM, WifiScene, wifi_scene
+from tests.netns.wifi import CAMERA, FLOAT, MASTER_PORT, ODOM, WifiScene, wifi_scene
 
 pytestmark = pytest.mark.root
 
@@ -48,6 +49,9 @@ def test_small_topics_keep_their_rate_beside_a_raw_camera_and_frames_drop_with_t
     assert camera.p90_age <= 3 * FRAME_WIRE_S, summary
     assert camera.stamps == sorted(camera.stamps), "frames out of order"
     assert any("dropped" in s["message"] for s in fox.statuses), fox.statuses
+    # and the daemon's status file (``mros daemon status``) names this client's drops of the camera
+    status = json.loads((scene.tmp / "run" / f"mrosd-{MASTER_PORT}.json").read_text())
+    assert any(CAMERA in d["dropped"] for d in status["web"]["drops"]), status["web"]
 
 
 def test_permessage_deflate_is_negotiated_when_the_client_offers_it_and_not_needed_when_it_does_not(

@@ -71,3 +71,14 @@ async def test_each_client_is_told_per_subscription_what_was_sent_and_dropped(
             {"topic": "/chatter", "sent": 5, "dropped": 0, "queued": 0, "subscriptionId": 3}
         ]
         await ws.close()
+
+
+def test_the_daemon_status_names_what_was_dropped_for_each_slow_client() -> None:
+    from mros_cli.daemon import part_lines
+
+    from mrosd.runstatus import ClientDrops, DaemonStatus, WebStatus
+
+    drops = [ClientDrops(client="Foxglove client 10.0.0.2", dropped={"/camera/image_raw": 120, "/scan": 3})]
+    web = WebStatus(page="http://10.0.0.1:8765/", foxglove=["ws://10.0.0.1:8765/"], drops=drops)
+    st = DaemonStatus(pid=1, version="0", master_uri="http://10.0.0.1:11311/", state="running", web=web)
+    assert "web: dropped for Foxglove client 10.0.0.2: /camera/image_raw 120, /scan 3" in part_lines(st)
