@@ -6,10 +6,13 @@ Why a gate on big messages: a camera frame written to the socket sits in the ker
 autotunes it up to 4 MiB, seconds of a Wi-Fi link) and in the transport's buffer until it has crossed the link;
 frames queued there cannot be replaced by newer ones, so a client would see frames seconds old. The next big
 message is handed over only when what the socket has not yet delivered (the transport's buffer plus the
-kernel's unacknowledged bytes, ``TIOCOUTQ``) is under ``LINK_CLEAR_BYTES``; until then it waits in OUR queue,
-newest-only, where a newer frame replaces it (counted as dropped) and small topics go ahead of it. No event
-says that the kernel's queue has drained, so a blocked big message is retried on a short timer (2 ms doubling
-to 16 ms, reset when the link clears), and on every wake-up of the sender.
+kernel's unacknowledged bytes, ``TIOCOUTQ``) is under 50 ms of the connection's delivery rate as the kernel
+measures it (``TCP_INFO``), and never less than ``LINK_CLEAR_BYTES``: a fast link (loopback) stays busy,
+a slow one holds one frame in flight. Until then the frames wait in OUR queue and small topics go ahead of
+them; once the link clears, the newest goes and the older ones are dropped (counted). While the link keeps up
+they go in order: a loop that reads two frames at once must not drop one. No event says that the kernel's
+queue has drained, so a held-back message is retried on a timer, when the excess should have gone at the
+delivery rate (0.5 to 16 ms), and on every wake-up of the sender.
 
 Why some frames bypass aiohttp's writer: once permessage-deflate is negotiated, aiohttp deflates every message
 it sends (its per-message ``compress`` argument picks another window size, never "off"). A message that is
@@ -28,6 +31,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import fcntl
+import socket
 import struct
 import termios
 from collections.abc import Callable, Hashable, Mapping
@@ -61,8 +65,17 @@ PRECOMPRESSED_TYPES = frozenset({"sensor_msgs/CompressedImage", "theora_image_tr
 #: and the small topics' messages of that second go behind it rather than wait in the sender (a rosbridge
 #: client's ``queue_length`` of 1 would otherwise drop them). aiohttp's writer gets the same limit.
 IN_FLIGHT_BYTES = 1024 * 1024
-_POLL_MIN = 0.002
+#: How much of the link's measured delivery rate may be in flight before the next big message: 50 ms of it
+#: (over 20 Mbit/s that is below ``LINK_CLEAR_BYTES``, which then holds; over loopback, megabytes: a fast link
+#: is kept busy), at most ``MAX_CLEAR_BYTES`` (the transport's buffer is memory of ours).
+CLEAR_SECONDS = 0.05
+MAX_CLEAR_BYTES = 16 * 1024 * 1024
+_POLL_MIN = 0.0005
 _POLL_MAX = 0.016
+#: struct tcp_info (linux/tcp.h): ``tcpi_delivery_rate``, bytes/s, the kernel's latest sample (Linux >= 4.9)
+_TCP_INFO_BYTES = 168
+_DELIVERY_RATE = struct.Struct("<Q")
+_DELIVERY_RATE_OFFSET = 160
 _OUTQ = struct.Struct("i")
 
 
@@ -83,6 +96,20 @@ def unsent_bytes(transport: asyncio.BaseTransport | None) -> int:
         with contextlib.suppress(OSError, ValueError):
             size += _OUTQ.unpack(fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0\0\0\0"))[0]
     return size
+
+
+def delivery_rate(transport: asyncio.BaseTransport | None) -> float:
+    """The connection's delivery rate as the kernel measures it (``tcpi_delivery_rate``), bytes/s; 0 unknown."""
+    sock = transport.get_extra_info("socket") if transport is not None else None
+    if sock is None:
+        return 0.0
+    try:
+        info = sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, _TCP_INFO_BYTES)
+    except (OSError, AttributeError):
+        return 0.0
+    if len(info) < _DELIVERY_RATE_OFFSET + _DELIVERY_RATE.size:
+        return 0.0
+    return float(_DELIVERY_RATE.unpack_from(info, _DELIVERY_RATE_OFFSET)[0])
 
 
 def frame_head(opcode: int, length: int) -> bytes:
@@ -109,7 +136,7 @@ S = TypeVar("S", bound=_Lane)
 class FairSender(Generic[K, S]):
     """One client's fair-delivery state; its session's sender task asks ``pick`` for each message."""
 
-    __slots__ = ("_big", "_interval", "_poll", "_wake", "drr", "transport")
+    __slots__ = ("_behind", "_big", "_interval", "_poll", "_wake", "drr", "rate", "transport")
 
     def __init__(self, wake: Callable[[], None]) -> None:
         self.drr: DeficitRoundRobin[K] = DeficitRoundRobin()
@@ -118,17 +145,19 @@ class FairSender(Generic[K, S]):
         self._interval = _POLL_MIN
         #: the size of the last big frame written (what may be on the wire ahead of small ones)
         self._big = 0
+        #: big subscriptions held back by the link since their last message went: the newest of theirs goes next
+        self._behind: set[K] = set()
+        #: the link's delivery rate, bytes/s, as the kernel last measured it (0: not known)
+        self.rate = 0.0
         #: the client's connection (None: no gate, e.g. a test's fake socket)
         self.transport: asyncio.BaseTransport | None = None
 
     @staticmethod
     def queued(queue: ByteQueue[Any], size: int) -> None:
         """Called after a message of ``size`` bytes was put on ``queue``: from the first big message on, the
-        queue keeps only its newest (the older messages it holds now are dropped, counted)."""
-        if size >= BIG_MESSAGE_BYTES and not queue.newest_only:
-            queue.newest_only = True
-            while len(queue) > 1:
-                queue.drop_oldest()
+        queue is big (its frames wait for a clear link, and only the newest goes once the client fell behind)."""
+        if size >= BIG_MESSAGE_BYTES:
+            queue.big = True
 
     def must_drain(self, size: int) -> bool:
         """After a frame of ``size`` bytes was written past aiohttp's writer: wait for the transport to drain?
@@ -142,8 +171,22 @@ class FairSender(Generic[K, S]):
             return False
         return unsent_bytes(self.transport) > self._big + IN_FLIGHT_BYTES
 
+    def clear_bytes(self) -> int:
+        """What may still be undelivered when the next big message is handed over (``CLEAR_SECONDS``)."""
+        return int(min(MAX_CLEAR_BYTES, max(LINK_CLEAR_BYTES, self.rate * CLEAR_SECONDS)))
+
     def link_clear(self) -> bool:
-        return unsent_bytes(self.transport) < LINK_CLEAR_BYTES
+        unsent = unsent_bytes(self.transport)
+        if unsent < LINK_CLEAR_BYTES:
+            return True
+        self.rate = delivery_rate(self.transport)
+        allowed = self.clear_bytes()
+        if unsent < allowed:
+            return True
+        # retried when the excess should have gone at that rate (a timer: no event says so)
+        wait = (unsent - allowed) / self.rate if self.rate else _POLL_MAX
+        self._interval = min(max(wait, _POLL_MIN), _POLL_MAX)
+        return False
 
     def pick(self, subs: Mapping[K, S], ready: Callable[[S], bool] | None = None) -> S | None:
         """The subscription whose oldest message goes next (the caller takes it off the queue), or None.
@@ -160,21 +203,24 @@ class FairSender(Generic[K, S]):
             size = sub.queue.peek_size()
             if size is None or (ready is not None and not ready(sub)):
                 return None
-            if sub.queue.newest_only:
+            if sub.queue.big:
                 if clear is None:
                     clear = self.link_clear()
                 if not clear:
                     blocked = True
+                    self._behind.add(key)
                     return None
+                if key in self._behind:
+                    # the client fell behind while these waited: the newest goes, the older ones are dropped
+                    self._behind.discard(key)
+                    sub.queue.keep_newest()
+                    size = sub.queue.peek_size()
             return size
 
         key = self.drr.pick(subs, head)
-        if clear:
-            self._interval = _POLL_MIN
         if key is None:
             if blocked and self._poll is None:
                 self._poll = asyncio.get_running_loop().call_later(self._interval, self._poll_due)
-                self._interval = min(self._interval * 2, _POLL_MAX)
             return None
         sub = subs[key]
         sub.sent += 1

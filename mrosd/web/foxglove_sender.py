@@ -72,7 +72,7 @@ class FoxgloveSender(ClientSession):
         if sub.period_ns:
             sub.next_ns = now + sub.period_ns
         receipt_ns, body = sub.queue.get()
-        if sub.queue.size < PAUSE_BYTES and self.backlog(sub.topic.name) < PAUSE_BYTES:
+        if self.backlog(sub.topic.name) < PAUSE_BYTES:
             self.hub.resume(sub.topic.name)
         deflate = self._deflate and len(body) < DEFLATE_MAX_BYTES and not is_precompressed(sub.topic.type)
         return sub.id, receipt_ns, body, deflate

@@ -89,7 +89,7 @@ class FoxgloveSession(FoxgloveRequests, FoxgloveSender):
     # --- hub callbacks (never block) -------------------------------------------------------------
 
     def backlog(self, topic: str) -> int:
-        return sum(s.queue.size for s in self._by_topic.get(topic, ()))
+        return sum(s.queue.backlog() for s in self._by_topic.get(topic, ()))
 
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         subs = self._by_topic.get(topic, ())

@@ -65,11 +65,12 @@ class ByteQueue(Generic[T]):
     """FIFO of ``(item, size)`` whose total size stays within ``max_bytes`` (plus one oversized item).
 
     ``dropped``/``dropped_bytes`` count what ``put`` pushed out (drop-oldest); ``unreported`` is the part of
-    ``dropped`` nobody has reported to the client yet (``take_unreported`` resets it). ``newest_only``: ``put``
-    drops every item before the new one (a big topic's frames: what waits is replaced by the newest).
+    ``dropped`` nobody has reported to the client yet (``take_unreported`` resets it). ``big``: the queue holds
+    a big topic's messages (camera frames): its sender keeps only the newest once the client fell behind
+    (``keep_newest``), and what it holds back from the hub counts as its newest message only (``backlog``).
     """
 
-    __slots__ = ("_items", "dropped", "dropped_bytes", "ledger", "max_bytes", "newest_only", "size", "unreported")
+    __slots__ = ("_items", "big", "dropped", "dropped_bytes", "ledger", "max_bytes", "size", "unreported")
 
     def __init__(self, max_bytes: int, ledger: Ledger | None = None) -> None:
         if max_bytes < 1:
@@ -82,7 +83,7 @@ class ByteQueue(Generic[T]):
         self.dropped = 0
         self.dropped_bytes = 0
         self.unreported = 0
-        self.newest_only = False
+        self.big = False
 
     def __len__(self) -> int:
         return len(self._items)
@@ -92,7 +93,7 @@ class ByteQueue(Generic[T]):
         items = self._items
         dropped = 0
         before = self.size
-        while items and (self.newest_only or self.size + size > self.max_bytes):
+        while items and self.size + size > self.max_bytes:
             _, old = items.popleft()
             self.size -= old
             self.dropped_bytes += old
@@ -108,6 +109,18 @@ class ByteQueue(Generic[T]):
     def peek_size(self) -> int | None:
         """The size of the oldest item, None when empty."""
         return self._items[0][1] if self._items else None
+
+    def backlog(self) -> int:
+        """Bytes this queue holds back from its client, as the hub's pause sees them: a big queue counts its
+        newest message only (the older ones go when the client falls behind, they are not a backlog)."""
+        if self.big and self._items:
+            return self._items[-1][1]
+        return self.size
+
+    def keep_newest(self) -> None:
+        """Drop every item but the newest, counted as dropped."""
+        while len(self._items) > 1:
+            self.drop_oldest()
 
     def get(self) -> T:
         """The oldest item. Raises IndexError when empty."""

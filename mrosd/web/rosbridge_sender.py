@@ -59,7 +59,7 @@ class RosbridgeSender(ClientSession):
                     sub.queue.drop_oldest()  # the newest waited for its turn; older ones go
             body, receipt_ns = sub.queue.get()
             sub.last_sent = now
-            if sub.queue.size < PAUSE_BYTES:
+            if sub.queue.backlog() < PAUSE_BYTES:
                 self.hub.resume(sub.topic)
             if sub.compression == "cbor-raw":  # passthrough: the body is never decoded
                 data = rb.publish_cbor_raw(sub.topic, body, receipt_ns)

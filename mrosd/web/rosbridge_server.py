@@ -122,7 +122,7 @@ class RosbridgeSession(RosbridgeSender):
 
     def backlog(self, topic: str) -> int:
         sub = self.subs.get(topic)
-        return 0 if sub is None else sub.queue.size
+        return 0 if sub is None else sub.queue.backlog()
 
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         sub = self.subs.get(topic)

@@ -81,10 +81,12 @@ def test_a_subscription_that_has_nothing_now_banks_no_credit() -> None:
         DeficitRoundRobin(0)
 
 
-def test_a_newest_only_queue_keeps_its_newest_and_counts_the_rest() -> None:
+def test_a_big_queue_keeps_its_newest_when_told_and_counts_the_rest() -> None:
     q: ByteQueue[int] = ByteQueue(1 << 20)
-    q.newest_only = True
+    q.big = True
     for i in range(5):
-        q.put(i, 100)
-    assert len(q) == 1 and q.peek_size() == 100 and q.get() == 4
-    assert q.dropped == 4 and q.peek_size() is None
+        q.put(i, 100 + i)
+    assert q.backlog() == 104 and q.size == 510
+    q.keep_newest()
+    assert len(q) == 1 and q.peek_size() == 104 and q.get() == 4
+    assert q.dropped == 4 and q.peek_size() is None and q.backlog() == 0
