@@ -6,8 +6,8 @@ Why a gate on big messages: a camera frame written to the socket sits in the ker
 autotunes it up to 4 MiB, seconds of a Wi-Fi link) and in the transport's buffer until it has crossed the link;
 frames queued there cannot be replaced by newer ones, so a client would see frames seconds old. The next big
 message is handed over only when what the socket has not yet delivered (the transport's buffer plus the
-kernel's unacknowledged bytes, ``TIOCOUTQ``) is under 50 ms of the connection's delivery rate as the kernel
-measures it (``TCP_INFO``), and never less than ``LINK_CLEAR_BYTES``: a fast link (loopback) stays busy,
+kernel's unacknowledged bytes, ``TIOCOUTQ``) is under 50 ms of the link's delivery rate (measured on how
+fast the last big frame went), and never less than ``LINK_CLEAR_BYTES``: a fast link (loopback) stays busy,
 a slow one holds one frame in flight. Until then the frames wait in OUR queue and small topics go ahead of
 them; once the link clears, the newest goes and the older ones are dropped (counted). While the link keeps up
 they go in order: a loop that reads two frames at once must not drop one. No event says that the kernel's
@@ -22,8 +22,8 @@ shrink to 0.7 and 1.0: a 2.7 MB camera frame at 30 Hz would take most of a core 
 nothing) is written as an uncompressed frame (RSV1 clear, which RFC 7692 allows per message), by us, with the
 head before the payload and no copy of it. The level is aiohttp's, 1: ``python -m bench web --link 20mbit``
 measures levels 1, 6 and 9 on the bridges' payloads, and 6 saves 1 % of odometry's bytes for 1.6x the CPU,
-9 for 7x. aiohttp's compressor keeps its own
-window: frames it did not compress are not part of its stream, so the client's inflater stays in step.
+9 for 7x. aiohttp's compressor keeps its own window: frames it did not compress are not part of its stream,
+so the client's inflater stays in step.
 """
 
 from __future__ import annotations
@@ -31,9 +31,9 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import fcntl
-import socket
 import struct
 import termios
+import time
 from collections.abc import Callable, Hashable, Mapping
 from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
@@ -72,10 +72,8 @@ CLEAR_SECONDS = 0.05
 MAX_CLEAR_BYTES = 16 * 1024 * 1024
 _POLL_MIN = 0.0005
 _POLL_MAX = 0.016
-#: struct tcp_info (linux/tcp.h): ``tcpi_delivery_rate``, bytes/s, the kernel's latest sample (Linux >= 4.9)
-_TCP_INFO_BYTES = 168
-_DELIVERY_RATE = struct.Struct("<Q")
-_DELIVERY_RATE_OFFSET = 160
+#: the shortest time over which the delivery rate is measured
+_RATE_SAMPLE = 0.002
 _OUTQ = struct.Struct("i")
 
 
@@ -96,20 +94,6 @@ def unsent_bytes(transport: asyncio.BaseTransport | None) -> int:
         with contextlib.suppress(OSError, ValueError):
             size += _OUTQ.unpack(fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0\0\0\0"))[0]
     return size
-
-
-def delivery_rate(transport: asyncio.BaseTransport | None) -> float:
-    """The connection's delivery rate as the kernel measures it (``tcpi_delivery_rate``), bytes/s; 0 unknown."""
-    sock = transport.get_extra_info("socket") if transport is not None else None
-    if sock is None:
-        return 0.0
-    try:
-        info = sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, _TCP_INFO_BYTES)
-    except (OSError, AttributeError):
-        return 0.0
-    if len(info) < _DELIVERY_RATE_OFFSET + _DELIVERY_RATE.size:
-        return 0.0
-    return float(_DELIVERY_RATE.unpack_from(info, _DELIVERY_RATE_OFFSET)[0])
 
 
 def frame_head(opcode: int, length: int) -> bytes:
@@ -136,7 +120,18 @@ S = TypeVar("S", bound=_Lane)
 class FairSender(Generic[K, S]):
     """One client's fair-delivery state; its session's sender task asks ``pick`` for each message."""
 
-    __slots__ = ("_behind", "_big", "_interval", "_poll", "_wake", "drr", "rate", "transport")
+    __slots__ = (
+        "_behind",
+        "_big",
+        "_interval",
+        "_poll",
+        "_sent_at",
+        "_sent_unsent",
+        "_wake",
+        "drr",
+        "rate",
+        "transport",
+    )
 
     def __init__(self, wake: Callable[[], None]) -> None:
         self.drr: DeficitRoundRobin[K] = DeficitRoundRobin()
@@ -147,8 +142,11 @@ class FairSender(Generic[K, S]):
         self._big = 0
         #: big subscriptions held back by the link since their last message went: the newest of theirs goes next
         self._behind: set[K] = set()
-        #: the link's delivery rate, bytes/s, as the kernel last measured it (0: not known)
+        #: the link's delivery rate, bytes/s, measured on the last big frame (0: not known yet)
         self.rate = 0.0
+        #: when the last big frame was written, and what was then undelivered (the rate's sample)
+        self._sent_at = 0.0
+        self._sent_unsent = 0
         #: the client's connection (None: no gate, e.g. a test's fake socket)
         self.transport: asyncio.BaseTransport | None = None
 
@@ -168,6 +166,8 @@ class FairSender(Generic[K, S]):
         """
         if size >= BIG_MESSAGE_BYTES:
             self._big = size
+            self._sent_at = time.monotonic()
+            self._sent_unsent = unsent_bytes(self.transport)
             return False
         return unsent_bytes(self.transport) > self._big + IN_FLIGHT_BYTES
 
@@ -179,7 +179,7 @@ class FairSender(Generic[K, S]):
         unsent = unsent_bytes(self.transport)
         if unsent < LINK_CLEAR_BYTES:
             return True
-        self.rate = delivery_rate(self.transport)
+        self._measure(unsent)
         allowed = self.clear_bytes()
         if unsent < allowed:
             return True
@@ -187,6 +187,15 @@ class FairSender(Generic[K, S]):
         wait = (unsent - allowed) / self.rate if self.rate else _POLL_MAX
         self._interval = min(max(wait, _POLL_MIN), _POLL_MAX)
         return False
+
+    def _measure(self, unsent: int) -> None:
+        """The delivery rate since the last big frame was written: what of it has gone, per second. Small
+        frames written since count as not delivered, and an idle moment counts as time: an underestimate,
+        which holds big frames back a little longer, never one that lets frames pile up in the kernel."""
+        elapsed = time.monotonic() - self._sent_at
+        delivered = self._sent_unsent - unsent
+        if self._sent_at and elapsed >= _RATE_SAMPLE and delivered > 0:
+            self.rate = delivered / elapsed
 
     def pick(self, subs: Mapping[K, S], ready: Callable[[S], bool] | None = None) -> S | None:
         """The subscription whose oldest message goes next (the caller takes it off the queue), or None.
