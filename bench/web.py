@@ -1,8 +1,8 @@
 """Browser bridge benchmark: what mrosd's Foxglove WebSocket server forwards, against mrosd's own TCPROS.
 
-Every party is a process of its own (so each one's CPU is its own): our master, one mrosd publisher sending
-flat out, the bridge (``mros bridge``), and the consumers. For each payload (640x480 RGB, 1 MB and 8 MB
-sensor_msgs/Image, 1 MB PointCloud2) and in the same run:
+Every party is a process of its own (so each one's CPU is its own): our master, one mrosd publisher sending flat
+out, the bridge (``mros bridge``), and the consumers. For each payload (640x480 RGB, 1 MB and 8 MB Image, 1 MB
+PointCloud2) and in the same run (``--link 20mbit``: the Wi-Fi lab instead, ``bench/web_link.py``):
 
 - ``tcpros``: an mrosd subscriber (raw, AnyMsg) reading the topic directly: the reference;
 - ``ws x1``: one WebSocket client (aiohttp) subscribed through the bridge;
@@ -19,8 +19,7 @@ messages/s and MB/s (of ROS message bytes) reaching each client, the bridge's CP
 topic published at 30 Hz and never reads for ``--stall`` seconds (60 by default) while another keeps
 reading; the bridge's RSS growth and the live client's rate are printed.
 
-Usage: ``python -m bench.web [--seconds 5] [--stall 60] [--quick]``; the same module is each process
-(``--role``).
+Usage: ``python -m bench.web [--seconds 5] [--stall 60] [--quick]``; each process is this module (``--role``).
 """
 
 from __future__ import annotations
@@ -573,7 +572,10 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--raw", action="store_true")
     parser.add_argument("--stalled", action="store_true", help="(ws-sub) subscribe, then never read")
     parser.add_argument("--compression", default="none", help="(rb-sub) rosbridge compression")
+    parser.add_argument("--link", default="", help="the Wi-Fi lab behind a link of this rate: bench/web_link.py")
     args = parser.parse_args(argv)
+    if args.link:
+        return int(__import__("bench.web_link", fromlist=["run"]).run(args.link))
     roles = {
         "pub": role_pub,
         "tcpros-sub": role_tcpros_sub,

@@ -302,6 +302,7 @@ class Daemon:
         if self.budgets is not None:  # half the web budget for clients' sockets, half for the hub's TCPROS links
             server.max_clients = max(1, min(server.max_clients, self.budgets.web // 2))
         await server.start()
+        server.on_drops = self.publish_status  # what slow clients lose shows in `mros web status`
         self.web = server
         self._parts.append(("web", server))
         if web.tf_republisher:  # roslibjs's and roslibpy's TFClient, with no tf2_web_republisher node
@@ -366,7 +367,7 @@ class Daemon:
     def status(self) -> DaemonStatus:
         """What runs and where, for the status file (``mrosd.runstatus``)."""
         import mrosd
-        from mrosd.runstatus import DaemonStatus, WebStatus
+        from mrosd.runstatus import ClientDrops, DaemonStatus, WebStatus
 
         web = None
         if self.web is not None:
@@ -375,6 +376,7 @@ class Daemon:
                 foxglove=list(self.web.urls),
                 rosbridge=list(self.web.rosbridge_urls) if self.web.rosbridge_port is not None else [],
                 token_required=bool(self.web.policy.token),
+                drops=[ClientDrops(client=c, dropped=d) for c, d in self.web.drops()],
             )
         return DaemonStatus(
             pid=os.getpid(),

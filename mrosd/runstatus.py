@@ -24,6 +24,7 @@ import msgspec
 
 __all__ = [
     "MAX_STATUS_BYTES",
+    "ClientDrops",
     "DaemonStatus",
     "WebStatus",
     "find_status",
@@ -36,14 +37,25 @@ __all__ = [
 MAX_STATUS_BYTES = 64 * 1024
 
 
+class ClientDrops(msgspec.Struct, kw_only=True):
+    """What the daemon dropped for one web client (its link is slower than its topics), per topic."""
+
+    #: the protocol and the client's address, e.g. ``Foxglove client 10.0.0.2``
+    client: str
+    #: topic -> messages dropped so far (the largest counts of the client's topics)
+    dropped: dict[str, int] = {}
+
+
 class WebStatus(msgspec.Struct, kw_only=True):
-    """The web part's addresses as it bound them."""
+    """The web part's addresses as it bound them, and what it dropped for slow clients."""
 
     page: str
     foxglove: list[str]
     rosbridge: list[str] = []
     #: clients must give a token (the token itself is never written here)
     token_required: bool = False
+    #: clients for which messages were dropped (the most dropping ones, bounded: ``mrosd.web.server``)
+    drops: list[ClientDrops] = []
 
 
 class DaemonStatus(msgspec.Struct, kw_only=True):

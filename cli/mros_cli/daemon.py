@@ -49,6 +49,9 @@ def part_lines(st: DaemonStatus) -> list[str]:
             urls.append(f"rosbridge {' '.join(st.web.rosbridge)}")
         token = " (token required)" if st.web.token_required else ""
         lines.append(f"web: page {st.web.page}{token}, {', '.join(urls)}")
+        for drops in st.web.drops:  # a client whose link is slower than its topics
+            counts = ", ".join(f"{topic} {n}" for topic, n in drops.dropped.items())
+            lines.append(f"web: dropped for {drops.client}: {counts}")
     if st.rosout:
         lines.append("rosout: running (/rosout -> /rosout_agg)")
     if st.ixm_bridges:

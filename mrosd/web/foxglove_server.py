@@ -1,11 +1,10 @@
 """The Foxglove WebSocket shell: one ``FoxgloveSession`` per aiohttp WebSocket, over one shared ``WebHub``.
 
 Two tasks per client. The reader decodes each frame with ``mrosd.web.foxglove`` and acts on the hub; a
-refused frame is answered with a status message and costs nothing more. The sender drains, in this order,
-control messages (JSON and service responses, bounded in bytes: a client that lets them pile up past
-``CONTROL_MAX_BYTES`` is disconnected) and then the subscriptions' byte-bounded drop-oldest queues, one
-message per subscription per round so that a fast topic cannot starve a slow one. Message bodies are the
-hub's raw TCPROS bodies, held by reference until sent; the only copy is the frame aiohttp writes.
+refused frame is answered with a status message and costs nothing more. The sender (``mrosd.web.
+foxglove_sender``) drains control messages, then the subscriptions' byte-bounded queues in a fair order
+(deficit round robin by bytes; big topics newest-only, sent when the link is clear). Message bodies are the
+hub's raw TCPROS bodies, held by reference until sent.
 
 A stalled client blocks only its own sender (in aiohttp's drain); its queues keep dropping their oldest
 messages, counted and reported once per ``REPORT_PERIOD`` as a warning status. Disconnecting releases
@@ -17,33 +16,29 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import time
 import uuid
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from aiohttp import WSMsgType, web
-from aiohttp.abc import AbstractStreamWriter
+
+if TYPE_CHECKING:
+    from aiohttp.abc import AbstractStreamWriter
 
 from mrosd.errors import MrosError
 from mrosd.master.client import GraphSnapshot
 from mrosd.web import foxglove as fg
 from mrosd.web.deadman import DeadMan
+from mrosd.web.fairsend import FairSender
 from mrosd.web.foxglove_requests import FoxgloveRequests, service_json
-from mrosd.web.hub import PAUSE_BYTES, ServiceInfo, TopicInfo, WebHub
+from mrosd.web.foxglove_sender import FoxgloveSender
+from mrosd.web.hub import ServiceInfo, TopicInfo, WebHub
 from mrosd.web.limits import SessionLimits
 from mrosd.web.queue import ByteQueue, trim_to_budget
 
 log = logging.getLogger(__name__)
 
 __all__ = ["FoxgloveSession", "SessionLimits"]
-
-#: Seconds between two drop reports of one client.
-REPORT_PERIOD = 1.0
-
-
-#: payloads from this size on are written after their frame head rather than copied behind it
-_SEPARATE_WRITE_BYTES = 16 * 1024
 
 
 @dataclass(slots=True)
@@ -55,6 +50,8 @@ class _Subscription:
     period_ns: int = 0
     #: monotonic ns before which the next message of a throttled subscription is not sent
     next_ns: int = 0
+    #: messages sent to the client (its drops are counted by its queue)
+    sent: int = 0
 
 
 @dataclass(slots=True)
@@ -64,7 +61,7 @@ class _ClientChannel:
     publisher: Any
 
 
-class FoxgloveSession(FoxgloveRequests):
+class FoxgloveSession(FoxgloveRequests, FoxgloveSender):
     """One connected Foxglove client."""
 
     KIND = "Foxglove client"
@@ -80,27 +77,21 @@ class FoxgloveSession(FoxgloveRequests):
         peer: str = "?",
     ) -> None:
         super().__init__(hub, ws, limits, peer)
-        #: the prepared response's stream: messageData frames are written to its transport directly (below)
-        self._writer = writer
+        self._init_sender(writer)
         self._queue_type = ByteQueue
         self.subs: dict[int, _Subscription] = {}
         self._by_topic: dict[str, list[_Subscription]] = {}
         self._channels: dict[int, _ClientChannel] = {}
         self._graph_state: fg.SystemState | None = None
-        self._rr = 0
-        self.sent_messages = 0
-        #: the latest /clock time not yet sent (a 1 kHz clock costs the client the rate it reads at)
-        self._time_ns: int | None = None
         #: serverInfo declared ``time`` (sim time was on as the client connected): it gets /clock's time and
         #: its messages are stamped with it, as the protocol asks, for as long as sim time stays on
         self._offered_time = False
-        self._throttle_timer: asyncio.TimerHandle | None = None
         self._deadman = DeadMan(f"{self.KIND} {peer}")
 
     # --- hub callbacks (never block) -------------------------------------------------------------
 
     def backlog(self, topic: str) -> int:
-        return sum(s.queue.size for s in self._by_topic.get(topic, ()))
+        return sum(s.queue.backlog() for s in self._by_topic.get(topic, ()))
 
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         subs = self._by_topic.get(topic, ())
@@ -110,6 +101,7 @@ class FoxgloveSession(FoxgloveRequests):
             if sub.period_ns:
                 sub.queue.clear()  # throttled: the latest message replaces the one not yet sent
             sub.queue.put((receipt_ns, body), len(body))
+            FairSender.queued(sub.queue, len(body))
         if subs:
             trim_to_budget([s.queue for s in self.subs.values()], self.limits.client_bytes, subs[-1].queue)
             self._wake.set()
@@ -161,91 +153,6 @@ class FoxgloveSession(FoxgloveRequests):
         self._graph_state = state
         if update is not None:
             self._send_json(update)
-
-    # --- sending ---------------------------------------------------------------------------------
-
-    def _next_message(self) -> tuple[int, int, bytes | bytearray] | None:
-        """The next message to send, round robin over the subscriptions: (subscription id, receipt ns, body)."""
-        subs = list(self.subs.values())
-        n = len(subs)
-        now = 0
-        wait_ns: int | None = None
-        for i in range(n):
-            sub = subs[(self._rr + i) % n]
-            if len(sub.queue):
-                if sub.period_ns:
-                    now = now or time.monotonic_ns()
-                    if now < sub.next_ns:
-                        wait_ns = min(wait_ns or sub.next_ns - now, sub.next_ns - now)
-                        continue
-                    sub.next_ns = now + sub.period_ns
-                self._rr = (self._rr + i + 1) % n
-                receipt_ns, body = sub.queue.get()
-                if self.backlog(sub.topic.name) < PAUSE_BYTES:
-                    self.hub.resume(sub.topic.name)
-                return sub.id, receipt_ns, body
-        if wait_ns is not None and self._throttle_timer is None:
-            self._throttle_timer = asyncio.get_running_loop().call_later(wait_ns / 1e9, self._throttle_due)
-        return None
-
-    def _throttle_due(self) -> None:
-        self._throttle_timer = None
-        self._wake.set()
-
-    async def _sender(self) -> None:
-        ws = self.ws
-        while not self._closed:
-            await self._wake.wait()
-            self._wake.clear()
-            while not self._closed:
-                if self._time_ns is not None:
-                    stamp, self._time_ns = self._time_ns, None
-                    await ws.send_bytes(fg.time_message(stamp))
-                    continue
-                if self._control:
-                    text, data = self._control.pop()
-                    if text:
-                        await ws.send_str(data.decode())
-                    else:
-                        await ws.send_bytes(data)
-                    continue
-                message = self._next_message()
-                if message is None:
-                    break
-                await self._send_message_data(*message)
-                self.sent_messages += 1
-
-    async def _send_message_data(self, sub_id: int, receipt_ns: int, body: bytes | bytearray) -> None:
-        """One messageData frame, its payload written from the buffer TCPROS delivered it in.
-
-        aiohttp's ``send_bytes`` takes a frame's whole payload as one buffer, which would mean copying every
-        message behind its 13-byte prefix (a quarter of the bridge's CPU at 8 MB images). The frame is the
-        same bytes written in two parts, with no await between them, so nothing aiohttp itself writes (pongs,
-        the close frame) can come in between; ``drain`` is aiohttp's own flow control.
-        """
-        transport = self._writer.transport
-        if self.ws.closed or transport is None or transport.is_closing():
-            raise ConnectionResetError("the client's connection is closing")
-        head = fg.message_data_head(sub_id, receipt_ns, len(body))
-        if len(body) < _SEPARATE_WRITE_BYTES:
-            transport.write(head + body)
-        else:
-            transport.write(head)
-            transport.write(body)
-        await self._writer.drain()
-
-    async def _reporter(self) -> None:
-        while not self._closed:
-            await asyncio.sleep(REPORT_PERIOD)
-            for sub in list(self.subs.values()):
-                dropped = sub.queue.take_unreported()
-                if dropped:
-                    self.status(
-                        fg.STATUS_WARNING,
-                        f"dropped {dropped} message(s) of {sub.topic.name} (subscription {sub.id}): this client "
-                        f"reads slower than the topic is published; {sub.queue.dropped} dropped in all",
-                        f"dropped:{sub.id}",
-                    )
 
     # --- the connection --------------------------------------------------------------------------
 

@@ -65,10 +65,12 @@ class ByteQueue(Generic[T]):
     """FIFO of ``(item, size)`` whose total size stays within ``max_bytes`` (plus one oversized item).
 
     ``dropped``/``dropped_bytes`` count what ``put`` pushed out (drop-oldest); ``unreported`` is the part of
-    ``dropped`` nobody has reported to the client yet (``take_unreported`` resets it).
+    ``dropped`` nobody has reported to the client yet (``take_unreported`` resets it). ``big``: the queue holds
+    a big topic's messages (camera frames): its sender keeps only the newest once the client fell behind
+    (``keep_newest``), and what it holds back from the hub counts as its newest message only (``backlog``).
     """
 
-    __slots__ = ("_items", "dropped", "dropped_bytes", "ledger", "max_bytes", "size", "unreported")
+    __slots__ = ("_items", "big", "dropped", "dropped_bytes", "ledger", "max_bytes", "size", "unreported")
 
     def __init__(self, max_bytes: int, ledger: Ledger | None = None) -> None:
         if max_bytes < 1:
@@ -81,6 +83,7 @@ class ByteQueue(Generic[T]):
         self.dropped = 0
         self.dropped_bytes = 0
         self.unreported = 0
+        self.big = False
 
     def __len__(self) -> int:
         return len(self._items)
@@ -102,6 +105,22 @@ class ByteQueue(Generic[T]):
         self.dropped += dropped
         self.unreported += dropped
         return dropped
+
+    def peek_size(self) -> int | None:
+        """The size of the oldest item, None when empty."""
+        return self._items[0][1] if self._items else None
+
+    def backlog(self) -> int:
+        """Bytes this queue holds back from its client, as the hub's pause sees them: a big queue counts its
+        newest message only (the older ones go when the client falls behind, they are not a backlog)."""
+        if self.big and self._items:
+            return self._items[-1][1]
+        return self.size
+
+    def keep_newest(self) -> None:
+        """Drop every item but the newest, counted as dropped."""
+        while len(self._items) > 1:
+            self.drop_oldest()
 
     def get(self) -> T:
         """The oldest item. Raises IndexError when empty."""

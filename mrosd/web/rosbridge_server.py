@@ -4,7 +4,7 @@ Subscriptions take the hub's raw bodies like every other client; a body is decod
 to be sent (a message dropped by the client's queue or its ``throttle_rate`` is never decoded). Several
 ``subscribe`` ops for one topic merge as rosbridge merges them: one stream, the smallest throttle_rate,
 the largest queue_length, and it ends with the last ``unsubscribe``. Each subscription's queue is bounded in
-messages (``queue_length``, at least 1) and in bytes (the session limits), drop-oldest. Answers go only to
+messages (``queue_length``, when not 0) and in bytes (the session limits), drop-oldest. Answers go only to
 what the client asked: ``service_response`` to a ``call_service``, ``status`` to a refused op. A long ``png``
 op is compressed in a small thread pool, off the loop; a client's ``fragment`` ops are joined by the session's
 ``Defragmenter`` (bounded per client and, with the server's ledger, for all clients) and handled as one op.
@@ -19,20 +19,17 @@ from __future__ import annotations
 
 import asyncio
 import collections
-import concurrent.futures
-import contextlib
 import itertools
 import logging
-import os
-import sys
-import threading
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 from aiohttp import WSMsgType, web
+
+if TYPE_CHECKING:
+    from aiohttp.abc import AbstractStreamWriter
 
 from mrosd import backports
 from mrosd.errors import MrosError
@@ -42,14 +39,15 @@ from mrosd.web import rosapi
 from mrosd.web import rosbridge as rb
 from mrosd.web import rosbridge_publishers as publishers
 from mrosd.web.deadman import DeadMan
+from mrosd.web.fairsend import FairSender
 from mrosd.web.foxglove_server import SessionLimits
-from mrosd.web.hub import PAUSE_BYTES, ServiceInfo, TopicInfo, WebHub
+from mrosd.web.hub import ServiceInfo, TopicInfo, WebHub
 from mrosd.web.queue import ByteQueue, Ledger, trim_to_budget
-from mrosd.web.session import ClientSession
+from mrosd.web.rosbridge_sender import RosbridgeSender, png_op_off_loop
 
 log = logging.getLogger(__name__)
 
-__all__ = ["RosbridgeSession"]
+__all__ = ["RosbridgeSession", "png_op_off_loop"]
 
 
 @dataclass(slots=True)
@@ -67,6 +65,8 @@ class _Sub:
     #: JSON messages longer than this go as rosbridge ``fragment`` ops (None: whole)
     fragment_size: int | None = None
     receipts: collections.deque[int] = field(default_factory=collections.deque)
+    #: messages sent to the client (its drops are counted by its queue)
+    sent: int = 0
 
     @property
     def throttle_s(self) -> float:
@@ -74,10 +74,12 @@ class _Sub:
 
     @property
     def queue_length(self) -> int:
-        return max(1, max(self.length.values(), default=1))
+        """Messages kept per subscription; 0 (rosbridge's default): no count, only the byte bound (rosbridge
+        passes such a subscription's every message on to its socket; its queue exists only from 1 on)."""
+        return max(self.length.values(), default=0)
 
 
-class RosbridgeSession(ClientSession):
+class RosbridgeSession(RosbridgeSender):
     """One connected rosbridge client."""
 
     KIND = "rosbridge client"
@@ -91,8 +93,13 @@ class RosbridgeSession(ClientSession):
         token: str = "",
         peer: str = "?",
         fragments: tuple[Ledger, int] | None = None,
+        writer: AbstractStreamWriter | None = None,
     ) -> None:
         super().__init__(hub, ws, limits, peer)
+        #: the prepared response's stream: frames not to be deflated are written to its transport directly
+        self._writer = writer
+        self._fair: FairSender[str, _Sub] = FairSender(self._wake.set)
+        self._fair.transport = writer.transport if writer is not None else None
         shared, shared_max = fragments if fragments is not None else (Ledger(), None)
         #: the client's fragment ops not yet joined (``fragments``: the server's ledger of them and its bound)
         self.fragments = rb.Defragmenter(
@@ -117,14 +124,15 @@ class RosbridgeSession(ClientSession):
 
     def backlog(self, topic: str) -> int:
         sub = self.subs.get(topic)
-        return 0 if sub is None else sub.queue.size
+        return 0 if sub is None else sub.queue.backlog()
 
     def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
         sub = self.subs.get(topic)
         if sub is None:
             return
         sub.queue.put((body, receipt_ns), len(body))
-        while len(sub.queue) > sub.queue_length:
+        FairSender.queued(sub.queue, len(body))
+        while sub.queue_length and len(sub.queue) > sub.queue_length:
             sub.queue.drop_oldest()
         trim_to_budget([s.queue for s in self.subs.values()], self.limits.client_bytes, sub.queue)
         self._wake.set()
@@ -145,78 +153,6 @@ class RosbridgeSession(ClientSession):
 
     def status(self, level: str, message: str, op_id: str | None = None) -> None:
         self._send(rb.op_json("status", level=level, msg=message, id=op_id))
-
-    async def _next_message(self) -> tuple[bool, bytes] | None:
-        now = time.monotonic()
-        for sub in list(self.subs.values()):
-            if not len(sub.queue):
-                continue
-            if sub.throttle_s and now - sub.last_sent < sub.throttle_s:
-                continue  # the newest waits for its turn; older ones are dropped by the queue bound
-            if sub.throttle_s:
-                while len(sub.queue) > 1:
-                    sub.queue.drop_oldest()
-            body, receipt_ns = sub.queue.get()
-            sub.last_sent = now
-            if sub.queue.size < PAUSE_BYTES:
-                self.hub.resume(sub.topic)
-            if sub.compression == "cbor-raw":  # passthrough: the body is never decoded
-                return True, rb.publish_cbor_raw(sub.topic, body, receipt_ns)
-            try:
-                msg = sub.msg_class.deserialize(body)
-            except MrosError as exc:
-                log.info("web: %s: a message does not decode: %s", sub.topic, exc)
-                continue
-            if sub.compression == "cbor":
-                return True, rb.publish_cbor(sub.topic, msg)
-            data = rb.publish_json(sub.topic, msg)
-            if sub.compression == "png":
-                data = await png_op_off_loop(data)
-            if sub.fragment_size and len(data) > max(sub.fragment_size, rb.MIN_FRAGMENT_SIZE):
-                # Made one at a time as the sender takes them (ahead of anything else), from the one text:
-                # the client holds this message, not its fragments, until the last is sent.
-                pieces = rb.iter_fragments(
-                    data.decode(), sub.fragment_size, f"publish:{sub.topic}:{next(self._request_ids)}"
-                )
-                self._fragment_rest: Iterator[bytes] | None = pieces
-                # The text is this client's until its last piece is sent: counted in the server's budget, and
-                # its queues make room for it within the client's own.
-                self._hold(len(data))
-                budget = max(0, self.limits.client_bytes - self.held)
-                trim_to_budget([s.queue for s in self.subs.values()], budget, sub.queue)
-                return False, next(pieces)
-            return False, data
-        return None
-
-    async def _sender(self) -> None:
-        ws = self.ws
-        while not self._closed:
-            await self._wake.wait()
-            self._wake.clear()
-            while not self._closed:
-                rest: Iterator[bytes] | None = getattr(self, "_fragment_rest", None)
-                piece = next(rest, None) if rest is not None else None
-                if piece is not None:
-                    binary, data = False, piece
-                elif rest is not None:
-                    self._fragment_rest = None
-                    self._unhold()
-                    continue
-                elif self._control:
-                    binary, data = self._control.pop()
-                else:
-                    frame = await self._next_message()
-                    if frame is None:
-                        break
-                    binary, data = frame
-                if binary:
-                    await ws.send_bytes(data)
-                else:
-                    await ws.send_str(data.decode())
-            throttled = [s for s in self.subs.values() if len(s.queue) and s.throttle_s]
-            if throttled:
-                delay = min(s.throttle_s - (time.monotonic() - s.last_sent) for s in throttled)
-                asyncio.get_running_loop().call_later(max(delay, 0.001), self._wake.set)
 
     # --- the connection --------------------------------------------------------------------------
 
@@ -510,41 +446,6 @@ class RosbridgeSession(ClientSession):
         timeout = op.timeout if op.timeout and op.timeout > 0 else self.limits.call_timeout
         response = await proxy.call(request, timeout=min(timeout, self.limits.call_timeout))
         return msgspec.to_builtins(response)
-
-
-#: A ``png`` op of a JSON text up to this long is encoded on the event loop (at most about 0.2 ms); a longer one
-#: in ``_png_pool``, off the loop: a 640x480 camera image takes 30-40 ms to compress, which would otherwise stop
-#: every other client for that long. The encoder works in steps whose zlib calls let go of the GIL
-#: (``rb.PNG_STEP``), so the loop's thread never waits long for it.
-PNG_INLINE_BYTES = 16 * 1024
-#: Threads that compress ``png`` ops for every rosbridge client of the process. Each session waits for its own
-#: message, so at most one per client is in flight; two threads keep a crowd of png clients from using more
-#: than two cores, and from holding up the loop's default executor (name lookups).
-PNG_THREADS = 2
-#: Nice value of those threads (Linux sets it per thread): on a busy machine the event loop's thread gets the
-#: CPU first, and compression takes what is left. In ``bench web`` on 2 shared cores, a 1 ms timer on the loop
-#: was then late by about as much beside png encodes as beside the JSON path (99th percentile 0.9-2.3 ms
-#: against 1.3-1.4 ms; 1.0-3.6 ms at the default priority).
-PNG_NICENESS = 10
-_png_pool: concurrent.futures.ThreadPoolExecutor | None = None
-
-
-def _png_thread_start() -> None:
-    if sys.platform == "linux":
-        with contextlib.suppress(OSError):  # raising one's own nice value is always allowed; be safe anyway
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), PNG_NICENESS)
-
-
-async def png_op_off_loop(text: bytes) -> bytes:
-    """rosbridge's ``png`` op of ``text``, compressed off the event loop when it is long."""
-    global _png_pool
-    if len(text) <= PNG_INLINE_BYTES:
-        return rb.png_op(text)
-    if _png_pool is None:
-        _png_pool = concurrent.futures.ThreadPoolExecutor(
-            PNG_THREADS, thread_name_prefix="mrosd-png", initializer=_png_thread_start
-        )
-    return await asyncio.get_running_loop().run_in_executor(_png_pool, rb.png_op, text)
 
 
 def _op_name(op: rb.Op) -> str:

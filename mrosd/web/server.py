@@ -12,7 +12,7 @@ import asyncio
 import contextlib
 import errno
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from aiohttp import web
@@ -24,6 +24,7 @@ from mrosd.web import foxglove as fg
 from mrosd.web.access import AccessPolicy
 from mrosd.web.admission import Admission, OriginGate
 from mrosd.web.assets import MAX_ASSET_BYTES, AssetReader
+from mrosd.web.fairsend import IN_FLIGHT_BYTES
 from mrosd.web.foxglove_server import FoxgloveSession
 from mrosd.web.handshake import AuthFirstResponse, gate_middleware, read_auth, refuse_later
 from mrosd.web.hub import WebHub
@@ -52,6 +53,12 @@ MAX_FRAGMENT_BYTES = 256 * 1024 * 1024
 #: Times a port chosen by the first address (port 0) is tried on the others before giving up: another
 #: process may hold that number on another address.
 BIND_ATTEMPTS = 5
+#: Seconds between two looks at the clients' drop counts for the status file (rewritten only when they changed).
+DROPS_PERIOD = 5.0
+#: Clients and topics per client whose drops the status file names (the most dropping ones): 16 x 16 rows
+#: stay far below the status file's read bound (``mrosd.runstatus.MAX_STATUS_BYTES``).
+STATUS_CLIENTS = 16
+STATUS_TOPICS = 16
 
 
 class WebServer:
@@ -112,6 +119,10 @@ class WebServer:
         self.max_fragment_bytes = max_fragment_bytes
         self._runner: web.AppRunner | None = None
         self._rosbridge_runner: web.AppRunner | None = None
+        #: called (at most every ``DROPS_PERIOD`` s) when clients' drop counts changed: the daemon rewrites its
+        #: status file (``mros web status`` shows them)
+        self.on_drops: Callable[[], None] | None = None
+        self._drops_task: asyncio.Task[None] | None = None
 
     @property
     def max_clients(self) -> int:
@@ -163,6 +174,7 @@ class WebServer:
         except BaseException:
             await self.aclose()
             raise
+        self._drops_task = asyncio.get_running_loop().create_task(self._watch_drops(), name="web drops")
         urls = " ".join(self.urls)
         log.info("web: Foxglove WebSocket on %s, page %s (master %s)", urls, self.page_url, self.hub.master_uri)
         if self.rosbridge_port is not None:
@@ -214,16 +226,23 @@ class WebServer:
         from mrosd.web.rosbridge_server import RosbridgeSession
 
         address = str(request.remote)
+        writer = None
         if self.policy.token_ok(self._token(request)):
-            ws = web.WebSocketResponse(compress=False, max_msg_size=self.max_frame, heartbeat=30.0)
+            ws = web.WebSocketResponse(
+                compress=True, max_msg_size=self.max_frame, heartbeat=30.0, writer_limit=IN_FLIGHT_BYTES
+            )
             why = self.admission.admit(address)
             if why is not None:
                 raise web.HTTPServiceUnavailable(text=why + "\n")
         else:
             pending = AuthFirstResponse(
-                max_frame=self.max_frame, token_ok=self.policy.token_ok, compress=False, heartbeat=30.0
+                max_frame=self.max_frame,
+                token_ok=self.policy.token_ok,
+                compress=True,
+                heartbeat=30.0,
+                writer_limit=IN_FLIGHT_BYTES,
             )
-            await pending.prepare(request)
+            writer = await pending.prepare(request)
             for old in self.admission.pend(pending, address):
                 refuse_later(old, "too many connections waiting to authenticate")  # type: ignore[arg-type]
             try:
@@ -240,13 +259,14 @@ class WebServer:
             ws = pending
         try:
             if not ws.prepared:
-                await ws.prepare(request)
+                writer = await ws.prepare(request)
             session = RosbridgeSession(
                 self.hub,
                 ws,
                 self.limits,
                 peer=address,
                 fragments=(self.rosbridge_fragments, self.max_fragment_bytes),
+                writer=writer,
             )
             self.rosbridge_sessions.add(session)
             try:
@@ -280,7 +300,11 @@ class WebServer:
             raise web.HTTPServiceUnavailable(text=why + "\n")
         try:
             ws = web.WebSocketResponse(
-                protocols=fg.SUBPROTOCOLS, compress=False, max_msg_size=self.max_frame, heartbeat=30.0
+                protocols=fg.SUBPROTOCOLS,
+                compress=True,
+                max_msg_size=self.max_frame,
+                heartbeat=30.0,
+                writer_limit=IN_FLIGHT_BYTES,
             )
             writer = await ws.prepare(request)
             session = FoxgloveSession(self.hub, ws, writer, self.limits, peer=address)
@@ -295,8 +319,42 @@ class WebServer:
             self.admission.release(address)
         return ws
 
+    def drops(self) -> list[tuple[str, dict[str, int]]]:
+        """Per client that had messages dropped: (protocol and address, topic -> dropped), the clients and
+        topics with the most drops first, at most ``STATUS_CLIENTS`` x ``STATUS_TOPICS`` (the status file
+        is read bounded)."""
+        rows = []
+        for session in (*self.sessions, *self.rosbridge_sessions):
+            per_topic: dict[str, int] = {}
+            for sub in list(session.subs.values()):
+                if sub.queue.dropped:
+                    topic = sub.topic if isinstance(sub.topic, str) else sub.topic.name
+                    per_topic[topic] = per_topic.get(topic, 0) + sub.queue.dropped
+            if per_topic:
+                top = sorted(per_topic.items(), key=lambda kv: -kv[1])[:STATUS_TOPICS]
+                rows.append((f"{session.KIND} {session.peer}", dict(top)))
+        rows.sort(key=lambda row: -sum(row[1].values()))
+        return rows[:STATUS_CLIENTS]
+
+    async def _watch_drops(self) -> None:
+        last = 0
+        while True:
+            await asyncio.sleep(DROPS_PERIOD)
+            total = sum(sum(d.values()) for _, d in self.drops())
+            if total != last and self.on_drops is not None:
+                last = total
+                try:
+                    self.on_drops()
+                except Exception:  # the status file is a convenience; the daemon goes on without it
+                    log.exception("web: the drop counts could not be written to the status")
+
     async def aclose(self) -> None:
         """Close every client, stop listening, then close the hub (its subscriptions and node)."""
+        if self._drops_task is not None:
+            self._drops_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._drops_task
+            self._drops_task = None
         runners = [r for r in (self._runner, self._rosbridge_runner) if r is not None]
         self._runner = self._rosbridge_runner = None
         # Clients first (aiohttp's cleanup would otherwise wait for each open WebSocket handler to end).

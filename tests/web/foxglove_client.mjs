@@ -1,6 +1,6 @@
 // A real @foxglove/ws-protocol client driven by the tests: JSON commands on stdin, JSON events on stdout.
 //
-// Usage: node foxglove_client.mjs ws://127.0.0.1:PORT/
+// Usage: node foxglove_client.mjs ws://127.0.0.1:PORT/ [--no-deflate]  (ws offers permessage-deflate unless told not to)
 // Commands (one JSON object per line):
 //   {"cmd":"subscribe","topic":"/t"}                      -> events {"event":"message","topic","len","sha256","head"}
 //     ("full":true adds "hex": the whole payload, for small messages)
@@ -24,11 +24,12 @@ const subscriptions = new Map(); // subscription id -> topic
 const full = new Set(); // subscription ids whose whole payloads are printed
 const out = (obj) => process.stdout.write(JSON.stringify(obj) + "\n");
 
-const ws = new WebSocket(url, [FoxgloveClient.SUPPORTED_SUBPROTOCOL], { maxPayload: 0 });
+const perMessageDeflate = !process.argv.includes("--no-deflate");
+const ws = new WebSocket(url, [FoxgloveClient.SUPPORTED_SUBPROTOCOL], { maxPayload: 0, perMessageDeflate });
 const client = new FoxgloveClient({ ws });
 let callId = 0;
 
-client.on("open", () => out({ event: "open", protocol: ws.protocol }));
+client.on("open", () => out({ event: "open", protocol: ws.protocol, extensions: ws.extensions }));
 client.on("serverInfo", (info) => out({ event: "serverInfo", capabilities: info.capabilities }));
 client.on("status", (s) => out({ event: "status", level: s.level, message: s.message }));
 client.on("time", (t) => out({ event: "time", timestamp: t.timestamp.toString() }));
@@ -59,6 +60,7 @@ client.on("message", ({ subscriptionId, timestamp, data }) => {
     head: Buffer.from(bytes.subarray(0, 64)).toString("hex"),
     timestamp: timestamp.toString(),
     ...(full.has(subscriptionId) ? { hex: Buffer.from(bytes).toString("hex") } : {}),
+    at: Date.now(),
   });
 });
 client.on("parameterValues", (ev) => out({ event: "parameterValues", parameters: ev.parameters, id: ev.id }));

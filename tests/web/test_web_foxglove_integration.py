@@ -307,7 +307,10 @@ async def test_sim_time_is_offered_and_follows_clock(master: Master) -> None:
 async def test_the_hub_stops_reading_when_every_client_is_behind_and_resumes(
     master: Master, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """TCP's own backpressure: the bridge receives what its fastest client takes, not all the publisher sends."""
+    """TCP's own backpressure: the bridge receives what its fastest client takes, not all the publisher sends.
+
+    Messages under ``BIG_MESSAGE_BYTES`` (queued in order; a big topic's queue keeps only its newest message,
+    dropped in the bridge rather than left in TCP buffers, where it would be stale when read)."""
     monkeypatch.setenv("MROSD_SHM", "0")  # TCPROS between the nodes of this process: its reading is what pauses
     async with (
         WebServer(master.uri, port=0, node_host="127.0.0.1") as server,
@@ -320,7 +323,7 @@ async def test_the_hub_stops_reading_when_every_client_is_behind_and_resumes(
         await client.send(op="subscribe", subscriptions=[{"id": 1, "channelId": ch["id"]}])
         await pub.wait_for_subscribers(1, timeout=10)
         entry = server.hub._shared["/image"]
-        img = Image(height=1000, width=1000, encoding="mono8", step=1000, data=bytes(1000 * 1000))
+        img = Image(height=200, width=1000, encoding="mono8", step=1000, data=bytes(200 * 1000))
         async with backports.timeout(20):
             while not entry.paused:  # the client reads nothing meanwhile
                 await pub.publish(img)

@@ -69,6 +69,10 @@ function onJson(m) {
       for (const s of m.topics) state.stats.set(s.topic, s);
       renderTopics();
       break;
+    case "x-mrosd.delivery": // this page's own subscriptions: what the daemon dropped for it (slow link)
+      state.drops = new Map(m.subscriptions.filter((d) => d.dropped).map((d) => [d.topic, d.dropped]));
+      renderTopics();
+      break;
     case "x-mrosd.nodeDetails":
       if (m.alive === false) state.dead.add(m.node); else if (m.alive) state.dead.delete(m.node);
       if (m.id === "probe") renderGraphSoon(); else showNode(m);
@@ -186,6 +190,8 @@ function renderTopics() {
       const td = document.createElement("td"); td.textContent = cell; tr.append(td);
     }
     tr.children[4].dataset.hz = s.hz ?? "";
+    const dropped = state.drops?.get(t);
+    if (dropped) { tr.children[4].textContent += ` (${dropped} dropped here)`; tr.children[4].title = "dropped by the daemon for this page: the link is slower than the topic"; }
     tr.addEventListener("click", () => { $("#topic-pick").value = t; show("topic"); });
     return tr;
   });
