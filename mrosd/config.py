@@ -221,6 +221,8 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     to_ros2: list[str] = msgspec.field(default_factory=list)
     from_ros2: list[str] = msgspec.field(default_factory=list)
     queue_size: Count = 16
+    mapping_rules: list[str] = msgspec.field(default_factory=list)  # ros1_bridge's rule YAML files (docs/ros2.md)
+    ros2_share: list[str] = msgspec.field(default_factory=list)  # ROS 2 share trees: <pkg>/msg/*.msg for ROS 1
 
 
 class LogConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

@@ -32,6 +32,7 @@ from mrosd.names import canonicalize, is_valid_name
 from mrosd.ros2.attachment import encode_attachment, gid_of
 from mrosd.ros2.inbound import Inbound
 from mrosd.ros2.keys import DURABILITY_TRANSIENT_LOCAL, EntityKind, LivelinessToken, Qos, data_key, dds_type_name
+from mrosd.ros2.mapping import load_mapping_rules
 from mrosd.ros2.types import TypeMapper, TypeMapping, UnmappableTypeError
 from mrosd.tcpros.node import Node
 from mrosd.tcpros.subscriber import AnyMsg, RawMessage
@@ -65,14 +66,17 @@ class Ros2Options(msgspec.Struct, frozen=True, kw_only=True):
     from_ros2: tuple[str, ...] = ()
     queue_size: int = 16
     node_name: str = NODE_NAME
+    mapping_rules: tuple[str, ...] = ()
+    ros2_share: tuple[str, ...] = ()
 
 
 def ros2_options(cfg: Ros2Config, environ: Mapping[str, str] | None = None) -> Ros2Options:
     """``[ros2]`` -> options; ``domain_id`` -1 reads ``ROS_DOMAIN_ID`` (else 0).
 
     Raises:
-        ConfigError: ``ROS_DOMAIN_ID`` is not a number from 0 to 232.
+        ConfigError: ``ROS_DOMAIN_ID`` is not a number from 0 to 232, or a mapping rules file is wrong.
     """
+    load_mapping_rules(cfg.mapping_rules)  # a bad file is one line at start, not a surprise at the first topic
     env = os.environ if environ is None else environ
     domain = cfg.domain_id
     if domain < 0:
@@ -87,6 +91,8 @@ def ros2_options(cfg: Ros2Config, environ: Mapping[str, str] | None = None) -> R
         to_ros2=tuple(cfg.to_ros2),
         from_ros2=tuple(cfg.from_ros2),
         queue_size=cfg.queue_size,
+        mapping_rules=tuple(cfg.mapping_rules),
+        ros2_share=tuple(cfg.ros2_share),
     )
 
 
@@ -151,7 +157,7 @@ class Ros2Bridge:
         self.options = options
         self.filter = NameFilter(include=options.to_ros2)
         self.node = Node(options.node_name, master_uri, argv=[], host=host, rosout=False, logger_services=False)
-        self.mapper = TypeMapper()
+        self.mapper = TypeMapper(load_mapping_rules(options.mapping_rules), options.ros2_share)
         self.topics: dict[str, BridgedTopic] = {}
         self.session: Any = None
         self._zenoh: Any = None
