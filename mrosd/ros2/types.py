@@ -186,7 +186,9 @@ class TypeMapper:
                 except MsgError as exc:
                     raise UnmappableTypeError(str(exc)) from None
             try:
-                text = ros1_definition(self._store.fielddefs, ros2_type, self.rules, self._knows_ros1)
+                text = _full_text(
+                    ros1_type, ros1_definition(self._store.fielddefs, ros2_type, self.rules, self._knows_ros1)
+                )
                 cls = load_type(ros1_type, text)
                 type_hash = self._store.hash_rihs01(ros2_type)
             except UnmappableTypeError:
@@ -276,6 +278,23 @@ class TypeMapper:
             self._store.register(fresh)
         except Exception as exc:
             raise UnmappableTypeError(f"ros2: {ros1_type}: rosbags refused the derived types: {exc}") from exc
+
+
+def _full_text(ros1_type: str, custom: str) -> str:
+    """The whole ``message_definition`` genpy would send: ``custom`` (the type and its custom nested types) with
+    the standard nested types' ROS 1 sections added (``std_msgs/Header`` with ``seq``), which rosbag and genpy
+    need to decode it.
+
+    Raises:
+        MsgError: the text does not parse or uses a type nobody defines.
+    """
+    from mrosd.msg import TypeStore
+    from mrosd.msg.parser import parse_definition
+
+    store = TypeStore()
+    for spec in parse_definition(ros1_type, custom).values():
+        store.add(spec)
+    return store.full_text(ros1_type)
 
 
 def _ros1_of(rosbags_name: str) -> str:
