@@ -139,7 +139,7 @@ async def run(seconds: float) -> None:
         await asyncio.sleep(1.0)
         bridge = _start(
             [str(Path(sys.executable).parent / "mros"), "ros2", "bridge", "--to-ros2", "/bench_out", "--from-ros2",
-             "/bench_back", "--connect", f"tcp/127.0.0.1:{zenoh_port}", "--domain-id", "0", "--queue-size", "4"],
+             "/bench_back", "--connect", f"tcp/127.0.0.1:{zenoh_port}", "--domain-id", "0"],
             env,
         )  # fmt: skip
         procs.append(bridge)

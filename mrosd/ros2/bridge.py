@@ -188,7 +188,10 @@ class Ros2Bridge:
         self._zenoh = zenoh
         config = zenoh.Config()
         try:
-            config.insert_json5("mode", '"peer"')
+            # a client is routed by the router it dials: rmw_zenoh's peers listen on localhost only, so a peer on
+            # another host would learn of them and never reach them (tests/netns/test_ros2_link.py); with listen
+            # endpoints the bridge is a peer others may dial
+            config.insert_json5("mode", '"peer"' if self.options.listen else '"client"')
             config.insert_json5("connect/endpoints", msgspec.json.encode(list(self.options.connect)).decode())
             config.insert_json5("listen/endpoints", msgspec.json.encode(list(self.options.listen)).decode())
             config.insert_json5("scouting/multicast/enabled", "false")
