@@ -144,7 +144,7 @@ async def run(seconds: float) -> None:
         )  # fmt: skip
         procs.append(bridge)
         async with mrosd.Node("bench_ros2", master_uri=master, argv=[], rosout=False, logger_services=False) as node:
-            pub = await node.advertise("/bench_out", raw, queue_size=4)
+            pub = await node.advertise("/bench_out", raw, queue_size=16)
             for label, size, rate in CASES:
                 body = _image_body(size)
                 print(f"{label} ({len(body)} bytes) at {rate:.0f} Hz", flush=True)
@@ -154,7 +154,7 @@ async def run(seconds: float) -> None:
                     "/bench_out",
                     AnyMsg,
                     callback=lambda m, w=win: w.arrive(*struct.unpack_from("<II", m.data, 4), len(m.data)),
-                    queue_size=4,
+                    queue_size=16,
                 )
                 await pub.wait_for_subscribers(1, 30)
                 await _send(pub.publish_serialized, bytearray(body), min(rate, 20), 0.5)  # connected and warm
@@ -182,7 +182,7 @@ async def run(seconds: float) -> None:
                     "/bench_back",
                     AnyMsg,
                     callback=lambda m, w=win: w.arrive(*struct.unpack_from("<II", m.data, 4), len(m.data)),
-                    queue_size=4,
+                    queue_size=16,
                 )
                 cdr = bytearray(mapper.to_cdr(mapping.ros2_type, body))
                 token = LivelinessToken(

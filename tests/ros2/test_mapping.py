@@ -187,3 +187,23 @@ def test_standard_types_keep_mrosds_ros1_definitions() -> None:
     from mrosd.msg import get_message_class
 
     assert back.md5sum == get_message_class("sensor_msgs/Image")._md5sum
+
+
+def test_a_share_tree_is_read_only_under_its_roots_and_within_bounds(tmp_path: Path) -> None:
+    from mrosd.ros2.ros1defs import MAX_MSG_FILE_SIZE, Ros2Share
+
+    share = tmp_path / "share"
+    (share / "big_msgs" / "msg").mkdir(parents=True)
+    (share / "big_msgs" / "msg" / "Big.msg").write_text("# " + "x" * MAX_MSG_FILE_SIZE + "\nint32 a\n")
+    (tmp_path / "secret" / "msg").mkdir(parents=True)
+    (tmp_path / "secret" / "msg" / "Key.msg").write_text("int32 a\n")
+    assert Ros2Share([str(share)]).find("../secret/msg/Key") is None
+    assert Ros2Share([str(share)]).find("..%2Fsecret/msg/Key") is None
+    with pytest.raises(UnmappableTypeError, match=r"Big\.msg: over"):
+        TypeMapper(ros2_share=[str(share)]).ros1_for("big_msgs/msg/Big")
+    # a type that nests itself through a chain of files stops at the bound, with a line
+    (share / "loop_msgs" / "msg").mkdir(parents=True)
+    for i in range(300):
+        (share / "loop_msgs" / "msg" / f"T{i}.msg").write_text(f"T{i + 1} next\n" if i < 299 else "int32 end\n")
+    with pytest.raises(UnmappableTypeError, match="nested types"):
+        TypeMapper(ros2_share=[str(share)]).ros1_for("loop_msgs/msg/T0")
