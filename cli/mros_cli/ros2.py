@@ -46,6 +46,8 @@ def group() -> None:
     "--domain-id", type=click.IntRange(-1, 232), default=-1, show_default=True, help="-1: $ROS_DOMAIN_ID, else 0"
 )
 @click.option("--queue-size", type=click.IntRange(1, 10000), default=16, show_default=True)
+@click.option("--mapping-rules", multiple=True, help="ros1_bridge mapping-rule YAML (repeatable)")
+@click.option("--ros2-share", multiple=True, help="ROS 2 share tree with <pkg>/msg/*.msg (repeatable)")
 def bridge(
     *,
     to_ros2: tuple[str, ...],
@@ -54,6 +56,8 @@ def bridge(
     listen: tuple[str, ...],
     domain_id: int,
     queue_size: int,
+    mapping_rules: tuple[str, ...] = (),
+    ros2_share: tuple[str, ...] = (),
 ) -> None:
     """Put the chosen ROS 1 topics on Zenoh as an rmw_zenoh ROS 2 node publishes them, and back."""
     from mrosd.config import Ros2Config
@@ -70,6 +74,8 @@ def bridge(
         to_ros2=list(to_ros2),
         from_ros2=list(from_ros2),
         queue_size=queue_size,
+        mapping_rules=list(mapping_rules),
+        ros2_share=list(ros2_share),
     )
     try:
         options = ros2_options(cfg)

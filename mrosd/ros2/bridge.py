@@ -321,7 +321,7 @@ class Ros2Bridge:
                 "ros2_type": rt.ros2_type,
                 "key": rt.key,
                 "received": rt.received,
-                "dropped": inbox.dropped("in:" + rt.topic) if inbox is not None else 0,
+                "dropped": (inbox.dropped("in:" + rt.topic) if inbox is not None else 0) + rt.dropped,
                 "bad": rt.bad,
             }
             for rt in inbound.topics.values()
