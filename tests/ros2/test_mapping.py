@@ -207,3 +207,29 @@ def test_a_share_tree_is_read_only_under_its_roots_and_within_bounds(tmp_path: P
         (share / "loop_msgs" / "msg" / f"T{i}.msg").write_text(f"T{i + 1} next\n" if i < 299 else "int32 end\n")
     with pytest.raises(UnmappableTypeError, match="nested types"):
         TypeMapper(ros2_share=[str(share)]).ros1_for("loop_msgs/msg/T0")
+
+
+def test_a_ros2_type_whose_ros1_msg_is_on_ros_package_path_takes_that_definition(tmp_path: Path) -> None:
+    import os
+    import subprocess
+    import sys
+
+    pkg = tmp_path / "ws" / "rpp_msgs"
+    (pkg / "msg").mkdir(parents=True)
+    (pkg / "package.xml").write_text("<package><name>rpp_msgs</name></package>\n")
+    (pkg / "msg" / "Pose2.msg").write_text("# a ROS 1 comment\nfloat64 x\nfloat64 y\nchar flag\n")
+    code = (
+        "from mrosd.ros2.types import TypeMapper\n"
+        "back = TypeMapper().ros1_for('rpp_msgs/msg/Pose2')\n"
+        "print(back.ros1_type, back.md5sum, back.mapping.type_hash)\n"
+        "print(repr(back.definition))\n"
+    )
+    env = {**os.environ, "ROS_PACKAGE_PATH": str(tmp_path / "ws")}
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, timeout=60, check=False)
+    assert done.returncode == 0, done.stderr.decode()
+    first, definition = done.stdout.decode().splitlines()
+    name, md5, type_hash = first.split()
+    assert name == "rpp_msgs/Pose2" and md5 == load_type("rpp_msgs/Pose2", "float64 x\nfloat64 y\nchar flag\n")._md5sum
+    assert "a ROS 1 comment" in definition  # the file as written, as genpy sends it
+    # its ROS 2 twin (char is uint8 in ROS 2) has the same hash
+    assert type_hash == TypeMapper().mapping("rpp_msgs/Pose2", "float64 x\nfloat64 y\nchar flag\n").type_hash
