@@ -85,6 +85,8 @@ class TypeMapper:
         from rosbags.typesys import Stores, get_typestore
 
         self._store: Any = get_typestore(Stores.ROS2_JAZZY)
+        #: the types rosbags' Jazzy store has before anything is added (the standard ones)
+        self._standard = frozenset(self._store.types)
         self._mappings: dict[str, TypeMapping] = {}
         self._back: dict[str, Ros1Type] = {}
         self._ros1_known: dict[str, bool] = {}
@@ -115,6 +117,7 @@ class TypeMapper:
         if known is not None:
             return known
         ros2_type = self.ros2_name(ros1_type)
+        standard = ros2_type in self._standard
         if ros2_type not in self._store.types:
             self._from_share(ros2_type)
         if ros2_type not in self._store.types:
@@ -123,6 +126,16 @@ class TypeMapper:
             type_hash = self._store.hash_rihs01(ros2_type)
         except Exception as exc:  # rosbags' own errors: a nested type it cannot hash
             raise UnmappableTypeError(f"ros2: {ros1_type}: no RIHS01 hash: {exc}") from exc
+        if self.share is not None and message_definition and not standard:
+            # bodies are converted byte for byte with the share tree's layout: it must be the publisher's
+            scratch = TypeMapper(self.rules)
+            scratch.mapping(ros1_type, message_definition)
+            where = _layout_difference(scratch.store.fielddefs, self._store.fielddefs, ros2_type)
+            if where:
+                raise UnmappableTypeError(
+                    f"ros2: {ros1_type}: its message_definition is not {ros2_type} as the ROS 2 share tree defines "
+                    f"it ({where}); make the two .msg agree"
+                )
         mapping = TypeMapping(ros1_type, ros2_type, type_hash)
         self._mappings[ros1_type] = mapping
         return mapping
@@ -295,6 +308,34 @@ def _full_text(ros1_type: str, custom: str) -> str:
     for spec in parse_definition(ros1_type, custom).values():
         store.add(spec)
     return store.full_text(ros1_type)
+
+
+def _layout_difference(ours: Any, theirs: Any, name: str, depth: int = 0) -> str:
+    """Where two definitions of ``name`` lay their bytes out differently ("" if they do not): the field types in
+    order, nested types followed; names, bounds and defaults do not change the bytes and are ignored."""
+    a, b = ours[name][1], theirs[name][1]
+    if len(a) != len(b):
+        return f"{name}: {len(a)} fields, not {len(b)}"
+    for (fname, da), (_, db) in zip(a, b, strict=True):
+        if depth > 32:
+            return f"{name}: nested too deep"
+        why = _desc_difference(ours, theirs, da, db, depth)
+        if why:
+            return f"{name} field {fname!r}: {why}"
+    return ""
+
+
+def _desc_difference(ours: Any, theirs: Any, da: Any, db: Any, depth: int) -> str:
+    (ka, aa), (kb, ab) = da, db
+    if ka.name != kb.name:
+        return f"{ka.name.lower()} here, {kb.name.lower()} there"
+    if ka.name == "BASE":
+        return "" if aa[0] == ab[0] else f"{aa[0]} here, {ab[0]} there"
+    if ka.name == "NAME":
+        return _layout_difference(ours, theirs, aa, depth + 1) if aa in ours and ab in theirs else ""
+    if ka.name == "ARRAY" and aa[1] != ab[1]:
+        return f"{aa[1]} items here, {ab[1]} there"
+    return _desc_difference(ours, theirs, aa[0], ab[0], depth)
 
 
 def _ros1_of(rosbags_name: str) -> str:

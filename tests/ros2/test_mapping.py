@@ -233,3 +233,15 @@ def test_a_ros2_type_whose_ros1_msg_is_on_ros_package_path_takes_that_definition
     assert "a ROS 1 comment" in definition  # the file as written, as genpy sends it
     # its ROS 2 twin (char is uint8 in ROS 2) has the same hash
     assert type_hash == TypeMapper().mapping("rpp_msgs/Pose2", "float64 x\nfloat64 y\nchar flag\n").type_hash
+
+
+def test_a_ros1_definition_that_differs_from_the_share_trees_type_is_refused_not_converted(tmp_path: Path) -> None:
+    share = _share(tmp_path)
+    mapper = TypeMapper(ros2_share=[str(share)])
+    # field-identical to the share tree's Waypoint (bounds and defaults aside): crosses
+    same = "uint8 KIND_GOAL=1\nstring name\nfloat64 x\nduration wait\n"
+    assert mapper.mapping("fleet_msgs/Waypoint", same).ros2_type == "fleet_msgs/msg/Waypoint"
+    # x as float32: the bytes would be read with the wrong layout
+    other = TypeMapper(ros2_share=[str(share)])
+    with pytest.raises(UnmappableTypeError, match=r"fleet_msgs/Waypoint.*share tree.*'x': float32 here, float64"):
+        other.mapping("fleet_msgs/Waypoint", "uint8 KIND_GOAL=1\nstring name\nfloat32 x\nduration wait\n")
