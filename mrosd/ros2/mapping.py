@@ -125,16 +125,31 @@ class MappingRules:
             self._msg_2to1.setdefault(f"{m.ros2_package}/msg/{m.ros2_message}", m)
         self._srv_1to2: dict[str, ServiceRule] = {}
         self._srv_2to1: dict[str, ServiceRule] = {}
+        #: a service rule's request and response as message rules (``pkg/XRequest`` -> ``pkg/srv/Y_Request``)
+        self._srv_msg_1to2: dict[str, MessageRule] = {}
         for s in self.services:
             self._srv_1to2.setdefault(f"{s.ros1_package}/{s.ros1_service}", s)
             self._srv_2to1.setdefault(f"{s.ros2_package}/srv/{s.ros2_service}", s)
+            for part, fields in (("Request", s.request_fields), ("Response", s.response_fields)):
+                self._srv_msg_1to2.setdefault(
+                    f"{s.ros1_package}/{s.ros1_service}{part}",
+                    MessageRule(
+                        s.ros1_package,
+                        s.ros1_service + part,
+                        s.ros2_package,
+                        f"{s.ros2_service}_{part}",
+                        fields,
+                        s.origin,
+                    ),
+                )
 
     def __bool__(self) -> bool:
         return bool(self.packages or self.messages or self.services)
 
     def message_rule(self, ros1_type: str) -> MessageRule | None:
-        """The message rule for a ROS 1 ``pkg/Type``, if any."""
-        return self._msg_1to2.get(ros1_type)
+        """The message rule for a ROS 1 ``pkg/Type``, if any; a service rule's ``pkg/XRequest`` and
+        ``pkg/XResponse`` have one made of its ``request_fields_1_to_2`` / ``response_fields_1_to_2``."""
+        return self._msg_1to2.get(ros1_type) or self._srv_msg_1to2.get(ros1_type)
 
     def message_rule_2to1(self, ros2_type: str) -> MessageRule | None:
         """The message rule for a ROS 2 ``pkg/msg/Type``, if any."""
