@@ -195,6 +195,28 @@ def test_a_type_that_cannot_cross_is_one_line_and_the_other_topics_convert(tmp_p
     assert len(report.problems) == 1 and "/bad" in report.problems[0] and "batteryLevel" in report.problems[0]
 
 
+def test_a_service_event_topic_of_a_rosbag2_is_one_line_and_the_others_convert(tmp_path: Path) -> None:
+    """``ros2 bag record --all-services`` topics (``pkg/srv/X_Event``, holding ``service_msgs/ServiceEventInfo``
+    whose ``char[16]`` rosbags hashes differently from rosidl) have no ROS 1 type: skipped, never half-converted."""
+    from rosbags.rosbag2 import Writer
+
+    from mrosd.ros2.srvtypes import service_mapping
+    from mrosd.ros2.types import TypeMapper
+
+    store = TypeMapper().store
+    setbool = service_mapping(TypeMapper(), "std_srvs/SetBool", "bool data\n", "bool success\n")
+    event = setbool.ros2_type + "_Event"
+    src = tmp_path / "events"
+    with Writer(src, version=9) as w:
+        ev = w.add_connection("/set_flag/_service_event", event, msgdef="bool data\n", rihs01=setbool.type_hash)
+        ok = w.add_connection("/chatter", "std_msgs/msg/String", typestore=store)
+        w.write(ev, 1, b"\x00\x01\x00\x00" + bytes(40))
+        w.write(ok, 2, store.serialize_cdr(store.types["std_msgs/msg/String"](data="hi"), "std_msgs/msg/String"))
+    report = convert_bag(str(src), str(tmp_path / "back.bag"), to="ros1")
+    assert (report.written, report.skipped) == (1, 1)
+    assert len(report.problems) == 1 and "/set_flag/_service_event" in report.problems[0]
+
+
 @pytest.mark.skipif(not ros_available(), reason="Debian's ROS 1 (rosbag) is not installed")
 async def test_debians_rosbag_play_serves_the_bag_converted_back(
     bags: dict[str, Any], procs: Any, rosmaster: str, tmp_path: Path
