@@ -13,6 +13,7 @@ import sys
 PARTS = ["msg", "master", "tcpros", "ixm", "cli", "bag", "web", "fleet", "images", "tf"]
 #: Run only when named: ``shm`` needs a C++ toolchain for its roscpp rows and takes minutes.
 NAMED_ONLY = ["shm"]
+NAMED_ONLY += ["ros2"]  # needs the ros2 extra and Debian's rosmaster; about 45 s
 
 
 def main(argv: list[str]) -> int:

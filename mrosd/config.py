@@ -248,6 +248,10 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     max_topics: Count = 256
     #: seconds a bridged service call may take, either way (rmw_zenoh's clients wait 10 s)
     service_timeout: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 10.0
+    #: ros1_bridge's mapping-rule YAML files (docs/ros2.md)
+    mapping_rules: list[str] = msgspec.field(default_factory=list)
+    #: ROS 2 share trees (``<pkg>/msg/*.msg``) whose types are republished on ROS 1
+    ros2_share: list[str] = msgspec.field(default_factory=list)
 
 
 class LogConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

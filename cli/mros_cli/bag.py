@@ -18,6 +18,7 @@ import click
 from mros_cli.main import error_text, master_uri, run
 from mrosd.app import on_stop_signal
 from mrosd.bag.model import DEFAULT_BUFFER_MB, DEFAULT_CLOCK_HZ, BagError, SplitPolicy, parse_duration
+from mrosd.errors import MrosError
 
 if TYPE_CHECKING:
     from mrosd.bag.files import BagReader
@@ -338,3 +339,56 @@ def info(bags: tuple[str, ...]) -> None:
             click.echo("---")
     if failed:
         sys.exit(1)
+
+
+@group.command()
+@click.argument("src", metavar="IN")
+@click.argument("dst", metavar="OUT")
+@click.option("--to", "to", type=click.Choice(["ros2", "ros1"]), required=True, help="the ROS of OUT")
+@click.option(
+    "--storage", type=click.Choice(["mcap", "sqlite3"]), default="mcap", show_default=True, help="rosbag2 storage"
+)
+@click.option("--mapping-rules", multiple=True, help="ros1_bridge mapping-rule YAML (repeatable)")
+@click.option("--ros2-share", multiple=True, help="ROS 2 share tree with <pkg>/msg/*.msg (repeatable)")
+@click.option("--progress/--no-progress", default=None, help="progress on stderr [default: on a terminal]")
+def convert(  # noqa: PLR0917
+    src: str,
+    dst: str,
+    to: str,
+    storage: str,
+    mapping_rules: tuple[str, ...],
+    ros2_share: tuple[str, ...],
+    progress: bool | None,
+) -> None:
+    """Convert a rosbag v2 into a rosbag2 (MCAP or sqlite3) with ROS 2 types, or back, as the ros2 bridge does.
+
+    \b
+    Examples:
+      mros bag convert run1.bag run1_ros2 --to ros2
+      mros bag convert run1_ros2 run1_back.bag --to ros1
+    """
+    from mrosd.ros2.bagconvert import convert_bag
+    from mrosd.ros2.mapping import load_mapping_rules
+
+    def show(done: int, total: int) -> None:
+        sys.stderr.write(f"\rconverting {src}: {done}/{total} messages ({100 * done // max(total, 1)}%)   ")
+        if done >= total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+    try:
+        report = convert_bag(
+            src,
+            dst,
+            to="ros2" if to == "ros2" else "ros1",
+            storage="sqlite3" if storage == "sqlite3" else "mcap",
+            progress=show if _status_enabled(progress) else None,
+            rules=load_mapping_rules(mapping_rules),
+            ros2_share=ros2_share,
+        )
+    except MrosError as exc:
+        click.echo(error_text(str(exc)), err=True)
+        sys.exit(1)
+    for line in report.problems[:50]:
+        click.echo(error_text(line), err=True)
+    click.echo(f"{dst}: {report.written} messages written, {report.skipped} skipped")

@@ -56,6 +56,8 @@ def group() -> None:
 @click.option("--distro", type=click.Choice(["jazzy", "humble"]), default="jazzy", show_default=True)
 @click.option("--router", is_flag=True, help="Be the Zenoh router ROS 2 nodes connect to (listens on tcp/[::]:7447)")
 @click.option("--service-timeout", type=click.FloatRange(0.1, 3600), default=10.0, show_default=True)
+@click.option("--mapping-rules", multiple=True, help="ros1_bridge mapping-rule YAML (repeatable)")
+@click.option("--ros2-share", multiple=True, help="ROS 2 share tree with <pkg>/msg/*.msg (repeatable)")
 def bridge(
     *,
     to_ros2: tuple[str, ...],
@@ -68,6 +70,8 @@ def bridge(
     distro: str,
     router: bool,
     service_timeout: float,
+    mapping_rules: tuple[str, ...],
+    ros2_share: tuple[str, ...],
 ) -> None:
     """Put the chosen ROS 1 topics on Zenoh as an rmw_zenoh ROS 2 node publishes them, and back."""
     from mrosd.config import Ros2Config
@@ -88,6 +92,8 @@ def bridge(
         router=router,
         connect=list(connect),
         service_timeout=service_timeout,
+        mapping_rules=list(mapping_rules),
+        ros2_share=list(ros2_share),
     )
     try:
         options = ros2_options(cfg)

@@ -5,16 +5,17 @@ no keys between them: the sequence number (int64), the source timestamp in nanos
 source GID (16 bytes, as a sequence: a LEB128 count, here always the single byte 16, then the bytes). That is
 33 bytes, little-endian.
 
-rmw_zenoh's GID is the XXH3-128 of the entity's liveliness key; nothing on the wire checks it against the
-token, so ours is a 16-byte BLAKE2b of the same key: as stable and as unique, without another dependency.
+rmw_zenoh's GID is the XXH3-128 (seed 0) of the entity's liveliness key, stored as ``memcpy(gid, &low64, 8)``
+then ``&high64`` (``liveliness_utils.cpp``, ``Entity``'s constructor; ``simplified_xxhash3.cpp`` is stock
+XXH3-128 reduced to its portable code): the 128-bit value in little-endian, which is what ours is.
 """
 
 from __future__ import annotations
 
-import hashlib
 import struct
 
 import msgspec
+import xxhash
 
 from mrosd.errors import RemoteProtocolError
 
@@ -36,7 +37,7 @@ class Attachment(msgspec.Struct, frozen=True, gc=False):
 
 def gid_of(token_key: str) -> bytes:
     """The 16-byte GID of the entity whose liveliness key is ``token_key``."""
-    return hashlib.blake2b(token_key.encode(), digest_size=GID_SIZE).digest()
+    return int(xxhash.xxh3_128_intdigest(token_key.encode())).to_bytes(GID_SIZE, "little")
 
 
 def encode_attachment(sequence_number: int, source_timestamp: int, gid: bytes) -> bytes:

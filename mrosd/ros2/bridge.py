@@ -37,6 +37,7 @@ from mrosd.ros2.keys import (
     dds_type_name,
     parse_token,
 )
+from mrosd.ros2.mapping import load_mapping_rules
 from mrosd.ros2.options import Ros2Options, ros2_options, zenoh_config
 from mrosd.ros2.services import Ros2Services
 from mrosd.ros2.srvtypes import HUMBLE_TYPE_HASH
@@ -130,7 +131,7 @@ class Ros2Bridge:
         self.demand = options.mode == "demand"
         self.filter = NameFilter(include=self.to_ros2)
         self.node = Node(options.node_name, master_uri, argv=[], host=host, rosout=False, logger_services=False)
-        self.mapper = TypeMapper()
+        self.mapper = TypeMapper(load_mapping_rules(options.mapping_rules), options.ros2_share)
         self.topics: dict[str, BridgedTopic] = {}
         self.session: Any = None
         self._zenoh: Any = None
@@ -334,7 +335,7 @@ class Ros2Bridge:
                 "key": rt.key,
                 "received": rt.received,
                 "rate": self.rates.rate("in:" + rt.topic),
-                "dropped": inbox.dropped("in:" + rt.topic) if inbox is not None else 0,
+                "dropped": (inbox.dropped("in:" + rt.topic) if inbox is not None else 0) + rt.dropped,
                 "bad": rt.bad,
                 "subscribed": rt.subscriber is not None,
             }

@@ -1,16 +1,19 @@
 """ROS 2 -> ROS 1: topics that rmw_zenoh publishers announce, republished on the ROS 1 graph.
 
 The bridge's liveliness subscriber hands every token to ``Inbound.token`` on the loop (through the fleet part's
-``Inbox``). A publisher token (``MP``) of another session whose topic matches ``from_ros2`` and whose type is a
-standard one mrosd knows in its ROS 1 form, with the same RIHS01 hash, gets a Zenoh subscriber on its data key
-and a ROS 1 publisher of the ROS 1 type; samples come through the ``Inbox`` (per-topic drop-oldest) and are
-converted from CDR on the loop (small messages; big ones move to a worker in a later slice).
+``Inbox``). A publisher token (``MP``) of another session whose topic matches ``from_ros2`` and whose type has a
+ROS 1 form (a standard type, a ``.msg`` on ROS_PACKAGE_PATH, a ROS 2 ``share/`` tree, through the mapping rules)
+with the same RIHS01 hash gets a Zenoh subscriber on its data key (in mode "demand" only while a ROS 1 node
+subscribes) and a ROS 1 publisher of the ROS 1 type; samples come through the ``Inbox`` (per-topic drop-oldest)
+and are converted from CDR on the loop, or, from a body of ``OFFLOAD_SIZE`` on, on a worker thread in order.
 """
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
+from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -38,6 +41,11 @@ MAX_RECEIVED_TOPICS = 256
 MAX_REFUSED_NAMES = 1024
 #: ROS 2 topics whose subscribers are followed for mode "demand" at most
 MAX_DEMANDED_TOPICS = 4096
+
+#: a CDR body this big or bigger is converted on a worker thread (1080p rgb8 takes about 1 ms, 64 kB some µs),
+#: and so is every body of that topic behind it, in order; at most ``OFFLOAD_BACKLOG`` wait (drop-oldest)
+OFFLOAD_SIZE = 256 * 1024
+OFFLOAD_BACKLOG = 8
 
 #: ROS 2 names whose ROS 1 name is not ``pkg/Type``
 _RENAMED_BACK = {"tf2_msgs/msg/TFMessage": "tf2_msgs/TFMessage"}
@@ -73,6 +81,10 @@ class ReceivedTopic:
     mapping: Any = None
     #: the liveliness keys of the ROS 2 publishers seen: the topic stays on ROS 1 while one is left
     sources: set[str] = field(default_factory=set)
+    #: bodies waiting for the worker thread (big ones are converted off the loop), drop-oldest
+    backlog: deque[bytes] = field(default_factory=lambda: deque(maxlen=OFFLOAD_BACKLOG))
+    worker: asyncio.Task[None] | None = None
+    dropped: int = 0
 
 
 class Inbound:
@@ -175,13 +187,12 @@ class Inbound:
 
     async def _start(self, tok: LivelinessToken, session: Any, inbox: Inbox, make_token: Any) -> ReceivedTopic | None:
         from mrosd.fleet.raw import raw_message_class
-        from mrosd.msg import get_message_class
 
         try:
             ros2_type = ros2_type_of_dds(tok.type_name)
-            ros1_type = ros1_type_name(ros2_type)
-            cls = get_message_class(ros1_type)
-            mapping = self.mapper.mapping(ros1_type)
+            # ROS_PACKAGE_PATH, then the ROS 2 definitions (Jazzy's, ros2_share); may read files: off the loop
+            back = await asyncio.to_thread(self.mapper.ros1_for, ros2_type)
+            ros1_type, mapping = back.ros1_type, back.mapping
         except (MrosError, ValueError) as exc:
             _ratelog.warning(f"in {tok.topic}", "ros2: %s from ROS 2 is not bridged: %s", tok.topic, exc)
             return None
@@ -202,7 +213,7 @@ class Inbound:
         self.topics[tok.topic] = rt
         try:
             rt.publisher = await self.node.advertise(
-                tok.topic, raw_message_class(ros1_type, cls._md5sum, str(cls._full_text))
+                tok.topic, raw_message_class(ros1_type, back.md5sum, back.definition)
             )
         except MrosError as exc:
             _ratelog.warning(f"adv {tok.topic}", "ros2: cannot publish %s on ROS 1: %s", tok.topic, exc)
@@ -240,6 +251,9 @@ class Inbound:
                 self._detach(rt)
 
     async def _close(self, rt: ReceivedTopic) -> None:
+        if rt.worker is not None:
+            rt.worker.cancel()
+        rt.backlog.clear()
         self._detach(rt)
         if rt.publisher is not None:
             with contextlib.suppress(MrosError, OSError):
@@ -250,15 +264,37 @@ class Inbound:
         rt = self.topics.get(topic)
         if rt is None or rt.publisher is None:
             return
+        if rt.worker is not None or any(len(cdr) >= OFFLOAD_SIZE for cdr in bodies):
+            rt.dropped += max(0, len(rt.backlog) + len(bodies) - OFFLOAD_BACKLOG)
+            rt.backlog.extend(bodies)
+            if rt.worker is None:
+                rt.worker = asyncio.create_task(self._drain(rt))
+            return
+        for body in self._convert(rt, bodies):
+            rt.publisher.publish_serialized(body)
+
+    def _convert(self, rt: ReceivedTopic, bodies: list[bytes]) -> list[bytes]:
+        out = []
         for cdr in bodies:
             try:
-                body = bytes(self.mapper.to_ros1(rt.ros2_type, cdr))
+                out.append(bytes(self.mapper.to_ros1(rt.ros2_type, cdr)))
             except MrosError as exc:
                 rt.bad += 1
-                _ratelog.warning(f"cdr in {topic}", "%s", exc)
+                _ratelog.warning(f"cdr in {rt.topic}", "%s", exc)
                 continue
             rt.received += 1
-            rt.publisher.publish_serialized(body)
+        return out
+
+    async def _drain(self, rt: ReceivedTopic) -> None:
+        """Convert the topic's backlog on a worker thread and publish it, in order, until it is empty."""
+        try:
+            while rt.backlog and rt.publisher is not None:
+                batch = list(rt.backlog)
+                rt.backlog.clear()
+                for body in await asyncio.to_thread(self._convert, rt, batch):
+                    rt.publisher.publish_serialized(body)
+        finally:
+            rt.worker = None
 
     async def aclose(self) -> None:
         for rt in self.topics.values():

@@ -2,7 +2,8 @@
 
 ``router = true`` makes the bridge's own session the Zenoh router rmw_zenoh's nodes connect to
 (``rmw_zenohd``'s part: mode ``router``, listening on ``tcp/[::]:7447`` unless ``listen`` says otherwise), so a
-robot with no ROS 2 install serves the ROS 2 machines that join it. ``distro = "humble"`` puts rmw_zenoh's
+robot with no ROS 2 install serves the ROS 2 machines that join it. Otherwise the bridge is a Zenoh ``client`` of
+the router it dials, or a ``peer`` others may dial when ``listen`` is set. ``distro = "humble"`` puts rmw_zenoh's
 Humble placeholder ``TypeHashNotSupported`` where Jazzy puts the RIHS01 hash.
 """
 
@@ -15,11 +16,12 @@ from typing import TYPE_CHECKING, Any, Literal
 import msgspec
 
 from mrosd.errors import ConfigError
+from mrosd.ros2.mapping import load_mapping_rules
 
 if TYPE_CHECKING:
     from mrosd.config import Ros2Config
 
-__all__ = ["DEFAULT_CONNECT", "ROUTER_LISTEN", "Ros2Options", "ros2_options", "zenoh_config"]
+__all__ = ["DEFAULT_CONNECT", "ROUTER_LISTEN", "Ros2Options", "ros2_options", "zenoh_config", "zenoh_mode"]
 
 #: where rmw_zenoh's nodes find their router
 DEFAULT_CONNECT = ("tcp/localhost:7447",)
@@ -49,6 +51,10 @@ class Ros2Options(msgspec.Struct, frozen=True, kw_only=True):
     router: bool = False
     max_topics: int = MAX_ALL_TOPICS
     service_timeout: float = 10.0
+    #: ros1_bridge's mapping-rule YAML files
+    mapping_rules: tuple[str, ...] = ()
+    #: ROS 2 share trees whose ``<pkg>/msg/*.msg`` types may cross to ROS 1
+    ros2_share: tuple[str, ...] = ()
 
     @property
     def humble(self) -> bool:
@@ -60,8 +66,9 @@ def ros2_options(cfg: Ros2Config, environ: Mapping[str, str] | None = None) -> R
     ``connect`` (the router we now are) is dropped and ``listen`` defaults to rmw_zenohd's endpoint.
 
     Raises:
-        ConfigError: ``ROS_DOMAIN_ID`` is not a number from 0 to 232.
+        ConfigError: ``ROS_DOMAIN_ID`` is not a number from 0 to 232, or a mapping rules file is wrong.
     """
+    load_mapping_rules(cfg.mapping_rules)  # a bad file is one line at start, not a surprise at the first topic
     env = os.environ if environ is None else environ
     domain = cfg.domain_id
     if domain < 0:
@@ -85,7 +92,18 @@ def ros2_options(cfg: Ros2Config, environ: Mapping[str, str] | None = None) -> R
         router=cfg.router,
         max_topics=cfg.max_topics,
         service_timeout=cfg.service_timeout,
+        mapping_rules=tuple(cfg.mapping_rules),
+        ros2_share=tuple(cfg.ros2_share),
     )
+
+
+def zenoh_mode(options: Ros2Options) -> str:
+    """``router`` with ``router = true``; else a ``client`` of the router it dials (rmw_zenoh's peers listen on
+    localhost only, so a peer on another host would learn of them and never reach them:
+    tests/netns/test_ros2_link.py), or a ``peer`` others may dial when ``listen`` is set."""
+    if options.router:
+        return "router"
+    return "peer" if options.listen else "client"
 
 
 def zenoh_config(zenoh: Any, options: Ros2Options) -> Any:
@@ -96,7 +114,7 @@ def zenoh_config(zenoh: Any, options: Ros2Options) -> Any:
     """
     config = zenoh.Config()
     try:
-        config.insert_json5("mode", '"router"' if options.router else '"peer"')
+        config.insert_json5("mode", f'"{zenoh_mode(options)}"')
         config.insert_json5("connect/endpoints", msgspec.json.encode(list(options.connect)).decode())
         config.insert_json5("listen/endpoints", msgspec.json.encode(list(options.listen)).decode())
         config.insert_json5("scouting/multicast/enabled", "false")

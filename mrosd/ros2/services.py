@@ -35,7 +35,7 @@ from mrosd.lograte import RateLimitedLog
 from mrosd.names import canonicalize, is_valid_name
 from mrosd.ros2.attachment import decode_attachment, encode_attachment, gid_of
 from mrosd.ros2.keys import EntityKind, LivelinessToken, Qos, data_key, ros2_type_of_dds
-from mrosd.ros2.srvtypes import HUMBLE_TYPE_HASH, ServiceMapping, ros1_service_name, service_mapping
+from mrosd.ros2.srvtypes import HUMBLE_TYPE_HASH, ServiceMapping, ros1_service_for, service_mapping
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -332,7 +332,7 @@ class Ros2Services:
 
         name = tok.topic
         try:
-            ros1_type = ros1_service_name(ros2_type_of_dds(tok.type_name))
+            ros1_type = ros1_service_for(self.mapper, ros2_type_of_dds(tok.type_name))
             cls: Any = await asyncio.to_thread(get_service_class, ros1_type)
             mapping = await asyncio.to_thread(
                 service_mapping,

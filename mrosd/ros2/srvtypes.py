@@ -22,7 +22,14 @@ from mrosd.ros2.types import UnmappableTypeError
 if TYPE_CHECKING:
     from mrosd.ros2.types import TypeMapper
 
-__all__ = ["ServiceMapping", "ros1_service_name", "ros2_service_name", "service_mapping"]
+__all__ = [
+    "ServiceMapping",
+    "ros1_service_for",
+    "ros1_service_name",
+    "ros2_service_for",
+    "ros2_service_name",
+    "service_mapping",
+]
 
 #: what ROS 2 Humble puts where a type hash goes (rmw_zenoh's humble branch: keys and tokens)
 HUMBLE_TYPE_HASH = "TypeHashNotSupported"
@@ -62,6 +69,26 @@ def ros1_service_name(ros2_type: str) -> str:
     return f"{parts[0]}/{parts[2]}"
 
 
+def ros2_service_for(mapper: TypeMapper, ros1_type: str) -> str:
+    """The ROS 2 service type of ROS 1's ``pkg/X``: by a service or package mapping rule, else ``pkg/srv/X``.
+
+    Raises:
+        UnmappableTypeError: not a ``pkg/X`` name.
+    """
+    ruled = mapper.rules.ros2_service(ros1_type) if mapper.rules else None
+    return ruled or ros2_service_name(ros1_type)
+
+
+def ros1_service_for(mapper: TypeMapper, ros2_type: str) -> str:
+    """The ROS 1 service type of ROS 2's ``pkg/srv/X``: by a service or package mapping rule, else ``pkg/X``.
+
+    Raises:
+        ValueError: not a ``pkg/srv/X`` name.
+    """
+    ruled = mapper.rules.ros1_service(ros2_type) if mapper.rules else None
+    return ruled or ros1_service_name(ros2_type)
+
+
 def _message(mapper: TypeMapper, ros1_name: str, ros2_name: str, definition: str) -> None:
     store = mapper.store
     if ros2_name in store.types:
@@ -96,14 +123,15 @@ def service_mapping(
     mapper: TypeMapper, ros1_type: str, request_definition: str, response_definition: str
 ) -> ServiceMapping:
     """The ROS 2 form of service ``ros1_type`` whose request and response are the ROS 1 definitions given (full
-    texts, nested ``MSG:`` sections included); registered in ``mapper``'s store so bodies convert.
+    texts, nested ``MSG:`` sections included); registered in ``mapper``'s store so bodies convert. A service
+    mapping rule renames the type (``ros2_service_for``) and the request's and response's fields.
 
     Raises:
         UnmappableTypeError: a field ROS 2 cannot have, or a definition that does not parse.
     """
     from rosbags.interfaces import Nodetype
 
-    srv = ros2_service_name(ros1_type)
+    srv = ros2_service_for(mapper, ros1_type)
     request, response, event = srv + "_Request", srv + "_Response", srv + "_Event"
     _message(mapper, ros1_type + "Request", request, request_definition)
     _message(mapper, ros1_type + "Response", response, response_definition)

@@ -143,3 +143,107 @@ async def test_a_service_is_called_in_each_direction(
         inst = ZenohSession._instance
         if inst is not None:
             inst.close()
+
+
+RULES = """
+- ros1_package_name: std_srvs
+  ros1_service_name: SetBool
+  ros2_package_name: robot_interfaces
+  ros2_service_name: Toggle
+  request_fields_1_to_2: {data: enable}
+  response_fields_1_to_2: {success: ok}
+"""
+TOGGLE = ("bool enable", "bool ok\nstring message")
+
+
+def test_a_service_mapping_rule_renames_the_type_and_its_fields() -> None:
+    """A service rule gives the ROS 2 name and field names, hashed as zenoh-ros2-sdk hashes the ROS 2 .srv."""
+    from zenoh_ros2_sdk.utils import compute_service_type_hash
+
+    from mrosd.ros2.mapping import parse_mapping_rules
+    from mrosd.ros2.srvtypes import ros1_service_for, ros2_service_for
+
+    mapper = TypeMapper(parse_mapping_rules(RULES))
+    assert ros2_service_for(mapper, "std_srvs/SetBool") == "robot_interfaces/srv/Toggle"
+    assert ros1_service_for(mapper, "robot_interfaces/srv/Toggle") == "std_srvs/SetBool"
+    assert ros1_service_for(mapper, "std_srvs/srv/Trigger") == "std_srvs/Trigger"
+    toggle = service_mapping(mapper, "std_srvs/SetBool", "bool data\n", "bool success\nstring message\n")
+    assert (toggle.ros2_type, toggle.request_type) == (
+        "robot_interfaces/srv/Toggle",
+        "robot_interfaces/srv/Toggle_Request",
+    )
+    assert toggle.type_hash == compute_service_type_hash("robot_interfaces/srv/Toggle", *TOGGLE)
+    assert [name for name, _ in mapper.store.fielddefs[toggle.response_type][1]] == ["ok", "message"]
+
+
+async def test_a_renamed_service_type_is_called_in_each_direction(
+    procs: Processes, rosmaster: str, tmp_path: Path, router: int, srv_messages: Path
+) -> None:
+    """ROS 1's std_srvs/SetBool is ROS 2's robot_interfaces/srv/Toggle through a service rule, both ways."""
+    from zenoh_ros2_sdk import ROS2ServiceClient, ROS2ServiceServer
+    from zenoh_ros2_sdk.session import ZenohSession
+
+    folder = srv_messages / "robot_interfaces" / "srv"
+    folder.mkdir(parents=True)
+    (folder / "Toggle.srv").write_text(f"{TOGGLE[0]}\n---\n{TOGGLE[1]}\n")
+    rules = tmp_path / "rules.yaml"
+    rules.write_text(RULES)
+    options = Ros2Options(
+        domain_id=0,
+        connect=(f"tcp/127.0.0.1:{router}",),
+        to_ros2=("/set_flag",),
+        from_ros2=("/ros2_toggle",),
+        mapping_rules=(str(rules),),
+    )
+    entities: list[Any] = []
+    try:
+        server = await asyncio.to_thread(
+            ROS2ServiceServer,
+            service_name="/ros2_toggle",
+            srv_type="robot_interfaces/srv/Toggle",
+            callback=lambda req: server.response_msg_class(ok=not req.enable, message="toggled"),
+            domain_id=0,
+            router_ip="127.0.0.1",
+            router_port=router,
+        )
+        entities.append(server)
+        async with Ros2Bridge(options, rosmaster) as bridge:
+            env = ros_env(rosmaster, tmp_path)
+            procs.python(SERVER, env)
+
+            def ready() -> bool:
+                services = bridge.services
+                assert services is not None
+                offered = services.offered.get("/set_flag")
+                provided = services.provided.get("/ros2_toggle")
+                return offered is not None and offered.token is not None and provided is not None
+
+            await bridge.wait_until(ready, 30)
+            client = await asyncio.to_thread(
+                ROS2ServiceClient,
+                service_name="/set_flag",
+                srv_type="robot_interfaces/srv/Toggle",
+                domain_id=0,
+                router_ip="127.0.0.1",
+                router_port=router,
+                timeout=10.0,
+            )
+            entities.append(client)
+            response = await asyncio.to_thread(client.call, enable=True)
+            assert response is not None
+            assert (response.ok, response.message) == (True, "rospy got True")
+            call = await asyncio.to_thread(
+                subprocess.run,
+                ["rosservice", "call", "/ros2_toggle", "data: false"],
+                env=env,
+                capture_output=True,
+                timeout=30,
+            )
+            assert call.returncode == 0, call.stderr
+            assert "success: True" in call.stdout.decode() and "toggled" in call.stdout.decode()
+    finally:
+        for entity in entities:
+            entity.close()
+        inst = ZenohSession._instance
+        if inst is not None:
+            inst.close()

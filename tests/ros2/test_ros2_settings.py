@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from mrosd.config import parse_config
 from mrosd.errors import ConfigError
-from mrosd.ros2.options import ROUTER_LISTEN, ros2_options
+from mrosd.ros2.options import ROUTER_LISTEN, ros2_options, zenoh_mode
 from mrosd.ros2.status import MAX_ROWS, RateMeter, status_document
 
 
-def test_defaults_are_listed_jazzy_and_a_peer() -> None:
+def test_defaults_are_listed_jazzy_and_a_client() -> None:
     opts = ros2_options(parse_config("").ros2, {})
     assert (opts.mode, opts.distro, opts.router, opts.humble, opts.service_timeout) == (
         "listed",
@@ -28,6 +30,27 @@ def test_router_listens_where_rmw_zenohd_does_and_stops_connecting_to_itself() -
         parse_config('[ros2]\nrouter = true\nlisten = ["tcp/0.0.0.0:7448"]\nconnect = ["tcp/up:7447"]\n').ros2, {}
     )
     assert opts.listen == ("tcp/0.0.0.0:7448",) and opts.connect == ("tcp/up:7447",)
+
+
+def test_zenoh_mode_is_router_then_client_unless_listening() -> None:
+    """router = true: the router; else a client of the router it dials, or a peer when it listens."""
+    for toml, mode in (
+        ("", "client"),
+        ('listen = ["tcp/0.0.0.0:7448"]', "peer"),
+        ("router = true", "router"),
+        ('router = true\nlisten = ["tcp/0.0.0.0:7448"]', "router"),
+    ):
+        assert zenoh_mode(ros2_options(parse_config(f"[ros2]\n{toml}\n").ros2, {})) == mode, toml
+
+
+def test_mapping_rules_and_share_trees_are_options(tmp_path: Path) -> None:
+    rules = tmp_path / "rules.yaml"
+    rules.write_text("- {ros1_package_name: a, ros2_package_name: b}\n")
+    opts = ros2_options(parse_config(f'[ros2]\nmapping_rules = ["{rules}"]\nros2_share = ["/s"]\n').ros2, {})
+    assert (opts.mapping_rules, opts.ros2_share) == ((str(rules),), ("/s",))
+    rules.write_text("- {ros1_package_name: a}\n")
+    with pytest.raises(ConfigError, match="rule 0"):
+        ros2_options(parse_config(f'[ros2]\nmapping_rules = ["{rules}"]\n').ros2, {})
 
 
 def test_mode_and_distro_are_checked() -> None:
