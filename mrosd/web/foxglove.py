@@ -197,6 +197,12 @@ class UnsubscribeStats(_Op, tag="x-mrosd.unsubscribeStats", frozen=True):
     pass
 
 
+class SubscribeDelivery(_Op, tag="x-mrosd.subscribeDelivery", frozen=True):
+    """mrosd's extension: report this client's per-subscription sent/dropped/queued counts when they change
+    (``x-mrosd.delivery``). Asked for, never sent unasked: Foxglove's own clients report an op they do not
+    know as an error."""
+
+
 class NodeDetails(_Op, tag="x-mrosd.nodeDetails", frozen=True):
     """mrosd's extension: a node's URI, host, pid and whether it answers (``x-mrosd.nodeDetails`` reply)."""
 
@@ -220,6 +226,7 @@ ClientOp = (
     | ImageSettings
     | SubscribeStats
     | UnsubscribeStats
+    | SubscribeDelivery
     | NodeDetails
     | Subscribe
     | Unsubscribe
@@ -250,6 +257,7 @@ _OP_NAMES = frozenset(
         "x-mrosd.throttle",
         "x-mrosd.subscribeStats",
         "x-mrosd.unsubscribeStats",
+        "x-mrosd.subscribeDelivery",
         "x-mrosd.nodeDetails",
         "x-mrosd.imageSettings",
     }

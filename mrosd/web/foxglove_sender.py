@@ -9,8 +9,9 @@ permessage-deflate); big and already compressed ones are written past it from th
 them in (``_send_message_data``).
 
 Every ``REPORT_PERIOD`` a client whose subscriptions dropped messages gets a warning status per subscription,
-and every client with subscriptions gets an ``x-mrosd.delivery`` op: per subscription, messages sent,
-dropped and bytes queued (the page shows the drops in its topics table).
+and a client that asked for them (``x-mrosd.subscribeDelivery``: the page does) gets an ``x-mrosd.delivery``
+op when they changed: per subscription, messages sent, dropped and bytes queued (the page shows the drops in
+its topics table). Other clients never get it: Foxglove's own report an op they do not know as an error.
 """
 
 from __future__ import annotations
@@ -50,6 +51,8 @@ class FoxgloveSender(ClientSession):
         self._fair = FairSender(self._wake.set)
         self._fair.transport = writer.transport
         self.sent_messages = 0
+        #: the client asked for ``x-mrosd.delivery`` reports
+        self.wants_delivery = False
         #: the latest /clock time not yet sent (a 1 kHz clock costs the client the rate it reads at)
         self._time_ns = None
         self._throttle_timer = None
@@ -150,7 +153,7 @@ class FoxgloveSender(ClientSession):
             counts = delivery_counts(self.subs, lambda s: s.topic.name)
             for sub_id, row in zip(self.subs, counts, strict=True):
                 row["subscriptionId"] = sub_id
-            if counts != last:
+            if self.wants_delivery and counts != last:
                 self._queue_control(True, fg.encode_json("x-mrosd.delivery", subscriptions=counts))
                 last = counts
 

@@ -294,6 +294,8 @@ class FoxgloveSession(FoxgloveRequests, FoxgloveSender):
                 self._stats_task = asyncio.get_running_loop().create_task(self._report_stats())
         elif isinstance(op, fg.UnsubscribeStats):
             await self._stop_stats()
+        elif isinstance(op, fg.SubscribeDelivery):
+            self.wants_delivery = True
         elif isinstance(op, fg.NodeDetails):
             # in a task of its own, counted with the service calls: a node that does not answer getPid
             # must not hold up this client's other requests

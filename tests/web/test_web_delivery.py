@@ -3,10 +3,14 @@ client (which offers permessage-deflate unless told not to). The shaped-link beh
 
 from __future__ import annotations
 
+import asyncio
+
 import aiohttp
+import pytest
 
 from mrosd.master import Master
 from mrosd.msg import get_message_class
+from mrosd.web.foxglove_sender import REPORT_PERIOD
 from mrosd.web.server import WebServer
 from tests.web.test_web_foxglove_integration import Client, master, node, server
 
@@ -60,6 +64,7 @@ async def test_each_client_is_told_per_subscription_what_was_sent_and_dropped(
         ws = await http.ws_connect(server.url, protocols=["foxglove.websocket.v1"], max_msg_size=0)
         client = Client(ws)
         channel = await client.until_channel("/chatter")
+        await client.send(op="x-mrosd.subscribeDelivery")
         await client.send(op="subscribe", subscriptions=[{"id": 3, "channelId": channel["id"]}])
         await pub.wait_for_subscribers(1, timeout=10)
         for i in range(5):
@@ -70,6 +75,23 @@ async def test_each_client_is_told_per_subscription_what_was_sent_and_dropped(
         assert report["subscriptions"] == [
             {"topic": "/chatter", "sent": 5, "dropped": 0, "queued": 0, "subscriptionId": 3}
         ]
+        await ws.close()
+
+
+async def test_a_client_that_did_not_ask_gets_no_delivery_op(server: WebServer, master: Master) -> None:
+    """Foxglove's own clients (Studio, @foxglove/ws-protocol) report an op they do not know as an error: mrosd's
+    delivery counts go only to a client that asked for them (the page does, with ``x-mrosd.subscribeDelivery``)."""
+    async with node("talker", master.uri) as talker, aiohttp.ClientSession() as http:
+        pub = await talker.advertise("/chatter", String)
+        ws = await http.ws_connect(server.url, protocols=["foxglove.websocket.v1"], max_msg_size=0)
+        client = Client(ws)
+        channel = await client.until_channel("/chatter")
+        await client.send(op="subscribe", subscriptions=[{"id": 3, "channelId": channel["id"]}])
+        await pub.wait_for_subscribers(1, timeout=10)
+        await pub.publish(String(data="x"))
+        await client.until_binary()
+        with pytest.raises((TimeoutError, asyncio.TimeoutError)):
+            await client.until_json("x-mrosd.delivery", timeout=2.5 * REPORT_PERIOD)
         await ws.close()
 
 

@@ -35,7 +35,7 @@ const send = (obj) => ws && ws.readyState === 1 && ws.send(JSON.stringify(obj));
 function connect() {
   ws = new WebSocket(wsUrl, ["foxglove.websocket.v1"]);
   ws.binaryType = "arraybuffer";
-  ws.onopen = () => { $("#conn").textContent = "connected"; $("#conn").className = "ok"; send({ op: "subscribeConnectionGraph" }); show(state.view); };
+  ws.onopen = () => { $("#conn").textContent = "connected"; $("#conn").className = "ok"; send({ op: "subscribeConnectionGraph" }); send({ op: "x-mrosd.subscribeDelivery" }); show(state.view); };
   ws.onclose = () => {
     $("#conn").textContent = "disconnected: retrying"; $("#conn").className = "bad";
     tabsDisconnected();
