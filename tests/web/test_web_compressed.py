@@ -109,6 +109,8 @@ async def test_foxglove_clients_share_one_encoder_that_runs_only_while_subscribe
             await client.send(cmd="subscribe", topic="/cam/image/compressed", full=True)
             await client.until("subscribed")
         await cam.wait_for_subscribers(1, timeout=10)
+        # both clients' subscriptions have reached the server (a client's "subscribed" is only what it sent)
+        await until(lambda: server.hub.sink_count("/cam/image/compressed") == 2)
         frames = 5
         for seq in range(frames):
             await cam.publish(rgb_image(seq))
