@@ -337,6 +337,7 @@ class Ros2Bridge:
                 "rate": self.rates.rate("in:" + rt.topic),
                 "dropped": (inbox.dropped("in:" + rt.topic) if inbox is not None else 0) + rt.dropped,
                 "bad": rt.bad,
+                "latched": rt.latched,
                 "subscribed": rt.subscriber is not None,
             }
             for rt in inbound.topics.values()
