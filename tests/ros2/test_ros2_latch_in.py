@@ -63,7 +63,7 @@ class Ros2Side:
                 key,
                 cache=zenoh_ext.CacheConfig(depth),
                 publisher_detection=True,
-                sample_miss_detection=zenoh_ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=1.0),
+                sample_miss_detection=zenoh_ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=0.5),
             )
         else:
             pub = self.session.declare_publisher(key)
@@ -184,3 +184,42 @@ async def test_a_transient_local_publisher_is_latched_for_a_late_rostopic_echo_a
         finally:
             await late_node.aclose()
             await early_node.aclose()
+
+
+LATCHER = """
+import rospy
+from std_msgs.msg import String
+rospy.init_node("mapper")
+pub = rospy.Publisher("/map", String, queue_size=1, latch=True)
+pub.publish(String(data="the map from rospy"))
+rospy.spin()
+"""
+
+
+async def test_a_latched_rospy_topic_reaches_a_late_subscriber_made_as_rmw_zenohs_transient_local_one(
+    procs: Processes, rosmaster: str, tmp_path: Path, router: int, ros2_side: Ros2Side
+) -> None:
+    """The other way, with rmw_zenoh's TRANSIENT_LOCAL subscriber (``rmw_subscription_data.cpp``: an advanced
+    subscriber detecting late publishers, history of its depth, heartbeat recovery when RELIABLE) rather than
+    zenoh-ros2-sdk's one-off query (tests/ros2/test_ros2_interop.py)."""
+    got: asyncio.Queue[bytes] = asyncio.Queue()
+    loop = asyncio.get_running_loop()
+    options = Ros2Options(domain_id=0, connect=(f"tcp/127.0.0.1:{router}",), to_ros2=("/map",))
+    async with Ros2Bridge(options, rosmaster) as bridge:
+        procs.python(LATCHER, ros_env(rosmaster, tmp_path))
+
+        def sent() -> bool:
+            bt = bridge.topics.get("/map")
+            return bt is not None and bt.rmw is not None and bt.rmw.sent >= 1
+
+        await bridge.wait_until(sent, 20)
+        sub = zenoh_ext.declare_advanced_subscriber(
+            ros2_side.session,
+            bridge.topics["/map"].key,
+            lambda sample: loop.call_soon_threadsafe(got.put_nowait, sample.payload.to_bytes()),
+            history=zenoh_ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+            recovery=zenoh_ext.RecoveryConfig(periodic_queries=None, heartbeat=True),
+            subscriber_detection=True,
+        )
+        ros2_side.entities.append(sub)
+        assert await backports.wait_for(got.get(), 10) == string_cdr("the map from rospy")
