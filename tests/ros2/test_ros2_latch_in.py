@@ -181,6 +181,24 @@ async def test_a_transient_local_publisher_is_latched_for_a_late_rostopic_echo_a
             await bridge.wait_until(lambda: volatile.publisher.get_num_connections() >= 2, 10)
             ros2_side.put(volatile_pub, "after", 3)
             assert b"after" in await backports.wait_for(late.get(), 10)  # its first message: nothing replayed
+
+            # a TRANSIENT_LOCAL publisher joins the VOLATILE topic, with a message only its cache holds: the
+            # topic is latched from then on and the bridge queries that cache
+            so_far = volatile.received
+            joined_pub, joined_token = ros2_side.publisher("/volatile", transient_local=True, depth=1)
+            ros2_side.put(joined_pub, "cached", 1)
+            ros2_side.announce(joined_token)
+            await bridge.wait_until(lambda: volatile.latched and volatile.received > so_far, 10)
+            assert volatile.publisher.latch
+            later: asyncio.Queue[RawMessage] = asyncio.Queue()
+            later_node = Node("/latch_test_later", rosmaster)
+            await later_node.start()
+            try:
+                await later_node.subscribe("/volatile", AnyMsg, callback=later.put_nowait)
+                msg = await backports.wait_for(later.get(), 10)
+                assert b"cached" in bytes(msg.data) and msg.header.latching == "1"
+            finally:
+                await later_node.aclose()
         finally:
             await late_node.aclose()
             await early_node.aclose()
