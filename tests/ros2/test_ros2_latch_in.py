@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from mros_cli.ros2 import format_status
 
 from mrosd import backports
 from mrosd.ros2.bridge import Ros2Bridge, Ros2Options
@@ -135,6 +136,8 @@ async def test_a_transient_local_publisher_is_latched_for_a_late_rostopic_echo_a
         assert not volatile.latched and not volatile.publisher.latch
         rows = {row["topic"]: row for row in bridge.inbound_status()}
         assert rows["/latched"]["latched"] and not rows["/volatile"]["latched"]
+        shown = format_status({"zid": "z", "domain_id": 0, "to_ros2": [], "from_ros2": list(rows.values())})
+        assert "/latched  std_msgs/msg/String (latched)" in shown and "/volatile  std_msgs/msg/String  " in shown
         # the bridge's subscriber is announced as rmw_zenoh's TRANSIENT_LOCAL one
         tokens = [
             parse_token(str(r.ok.key_expr))
