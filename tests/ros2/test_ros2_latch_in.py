@@ -126,11 +126,13 @@ async def test_a_transient_local_publisher_is_latched_for_a_late_rostopic_echo_a
         inbound = bridge.inbound
         assert inbound is not None
 
-        def received(topic: str) -> bool:
-            rt = inbound.topics.get(topic)
-            return rt is not None and rt.received >= 1
+        def ready() -> bool:  # both republished on ROS 1 and subscribed on Zenoh, the cached message received
+            latched, volatile = inbound.topics.get("/latched"), inbound.topics.get("/volatile")
+            if latched is None or volatile is None:
+                return False
+            return latched.subscriber is not None and volatile.subscriber is not None and latched.received >= 1
 
-        await bridge.wait_until(lambda: received("/latched") and "/volatile" in inbound.topics, 20)
+        await bridge.wait_until(ready, 20)
         latched, volatile = inbound.topics["/latched"], inbound.topics["/volatile"]
         assert latched.latched and latched.publisher.latch
         assert not volatile.latched and not volatile.publisher.latch
