@@ -149,7 +149,8 @@ def format_status(st: dict[str, Any]) -> str:
     lines.append("from ROS 2:")
     for row in st["from_ros2"]:
         lines.append(
-            f"  {row['topic']}  {row['ros2_type']}  {row.get('rate', 0.0):g} Hz  received {row['received']}  "
+            f"  {row['topic']}  {row['ros2_type']}{' (latched)' if row.get('latched') else ''}  "
+            f"{row.get('rate', 0.0):g} Hz  received {row['received']}  "
             f"dropped {row['dropped']}  bad {row['bad']}"
         )
     lines += _more(st, "from_ros2")

@@ -58,6 +58,9 @@ MAX_REFUSED_NAMES = 1024
 #: the inbox's name for liveliness tokens, and how many may wait for the loop
 TOKENS = "@tokens"
 TOKEN_QUEUE = 4096
+#: seconds between sporadic heartbeats of a TRANSIENT_LOCAL publisher (rmw_zenoh's
+#: SAMPLE_MISS_DETECTION_HEARTBEAT_PERIOD, 500 ms); sent only when a sample was published since the last one
+HEARTBEAT = 0.5
 
 
 class RmwPublisher:
@@ -337,6 +340,7 @@ class Ros2Bridge:
                 "rate": self.rates.rate("in:" + rt.topic),
                 "dropped": (inbox.dropped("in:" + rt.topic) if inbox is not None else 0) + rt.dropped,
                 "bad": rt.bad,
+                "latched": rt.latched,
                 "subscribed": rt.subscriber is not None,
             }
             for rt in inbound.topics.values()
@@ -534,7 +538,8 @@ class Ros2Bridge:
         try:
             if latched:
                 # A latched ROS 1 topic is TRANSIENT_LOCAL: as rmw_zenoh does, an advanced publisher detectable
-                # through liveliness whose cache (depth 1: the latched message) answers late joiners' queries.
+                # through liveliness whose cache (depth 1: the latched message) answers late joiners' queries;
+                # RELIABLE, so sporadic heartbeats let a subscriber that missed the last sample recover it.
                 token = self._token(
                     EntityKind.PUBLISHER, bt.topic, mapping, qos=Qos(durability=DURABILITY_TRANSIENT_LOCAL, depth=1)
                 )
@@ -544,6 +549,7 @@ class Ros2Bridge:
                     congestion_control=zenoh.CongestionControl.BLOCK,
                     cache=zenoh_ext.CacheConfig(1),
                     publisher_detection=True,
+                    sample_miss_detection=zenoh_ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=HEARTBEAT),
                 )
             else:
                 token = self._token(EntityKind.PUBLISHER, bt.topic, mapping, qos=Qos(depth=self.options.queue_size))

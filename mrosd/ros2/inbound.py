@@ -6,6 +6,12 @@ ROS 1 form (a standard type, a ``.msg`` on ROS_PACKAGE_PATH, a ROS 2 ``share/`` 
 with the same RIHS01 hash gets a Zenoh subscriber on its data key (in mode "demand" only while a ROS 1 node
 subscribes) and a ROS 1 publisher of the ROS 1 type; samples come through the ``Inbox`` (per-topic drop-oldest)
 and are converted from CDR on the loop, or, from a body of ``OFFLOAD_SIZE`` on, on a worker thread in order.
+
+A publisher whose token's QoS is TRANSIENT_LOCAL makes the topic latched on ROS 1, and its Zenoh subscriber an
+advanced one as rmw_zenoh's TRANSIENT_LOCAL subscription is (``rmw_subscription_data.cpp``): detectable through
+liveliness, detecting late publishers and querying their publication caches, so the bridge gets the last
+message even if it subscribed after the ROS 2 publisher published. ROS 1 latching keeps one message: one
+sample is asked of each cache.
 """
 
 from __future__ import annotations
@@ -21,7 +27,16 @@ from mrosd.errors import MrosError, RemoteProtocolError
 from mrosd.fleet.keys import NameFilter
 from mrosd.lograte import RateLimitedLog
 from mrosd.names import canonicalize, is_valid_name
-from mrosd.ros2.keys import EntityKind, LivelinessToken, data_key, parse_token, ros2_type_of_dds
+from mrosd.ros2.keys import (
+    DURABILITY_TRANSIENT_LOCAL,
+    RELIABILITY_RELIABLE,
+    EntityKind,
+    LivelinessToken,
+    Qos,
+    data_key,
+    parse_token,
+    ros2_type_of_dds,
+)
 from mrosd.ros2.srvtypes import HUMBLE_TYPE_HASH
 
 if TYPE_CHECKING:
@@ -46,6 +61,8 @@ MAX_DEMANDED_TOPICS = 4096
 #: and so is every body of that topic behind it, in order; at most ``OFFLOAD_BACKLOG`` wait (drop-oldest)
 OFFLOAD_SIZE = 256 * 1024
 OFFLOAD_BACKLOG = 8
+#: samples asked of each TRANSIENT_LOCAL publisher's cache: a latched ROS 1 topic keeps the last one only
+LATCH_HISTORY = 1
 
 #: ROS 2 names whose ROS 1 name is not ``pkg/Type``
 _RENAMED_BACK = {"tf2_msgs/msg/TFMessage": "tf2_msgs/TFMessage"}
@@ -85,6 +102,14 @@ class ReceivedTopic:
     backlog: deque[bytes] = field(default_factory=lambda: deque(maxlen=OFFLOAD_BACKLOG))
     worker: asyncio.Task[None] | None = None
     dropped: int = 0
+    #: a ROS 2 publisher of it is TRANSIENT_LOCAL: latched on ROS 1, its caches queried on Zenoh
+    latched: bool = False
+    #: the first publisher's QoS is RELIABLE (rmw_zenoh's subscriber then recovers missed samples on heartbeats)
+    reliable: bool = True
+
+
+def _transient_local(tok: LivelinessToken) -> bool:
+    return tok.qos is not None and tok.qos.durability == DURABILITY_TRANSIENT_LOCAL
 
 
 class Inbound:
@@ -142,6 +167,8 @@ class Inbound:
         if known is not None:
             if known.key.rsplit("/", 1)[-1] == tok.type_hash:
                 known.sources.add(key)
+                if _transient_local(tok) and not known.latched:
+                    self._latch(known, session, inbox, make_token)
             return None
         if tok.domain_id != self.domain_id or tok.topic not in self.filter or tok.topic in self.topics:
             return None
@@ -210,10 +237,12 @@ class Inbound:
         rt = ReceivedTopic(
             tok.topic, ros1_type, ros2_type, data_key(self.domain_id, tok.topic, ros2_type, tok.type_hash)
         )
+        rt.latched = _transient_local(tok)
+        rt.reliable = tok.qos is None or tok.qos.reliability == RELIABILITY_RELIABLE
         self.topics[tok.topic] = rt
         try:
             rt.publisher = await self.node.advertise(
-                tok.topic, raw_message_class(ros1_type, back.md5sum, back.definition)
+                tok.topic, raw_message_class(ros1_type, back.md5sum, back.definition), latch=rt.latched
             )
         except MrosError as exc:
             _ratelog.warning(f"adv {tok.topic}", "ros2: cannot publish %s on ROS 1: %s", tok.topic, exc)
@@ -222,15 +251,47 @@ class Inbound:
         rt.mapping = mapping
         if not self.demand:
             self._attach(rt, session, inbox, make_token)
-        log.info("ros2: %s <- %s (%s)", tok.topic, rt.key, ros1_type)
+        log.info("ros2: %s <- %s (%s%s)", tok.topic, rt.key, ros1_type, ", latched" if rt.latched else "")
         return rt
+
+    def _latch(self, rt: ReceivedTopic, session: Any, inbox: Inbox, make_token: Any) -> None:
+        """A TRANSIENT_LOCAL publisher joined a topic received so far from VOLATILE ones: latch it on ROS 1, and
+        subscribe again as a TRANSIENT_LOCAL subscriber (which queries the caches)."""
+        rt.latched = True
+        if rt.publisher is not None:
+            rt.publisher.latch = True
+        if rt.subscriber is not None:
+            self._detach(rt)
+            self._attach(rt, session, inbox, make_token)
+        log.info("ros2: %s has a TRANSIENT_LOCAL publisher: latched on ROS 1", rt.topic)
 
     @staticmethod
     def _attach(rt: ReceivedTopic, session: Any, inbox: Inbox, make_token: Any) -> None:
-        """Subscribe on Zenoh (with an ``MS`` token) to ``rt``'s samples."""
+        """Subscribe on Zenoh (with an ``MS`` token) to ``rt``'s samples; a latched topic's subscriber is
+        rmw_zenoh's TRANSIENT_LOCAL one, which gets the last sample of each cache of a publisher it finds."""
         name = "in:" + rt.topic
-        rt.subscriber = session.declare_subscriber(rt.key, lambda sample: inbox.put(name, sample.payload.to_bytes()))
-        rt.token = session.liveliness().declare_token(make_token(EntityKind.SUBSCRIPTION, rt.topic, rt.mapping).key())
+
+        def heard(sample: Any) -> None:  # on Zenoh's thread
+            inbox.put(name, sample.payload.to_bytes())
+
+        if rt.latched:
+            import zenoh.ext as zenoh_ext
+
+            rt.subscriber = zenoh_ext.declare_advanced_subscriber(
+                session,
+                rt.key,
+                heard,
+                history=zenoh_ext.HistoryConfig(detect_late_publishers=True, max_samples=LATCH_HISTORY),
+                recovery=zenoh_ext.RecoveryConfig(periodic_queries=None, heartbeat=True) if rt.reliable else None,
+                subscriber_detection=True,
+            )
+            qos = Qos(durability=DURABILITY_TRANSIENT_LOCAL, depth=LATCH_HISTORY)
+        else:
+            rt.subscriber = session.declare_subscriber(rt.key, heard)
+            qos = None
+        rt.token = session.liveliness().declare_token(
+            make_token(EntityKind.SUBSCRIPTION, rt.topic, rt.mapping, qos=qos).key()
+        )
 
     @staticmethod
     def _detach(rt: ReceivedTopic) -> None:
