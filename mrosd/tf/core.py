@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from bisect import bisect_left
 from dataclasses import dataclass, field
+from math import acos, sin, sqrt
 
 from mrosd.errors import MrosError
 
@@ -287,26 +288,93 @@ class BufferCore:
             "tree.Tf has two or more unconnected trees."
         )
 
-    def _walk(self, frame: str, stop: str | None, time: int, source: str, target: str) -> tuple[list[str], Pose]:
-        """From ``frame`` up to ``stop`` (or the root) at ``time``: the frames passed and root <- frame."""
-        frames = [frame]
-        pose = IDENTITY
+    def _walk(self, frame: str, stop: str | None, time: int, source: str, target: str) -> tuple[str, Pose | None]:
+        """From ``frame`` up to ``stop`` (or the root) at ``time``: the last frame reached and root <- frame.
+
+        The pose is None when no step was taken (the identity). This is the lookups' hot loop: each step's
+        interpolation (``FrameCache.get`` and ``interpolate``) and its composition (``compose``) are written
+        out over local floats, in the same operations in the same order, so the answers are theirs; the cases
+        that are not an interpolation between two stored stamps (static, time 0, a single entry, outside the
+        stored span, no entry) go through ``FrameCache.get``.
+        """
+        frames = self.frames
+        x = y = z = qx = qy = qz = 0.0
+        qw = 1.0
+        depth = 1
         while frame != stop:
-            cache = self.frames.get(frame)
+            cache = frames.get(frame)
             if cache is None:
                 break
-            got = cache.get(time)
-            if isinstance(got, str):
-                if not got:
-                    break
-                raise ExtrapolationError(f"{got}, when looking up transform from frame [{source}] to frame [{target}]")
-            parent, step = got
-            pose = compose(step, pose)
+            stamps = cache.stamps
+            if cache.static or not time or len(stamps) < 2 or not stamps[0] <= time <= stamps[-1]:
+                got = cache.get(time)
+                if isinstance(got, str):
+                    if not got:
+                        break
+                    raise ExtrapolationError(
+                        f"{got}, when looking up transform from frame [{source}] to frame [{target}]"
+                    )
+                parent, (sx, sy, sz, sqx, sqy, sqz, sqw) = got
+            else:
+                i = bisect_left(stamps, time)
+                parents = cache.parents
+                if stamps[i] == time:
+                    parent = parents[i]
+                    sx, sy, sz, sqx, sqy, sqz, sqw = cache.poses[i]
+                elif parents[i - 1] != parents[i]:
+                    parent = parents[i - 1]
+                    sx, sy, sz, sqx, sqy, sqz, sqw = cache.poses[i - 1]
+                else:
+                    parent = parents[i - 1]
+                    older = stamps[i - 1]
+                    ratio = (time - older) / (stamps[i] - older)
+                    poses = cache.poses
+                    ax, ay, az, aqx, aqy, aqz, aqw = poses[i - 1]
+                    bx, by, bz, bqx, bqy, bqz, bqw = poses[i]
+                    sx = ax + (bx - ax) * ratio
+                    sy = ay + (by - ay) * ratio
+                    sz = az + (bz - az) * ratio
+                    # slerp(a, b, ratio), as ``slerp`` computes it
+                    dot = aqx * bqx + aqy * bqy + aqz * bqz + aqw * bqw
+                    norm_a = aqx * aqx + aqy * aqy + aqz * aqz + aqw * aqw
+                    norm_b = bqx * bqx + bqy * bqy + bqz * bqz + bqw * bqw
+                    cos = abs(dot) / sqrt(norm_a * norm_b)
+                    theta = acos(cos if cos < 1.0 else 1.0)
+                    if theta == 0.0:
+                        sqx, sqy, sqz, sqw = aqx, aqy, aqz, aqw
+                    else:
+                        d = 1.0 / sin(theta)
+                        s0 = sin((1.0 - ratio) * theta)
+                        s1 = sin(ratio * theta)
+                        if dot < 0:
+                            s1 = -s1
+                        sqx = (aqx * s0 + bqx * s1) * d
+                        sqy = (aqy * s0 + bqy * s1) * d
+                        sqz = (aqz * s0 + bqz * s1) * d
+                        sqw = (aqw * s0 + bqw * s1) * d
+            if depth == 1:  # the first step: root <- frame is the step itself
+                x, y, z, qx, qy, qz, qw = sx, sy, sz, sqx, sqy, sqz, sqw
+            else:
+                # compose(step, pose): the step's rotation applied to the pose's translation, as ``rotate``
+                tx = 2.0 * (sqy * z - sqz * y)
+                ty = 2.0 * (sqz * x - sqx * z)
+                tz = 2.0 * (sqx * y - sqy * x)
+                x, y, z, qx, qy, qz, qw = (
+                    sx + (x + sqw * tx + (sqy * tz - sqz * ty)),
+                    sy + (y + sqw * ty + (sqz * tx - sqx * tz)),
+                    sz + (z + sqw * tz + (sqx * ty - sqy * tx)),
+                    sqw * qx + sqx * qw + sqy * qz - sqz * qy,
+                    sqw * qy - sqx * qz + sqy * qw + sqz * qx,
+                    sqw * qz + sqx * qy - sqy * qx + sqz * qw,
+                    sqw * qw - sqx * qx - sqy * qy - sqz * qz,
+                )
             frame = parent
-            frames.append(frame)
-            if len(frames) > MAX_GRAPH_DEPTH:
+            depth += 1
+            if depth > MAX_GRAPH_DEPTH:
                 raise ConnectivityError("The tf tree is invalid because it contains a loop.")
-        return frames, pose
+        if depth == 1:
+            return frame, None
+        return frame, (x, y, z, qx, qy, qz, qw)
 
     def lookup(self, target: str, source: str, time: int, function: str = "lookupTransform") -> tuple[Pose, int]:
         """target <- source at ``time`` (0: the latest common time); returns (pose, the time used).
@@ -314,18 +382,24 @@ class BufferCore:
         Raises:
             InvalidArgumentError, FrameNotFoundError, ConnectivityError, ExtrapolationError: as tf2, with its texts.
         """
-        self._validate(function, "target_frame", target)
-        self._validate(function, "source_frame", source)
+        known = self.known
+        if target not in known or source not in known:  # known ids are never empty nor start with '/'
+            self._validate(function, "target_frame", target)
+            self._validate(function, "source_frame", source)
         if time == 0:
             time = self.latest_common_time(target, source)
         if source == target:
             return IDENTITY, time
-        up_source, to_source = self._walk(source, target, time, source, target)
-        if up_source[-1] == target:
-            return to_source, time
-        up_target, to_target = self._walk(target, up_source[-1], time, source, target)
-        if up_target[-1] != up_source[-1]:
+        top, to_source = self._walk(source, target, time, source, target)
+        if top == target:
+            return to_source or IDENTITY, time
+        reached, to_target = self._walk(target, top, time, source, target)
+        if reached != top:
             raise ConnectivityError(self._unconnected(target, source))
+        if to_target is None:
+            return to_source or IDENTITY, time
+        if to_source is None:
+            return inverse(to_target), time
         return compose(inverse(to_target), to_source), time
 
     def can_transform(self, target: str, source: str, time: int) -> bool:
