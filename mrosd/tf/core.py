@@ -131,7 +131,7 @@ def interpolate(a: Pose, b: Pose, ratio: float) -> Pose:
 # --- caches --------------------------------------------------------------------------------------
 
 
-@dataclass
+@dataclass(slots=True)
 class FrameCache:
     """One child frame's transforms to its parent, oldest first (tf2 keeps newest first; same rules)."""
 
@@ -293,9 +293,10 @@ class BufferCore:
 
         The pose is None when no step was taken (the identity). This is the lookups' hot loop: each step's
         interpolation (``FrameCache.get`` and ``interpolate``) and its composition (``compose``) are written
-        out over local floats, in the same operations in the same order, so the answers are theirs; the cases
-        that are not an interpolation between two stored stamps (static, time 0, a single entry, outside the
-        stored span, no entry) go through ``FrameCache.get``.
+        out over local floats, in the same operations in the same order, so the answers are theirs (bit for
+        bit; ``tests/unit/tf/test_lookup_walk.py``). Only a time strictly after a frame's oldest stamp and at
+        most its newest takes that path; the rest (time 0, no entry, a single one, as a static frame always
+        has, a time outside the stored span) goes through ``FrameCache.get`` and its error texts.
         """
         frames = self.frames
         x = y = z = qx = qy = qz = 0.0
@@ -306,7 +307,8 @@ class BufferCore:
             if cache is None:
                 break
             stamps = cache.stamps
-            if cache.static or not time or len(stamps) < 2 or not stamps[0] <= time <= stamps[-1]:
+            i = bisect_left(stamps, time) if time else 0
+            if not 0 < i < len(stamps):  # stamps[i - 1] < time <= stamps[i] or not
                 got = cache.get(time)
                 if isinstance(got, str):
                     if not got:
@@ -316,7 +318,6 @@ class BufferCore:
                     )
                 parent, (sx, sy, sz, sqx, sqy, sqz, sqw) = got
             else:
-                i = bisect_left(stamps, time)
                 parents = cache.parents
                 if stamps[i] == time:
                     parent = parents[i]
@@ -338,7 +339,7 @@ class BufferCore:
                     dot = aqx * bqx + aqy * bqy + aqz * bqz + aqw * bqw
                     norm_a = aqx * aqx + aqy * aqy + aqz * aqz + aqw * aqw
                     norm_b = bqx * bqx + bqy * bqy + bqz * bqz + bqw * bqw
-                    cos = abs(dot) / sqrt(norm_a * norm_b)
+                    cos = (dot if dot >= 0.0 else -dot) / sqrt(norm_a * norm_b)  # abs(dot)
                     theta = acos(cos if cos < 1.0 else 1.0)
                     if theta == 0.0:
                         sqx, sqy, sqz, sqw = aqx, aqy, aqz, aqw
@@ -359,15 +360,14 @@ class BufferCore:
                 tx = 2.0 * (sqy * z - sqz * y)
                 ty = 2.0 * (sqz * x - sqx * z)
                 tz = 2.0 * (sqx * y - sqy * x)
-                x, y, z, qx, qy, qz, qw = (
-                    sx + (x + sqw * tx + (sqy * tz - sqz * ty)),
-                    sy + (y + sqw * ty + (sqz * tx - sqx * tz)),
-                    sz + (z + sqw * tz + (sqx * ty - sqy * tx)),
-                    sqw * qx + sqx * qw + sqy * qz - sqz * qy,
-                    sqw * qy - sqx * qz + sqy * qw + sqz * qx,
-                    sqw * qz + sqx * qy - sqy * qx + sqz * qw,
-                    sqw * qw - sqx * qx - sqy * qy - sqz * qz,
-                )
+                x = sx + (x + sqw * tx + (sqy * tz - sqz * ty))
+                y = sy + (y + sqw * ty + (sqz * tx - sqx * tz))
+                z = sz + (z + sqw * tz + (sqx * ty - sqy * tx))
+                rx = sqw * qx + sqx * qw + sqy * qz - sqz * qy
+                ry = sqw * qy - sqx * qz + sqy * qw + sqz * qx
+                rz = sqw * qz + sqx * qy - sqy * qx + sqz * qw
+                qw = sqw * qw - sqx * qx - sqy * qy - sqz * qz
+                qx, qy, qz = rx, ry, rz
             frame = parent
             depth += 1
             if depth > MAX_GRAPH_DEPTH:

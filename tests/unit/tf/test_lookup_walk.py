@@ -82,6 +82,10 @@ def tree() -> BufferCore:
     add("map", "hop", 100 * S, random_pose(rng), authority="m", static=False)  # changes parent: the older one holds
     add("base", "hop", 101 * S, random_pose(rng), authority="m", static=False)
     add("other", "island", 100 * S, random_pose(rng), authority="m", static=False)  # a second tree
+    add("base", "conv", 100 * S, random_pose(rng), authority="m", static=False)  # moving, then static
+    add("base", "conv", 101 * S, random_pose(rng), authority="m", static=False)
+    add("base", "conv", 0, random_pose(rng), authority="s", static=True)
+    add("base", "conv", 102 * S, random_pose(rng), authority="m", static=False)  # replaces: a static has one
     return core
 
 
