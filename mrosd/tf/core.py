@@ -251,19 +251,20 @@ class BufferCore:
 
     def _chain(self, frame: str, stop: str | None) -> list[str]:
         """``frame`` and its ancestors at their latest parents, up to (not past) ``stop`` or the root."""
+        frames = self.frames
         chain = [frame]
         while frame != stop and len(chain) <= MAX_GRAPH_DEPTH:
-            cache = self.frames.get(frame)
-            parent = cache.latest()[1] if cache is not None else None
-            if parent is None:
+            cache = frames.get(frame)
+            if cache is None or not cache.parents:  # FrameCache.latest()'s parent is None
                 break
-            frame = parent
+            frame = cache.parents[-1]
             chain.append(frame)
         return chain
 
     def latest_common_time(self, target: str, source: str) -> int:
+        frames = self.frames
         if source == target:
-            cache = self.frames.get(source)
+            cache = frames.get(source)
             return cache.latest()[0] if cache is not None else 0
         up_source = self._chain(source, target)
         up_target = self._chain(target, None)
@@ -274,9 +275,9 @@ class BufferCore:
         stamps = []
         for chain in (up_source, up_target):
             for frame in chain[: chain.index(common)]:
-                cache = self.frames.get(frame)
-                if cache is not None:
-                    stamp = cache.latest()[0]
+                cache = frames.get(frame)
+                if cache is not None and cache.stamps and not cache.static:  # FrameCache.latest()'s stamp
+                    stamp = cache.stamps[-1]
                     if stamp:
                         stamps.append(stamp)
         return min(stamps) if stamps else 0

@@ -1,6 +1,7 @@
-"""The lookup's hot loop (``BufferCore._walk``, the interpolation and composition written out over floats) gives
-exactly what tf2's rules give step by step with the plain algebra (``FrameCache.get``, ``compose``, ``inverse``):
-the same poses, stamps, error classes and texts, on a tree with every kind of step."""
+"""The lookup's hot loop (``BufferCore._walk``, the interpolation and composition written out over floats) and
+its latest common time give exactly what tf2's rules give step by step with the plain algebra (``FrameCache.get``
+and ``latest``, ``compose``, ``inverse``): the same poses, stamps, error classes and texts, on a tree with every
+kind of step."""
 
 from __future__ import annotations
 
@@ -22,12 +23,37 @@ from mrosd.tf.core import (
 S = 1_000_000_000
 
 
+def latest_common_time(core: BufferCore, target: str, source: str) -> int:
+    """tf2's getLatestCommonTime restated plainly, with ``FrameCache.latest``."""
+    if source == target:
+        return core.frames[source].latest()[0] if source in core.frames else 0
+
+    def chain(frame: str, stop: str | None) -> list[str]:
+        frames = [frame]
+        while frame != stop and len(frames) <= MAX_GRAPH_DEPTH:
+            parent = core.frames[frame].latest()[1] if frame in core.frames else None
+            if parent is None:
+                break
+            frame = parent
+            frames.append(frame)
+        return frames
+
+    up_source, up_target = chain(source, target), chain(target, None)
+    common = next((f for f in up_source if f in up_target), None)
+    if common is None:
+        raise ConnectivityError(core._unconnected(target, source))
+    stamps = [
+        core.frames[f].latest()[0] for c in (up_source, up_target) for f in c[: c.index(common)] if f in core.frames
+    ]
+    return min((s for s in stamps if s), default=0)
+
+
 def reference(core: BufferCore, target: str, source: str, time: int) -> tuple[Pose, int]:
     """tf2's lookup restated plainly: each frame's cache asked in turn, the steps composed one by one."""
     core._validate("lookupTransform", "target_frame", target)
     core._validate("lookupTransform", "source_frame", source)
     if time == 0:
-        time = core.latest_common_time(target, source)
+        time = latest_common_time(core, target, source)
     if source == target:
         return IDENTITY, time
 
