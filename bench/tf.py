@@ -1,10 +1,12 @@
 """TF: lookups per second of mrosd's ``BufferCore`` against Debian's ``tf2_ros.Buffer`` (C++ tf2 underneath,
 under /usr/bin/python3 in a subprocess), in the same run, on the same tree and times; then the buffer's memory
-with 200 frames at 100 Hz for 60 s of stamps. ``python -m bench tf [--lookups N] [--seconds S]``.
+with 200 frames at 100 Hz for 60 s of stamps. ``python -m bench tf [--lookups N] [--seconds S] [--repeat R]``.
 
 The tree is a chain of 10 frames (``world -> f1 -> ... -> f10``), each moving at 100 Hz over 5 s of stamps;
 each lookup asks ``world <- f10`` (or the reverse, every other one) at a time between two stamps, so every
-step interpolates. Both sides time only the lookups; the first 200 answers are compared (1e-9).
+step interpolates. Both sides time only the lookups, the best of ``--repeat`` passes (5) over the same
+queries, as timeit does: on a shared machine one pass of either side can be slowed 2-3x by other load, which
+swung the ratio between runs more than the code did. The first 200 answers are compared (1e-9).
 
 Memory: the stamps are fed as fast as they can be (60 s of 100 Hz stamps, 1.2 million transforms), not in
 wall time; the interpreter's allocated objects (``sys.getallocatedblocks``) and the process's RSS are read
@@ -47,10 +49,12 @@ for parent, child, stamp, pose in spec["transforms"]:
     buf.set_transform(m, "bench")
 queries = [(target, source, rospy.Time(0, ns)) for target, source, ns in spec["queries"]]
 lookup = buf.lookup_transform
-start = time.perf_counter()
-for target, source, when in queries:
-    lookup(target, source, when)
-elapsed = time.perf_counter() - start
+elapsed = float("inf")
+for _ in range(spec["repeat"]):
+    start = time.perf_counter()
+    for target, source, when in queries:
+        lookup(target, source, when)
+    elapsed = min(elapsed, time.perf_counter() - start)
 first = []
 for target, source, when in queries[:200]:
     res = lookup(target, source, when)
@@ -81,18 +85,25 @@ def tree_and_queries(lookups: int) -> dict[str, Any]:
     return {"transforms": transforms, "queries": queries}
 
 
-def bench_lookups(lookups: int) -> None:
+def bench_lookups(lookups: int, repeat: int) -> None:
     spec = tree_and_queries(lookups)
+    spec["repeat"] = repeat
     core = BufferCore()
     for parent, child, stamp, pose in spec["transforms"]:
         core.set_transform(parent, child, stamp, tuple(pose), authority="bench", static=False)  # type: ignore[arg-type]
     queries = [tuple(q) for q in spec["queries"]]
     lookup = core.lookup
-    start = time.perf_counter()
-    for target, source, when in queries:
-        lookup(target, source, when)
-    ours = len(queries) / (time.perf_counter() - start)
-    print(f"chain of {CHAIN} frames at {RATE} Hz, {len(queries)} lookups world <-> f{CHAIN} at interpolated times")
+    elapsed = math.inf
+    for _ in range(repeat):
+        start = time.perf_counter()
+        for target, source, when in queries:
+            lookup(target, source, when)
+        elapsed = min(elapsed, time.perf_counter() - start)
+    ours = len(queries) / elapsed
+    print(
+        f"chain of {CHAIN} frames at {RATE} Hz, {len(queries)} lookups world <-> f{CHAIN} at interpolated times "
+        f"(the best of {repeat} passes each)"
+    )
     print(f"  mrosd BufferCore (CPython {sys.version.split()[0]}): {ours:,.0f} lookups/s")
     try:
         proc = subprocess.run(
@@ -151,7 +162,7 @@ def bench_memory(frames: int, seconds: int) -> None:
 
 
 def main(argv: list[str]) -> int:
-    lookups, seconds = 20_000, 60
+    lookups, seconds, repeat = 20_000, 60, 5
     args = list(argv)
     while args:
         opt = args.pop(0)
@@ -159,10 +170,12 @@ def main(argv: list[str]) -> int:
             lookups = int(args.pop(0))
         elif opt == "--seconds":
             seconds = int(args.pop(0))
+        elif opt == "--repeat":
+            repeat = max(1, int(args.pop(0)))
         else:
-            print(f"unknown option {opt}; use --lookups N --seconds S", file=sys.stderr)
+            print(f"unknown option {opt}; use --lookups N --seconds S --repeat R", file=sys.stderr)
             return 2
-    bench_lookups(lookups)
+    bench_lookups(lookups, repeat)
     bench_memory(200, seconds)
     return 0
 

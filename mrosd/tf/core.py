@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from bisect import bisect_left
 from dataclasses import dataclass, field
+from math import acos, sin, sqrt
 
 from mrosd.errors import MrosError
 
@@ -130,7 +131,7 @@ def interpolate(a: Pose, b: Pose, ratio: float) -> Pose:
 # --- caches --------------------------------------------------------------------------------------
 
 
-@dataclass
+@dataclass(slots=True)
 class FrameCache:
     """One child frame's transforms to its parent, oldest first (tf2 keeps newest first; same rules)."""
 
@@ -250,19 +251,20 @@ class BufferCore:
 
     def _chain(self, frame: str, stop: str | None) -> list[str]:
         """``frame`` and its ancestors at their latest parents, up to (not past) ``stop`` or the root."""
+        frames = self.frames
         chain = [frame]
         while frame != stop and len(chain) <= MAX_GRAPH_DEPTH:
-            cache = self.frames.get(frame)
-            parent = cache.latest()[1] if cache is not None else None
-            if parent is None:
+            cache = frames.get(frame)
+            if cache is None or not cache.parents:  # FrameCache.latest()'s parent is None
                 break
-            frame = parent
+            frame = cache.parents[-1]
             chain.append(frame)
         return chain
 
     def latest_common_time(self, target: str, source: str) -> int:
+        frames = self.frames
         if source == target:
-            cache = self.frames.get(source)
+            cache = frames.get(source)
             return cache.latest()[0] if cache is not None else 0
         up_source = self._chain(source, target)
         up_target = self._chain(target, None)
@@ -273,9 +275,9 @@ class BufferCore:
         stamps = []
         for chain in (up_source, up_target):
             for frame in chain[: chain.index(common)]:
-                cache = self.frames.get(frame)
-                if cache is not None:
-                    stamp = cache.latest()[0]
+                cache = frames.get(frame)
+                if cache is not None and cache.stamps and not cache.static:  # FrameCache.latest()'s stamp
+                    stamp = cache.stamps[-1]
                     if stamp:
                         stamps.append(stamp)
         return min(stamps) if stamps else 0
@@ -287,26 +289,93 @@ class BufferCore:
             "tree.Tf has two or more unconnected trees."
         )
 
-    def _walk(self, frame: str, stop: str | None, time: int, source: str, target: str) -> tuple[list[str], Pose]:
-        """From ``frame`` up to ``stop`` (or the root) at ``time``: the frames passed and root <- frame."""
-        frames = [frame]
-        pose = IDENTITY
+    def _walk(self, frame: str, stop: str | None, time: int, source: str, target: str) -> tuple[str, Pose | None]:
+        """From ``frame`` up to ``stop`` (or the root) at ``time``: the last frame reached and root <- frame.
+
+        The pose is None when no step was taken (the identity). This is the lookups' hot loop: each step's
+        interpolation (``FrameCache.get`` and ``interpolate``) and its composition (``compose``) are written
+        out over local floats, in the same operations in the same order, so the answers are theirs (bit for
+        bit; ``tests/unit/tf/test_lookup_walk.py``). Only a time strictly after a frame's oldest stamp and at
+        most its newest takes that path; the rest (time 0, no entry, a single one, as a static frame always
+        has, a time outside the stored span) goes through ``FrameCache.get`` and its error texts.
+        """
+        frames = self.frames
+        x = y = z = qx = qy = qz = 0.0
+        qw = 1.0
+        depth = 1
         while frame != stop:
-            cache = self.frames.get(frame)
+            cache = frames.get(frame)
             if cache is None:
                 break
-            got = cache.get(time)
-            if isinstance(got, str):
-                if not got:
-                    break
-                raise ExtrapolationError(f"{got}, when looking up transform from frame [{source}] to frame [{target}]")
-            parent, step = got
-            pose = compose(step, pose)
+            stamps = cache.stamps
+            i = bisect_left(stamps, time) if time else 0
+            if not 0 < i < len(stamps):  # stamps[i - 1] < time <= stamps[i] or not
+                got = cache.get(time)
+                if isinstance(got, str):
+                    if not got:
+                        break
+                    raise ExtrapolationError(
+                        f"{got}, when looking up transform from frame [{source}] to frame [{target}]"
+                    )
+                parent, (sx, sy, sz, sqx, sqy, sqz, sqw) = got
+            else:
+                parents = cache.parents
+                if stamps[i] == time:
+                    parent = parents[i]
+                    sx, sy, sz, sqx, sqy, sqz, sqw = cache.poses[i]
+                elif parents[i - 1] != parents[i]:
+                    parent = parents[i - 1]
+                    sx, sy, sz, sqx, sqy, sqz, sqw = cache.poses[i - 1]
+                else:
+                    parent = parents[i - 1]
+                    older = stamps[i - 1]
+                    ratio = (time - older) / (stamps[i] - older)
+                    poses = cache.poses
+                    ax, ay, az, aqx, aqy, aqz, aqw = poses[i - 1]
+                    bx, by, bz, bqx, bqy, bqz, bqw = poses[i]
+                    sx = ax + (bx - ax) * ratio
+                    sy = ay + (by - ay) * ratio
+                    sz = az + (bz - az) * ratio
+                    # slerp(a, b, ratio), as ``slerp`` computes it
+                    dot = aqx * bqx + aqy * bqy + aqz * bqz + aqw * bqw
+                    norm_a = aqx * aqx + aqy * aqy + aqz * aqz + aqw * aqw
+                    norm_b = bqx * bqx + bqy * bqy + bqz * bqz + bqw * bqw
+                    cos = (dot if dot >= 0.0 else -dot) / sqrt(norm_a * norm_b)  # abs(dot)
+                    theta = acos(cos if cos < 1.0 else 1.0)
+                    if theta == 0.0:
+                        sqx, sqy, sqz, sqw = aqx, aqy, aqz, aqw
+                    else:
+                        d = 1.0 / sin(theta)
+                        s0 = sin((1.0 - ratio) * theta)
+                        s1 = sin(ratio * theta)
+                        if dot < 0:
+                            s1 = -s1
+                        sqx = (aqx * s0 + bqx * s1) * d
+                        sqy = (aqy * s0 + bqy * s1) * d
+                        sqz = (aqz * s0 + bqz * s1) * d
+                        sqw = (aqw * s0 + bqw * s1) * d
+            if depth == 1:  # the first step: root <- frame is the step itself
+                x, y, z, qx, qy, qz, qw = sx, sy, sz, sqx, sqy, sqz, sqw
+            else:
+                # compose(step, pose): the step's rotation applied to the pose's translation, as ``rotate``
+                tx = 2.0 * (sqy * z - sqz * y)
+                ty = 2.0 * (sqz * x - sqx * z)
+                tz = 2.0 * (sqx * y - sqy * x)
+                x = sx + (x + sqw * tx + (sqy * tz - sqz * ty))
+                y = sy + (y + sqw * ty + (sqz * tx - sqx * tz))
+                z = sz + (z + sqw * tz + (sqx * ty - sqy * tx))
+                rx = sqw * qx + sqx * qw + sqy * qz - sqz * qy
+                ry = sqw * qy - sqx * qz + sqy * qw + sqz * qx
+                rz = sqw * qz + sqx * qy - sqy * qx + sqz * qw
+                qw = sqw * qw - sqx * qx - sqy * qy - sqz * qz
+                qx, qy, qz = rx, ry, rz
             frame = parent
-            frames.append(frame)
-            if len(frames) > MAX_GRAPH_DEPTH:
+            depth += 1
+            if depth > MAX_GRAPH_DEPTH:
                 raise ConnectivityError("The tf tree is invalid because it contains a loop.")
-        return frames, pose
+        if depth == 1:
+            return frame, None
+        return frame, (x, y, z, qx, qy, qz, qw)
 
     def lookup(self, target: str, source: str, time: int, function: str = "lookupTransform") -> tuple[Pose, int]:
         """target <- source at ``time`` (0: the latest common time); returns (pose, the time used).
@@ -314,18 +383,24 @@ class BufferCore:
         Raises:
             InvalidArgumentError, FrameNotFoundError, ConnectivityError, ExtrapolationError: as tf2, with its texts.
         """
-        self._validate(function, "target_frame", target)
-        self._validate(function, "source_frame", source)
+        known = self.known
+        if target not in known or source not in known:  # known ids are never empty nor start with '/'
+            self._validate(function, "target_frame", target)
+            self._validate(function, "source_frame", source)
         if time == 0:
             time = self.latest_common_time(target, source)
         if source == target:
             return IDENTITY, time
-        up_source, to_source = self._walk(source, target, time, source, target)
-        if up_source[-1] == target:
-            return to_source, time
-        up_target, to_target = self._walk(target, up_source[-1], time, source, target)
-        if up_target[-1] != up_source[-1]:
+        top, to_source = self._walk(source, target, time, source, target)
+        if top == target:
+            return to_source or IDENTITY, time
+        reached, to_target = self._walk(target, top, time, source, target)
+        if reached != top:
             raise ConnectivityError(self._unconnected(target, source))
+        if to_target is None:
+            return to_source or IDENTITY, time
+        if to_source is None:
+            return inverse(to_target), time
         return compose(inverse(to_target), to_source), time
 
     def can_transform(self, target: str, source: str, time: int) -> bool:
