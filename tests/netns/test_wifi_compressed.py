@@ -10,13 +10,14 @@ minus stamp.
 
 from __future__ import annotations
 
+import json
 import statistics
 import time
 from collections.abc import Iterator
 
 import pytest
 
-from tests.netns.wifi import CAMERA, FLOAT, ROOT, WifiScene, wifi_scene
+from tests.netns.wifi import CAMERA, FLOAT, MASTER_PORT, ROOT, WifiScene, wifi_scene
 from tests.web.test_web_page import CHROMIUM, NODE
 
 pytestmark = pytest.mark.root
@@ -51,6 +52,15 @@ def test_foxglove_client_behind_20mbit_gets_compressed_camera_and_the_small_topi
     assert jpeg is not None and jpeg.rate >= 25.0, summary
     assert jpeg.median_age <= 0.100, summary
     assert FLOAT in got and got[FLOAT].rate >= 95.0, summary
+    # the daemon's status file (``mros daemon status``) has the encoder's counters (rewritten every 5 s at most)
+    deadline = time.monotonic() + 12.0
+    while True:
+        status = json.loads((scene.tmp / "run" / f"mrosd-{MASTER_PORT}.json").read_text())
+        encoders = {e["topic"]: e for e in status["web"].get("encoders", [])}
+        if COMPRESSED in encoders or time.monotonic() > deadline:
+            break
+        time.sleep(0.5)  # a file the daemon rewrites: no event to await
+    assert encoders[COMPRESSED]["encoded"] > 0 and encoders[COMPRESSED]["encode_ms"] > 0, status["web"]
 
 
 @needs_browser
