@@ -5,7 +5,7 @@ one mrosd node publishes the three topics on absolute schedules (late ticks are 
 prints ``ready`` once they are advertised. Every message carries ``header.stamp`` = the wall clock when it was
 published (the Float64, which has no header, carries that time as its value), so a client can measure the age of
 what it receives; the camera's pixels change each frame (tests/web/stamped_camera.py's moving textured
-gradient, 30 frames cycled), so deflate and JPEG see a camera's picture, not a constant.
+gradient, 8 frames cycled), so deflate and JPEG see a camera's picture, not a constant.
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ async def main(argv: list[str]) -> None:
     header_cls = get_message_class("std_msgs/Header")
     odom_cls = get_message_class("nav_msgs/Odometry")
     float_cls = get_message_class("std_msgs/Float64")
-    frames = _frames(30)
+    frames = _frames(8)  # 8 of them cycled: 0.2 s to make (30: over 1 s of every lab's setup)
     async with mrosd.Node("wifi_scene", master_uri=args.master_uri, argv=[], host=args.host) as node:
         cam = await node.advertise(CAMERA, image_cls, queue_size=2)
         # deep queues: a daemon busy for a moment must not make the scene drop what the tests count
