@@ -26,6 +26,7 @@ __all__ = [
     "MAX_STATUS_BYTES",
     "ClientDrops",
     "DaemonStatus",
+    "EncoderCounts",
     "WebStatus",
     "find_status",
     "remove_status",
