@@ -7,24 +7,30 @@ between them shaped with ``tc`` tbf to the given rate. One row per way of receiv
 - ``raw``: the raw camera, the client offering no permessage-deflate;
 - ``deflate``: the raw camera, the client offering permessage-deflate (small topics deflated; the camera is
   not: frames from ``DEFLATE_MAX_BYTES`` on never are);
-- ``jpeg``: ``<camera>/compressed`` when the daemon offers it (skipped otherwise).
+- ``jpeg q80``, ``jpeg q50``: ``<camera>/compressed`` (made by the daemon's web part) at JPEG quality 80 (the
+  default) and 50, set as the page sets it (``x-mrosd.imageSettings``, sent from the robot's loopback).
 
 Per row: the camera's frames per second and median/p90 age (arrival minus ``header.stamp``), the small topics'
-rates, the bytes that crossed the link per second, and the daemon's CPU (one client, so per client). Then the
-deflate levels measured on this machine on the payloads the bridges send (what ``DEFLATE_LEVEL`` rests on).
-One run takes about 40 s.
+rates, the bytes that crossed the link per second, and the daemon's CPU (one client, so per client: the JPEG
+rows include the encoder's). Then the JPEG encoders on the scene's own frame (simplejpeg, PyTurboJPEG and
+Pillow, as many as are installed: ``bench.images.measure``) and the deflate levels measured on this machine on
+the payloads the bridges send (what ``DEFLATE_LEVEL`` rests on). One run takes about a minute.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import random
 import struct
+import subprocess
 import sys
 import tempfile
 import time
 import zlib
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
 SECONDS = 5.0
@@ -73,6 +79,57 @@ def deflate_levels() -> list[tuple[str, int, float, float]]:
     return rows
 
 
+#: ``python -c`` in the robot's namespace: set a ``T/compressed`` topic's JPEG quality as the page does, print
+#: the daemon's answer (argv: url, topic, quality)
+_SET_QUALITY = """
+import asyncio, json, sys
+import aiohttp
+async def main():
+    url, topic, quality = sys.argv[1], sys.argv[2], int(sys.argv[3])
+    async with aiohttp.ClientSession() as http:
+        async with http.ws_connect(url, protocols=["foxglove.websocket.v1"]) as ws:
+            await ws.send_str(json.dumps({"op": "x-mrosd.imageSettings", "topic": topic, "quality": quality}))
+            async for msg in ws:
+                if msg.type == aiohttp.WSMsgType.TEXT and json.loads(msg.data).get("op") == "x-mrosd.imageSettings":
+                    print(msg.data)
+                    return
+asyncio.run(asyncio.wait_for(main(), 10))
+"""
+
+
+def set_quality(scene: Any, topic: str, quality: int) -> dict[str, Any]:
+    """Set ``topic``'s JPEG quality (shared by every client), from the robot's loopback; the daemon's answer."""
+    argv = scene.link.argv(
+        scene.link.robot, [sys.executable, "-c", _SET_QUALITY, scene.url(scene.foxglove_port, False)]
+    )
+    done = subprocess.run([*argv, topic, str(quality)], capture_output=True, check=False, timeout=20)
+    if done.returncode != 0:
+        raise RuntimeError(f"x-mrosd.imageSettings failed: {done.stderr.decode()[-500:]}")
+    answer: dict[str, Any] = json.loads(done.stdout)
+    return answer
+
+
+def encoder_rows(rounds: int = 15) -> list[tuple[str, float, int, float]]:
+    """(encoder, median ms, bytes, ms / Pillow's) per installed JPEG encoder, on one 1280x720 frame of the lab's
+    camera (tests/web/stamped_camera.py's picture) at quality 80 and 50."""
+    from bench.images import REFERENCE, measure
+    from mrosd.images import EncodeSettings, RawImage, encode_image
+    from mrosd.images.jpeg import available_encoders, encoder
+
+    sys.path.insert(0, str(ROOT / "tests" / "web"))
+    from stamped_camera import frames
+
+    picture = RawImage(720, 1280, "rgb8", 0, 1280 * 3, frames(1280, 720, 1)[0])
+    rows = []
+    for quality in (80, 50):
+        settings = EncodeSettings(quality=quality)
+        calls = {name: partial(encode_image, picture, settings, encoder(name)) for name in available_encoders()}
+        results = measure(calls, rounds)
+        reference = results.get(REFERENCE, next(iter(results.values())))[0]
+        rows += [(f"{name} q{quality}", ms, size, ms / reference) for name, (ms, _, size) in results.items()]
+    return rows
+
+
 def run(rate: str) -> int:
     sys.path.insert(0, str(ROOT))
     from tests.netns.wifi import CAMERA, FLOAT, ODOM, WifiScene, lab_unavailable
@@ -87,7 +144,9 @@ def run(rate: str) -> int:
     with tempfile.TemporaryDirectory() as tmp, WifiScene(Path(tmp), rate) as scene:
         print(header)
         jpeg = f"{CAMERA}/compressed"
-        for row, camera, deflate in (("raw", CAMERA, False), ("deflate", CAMERA, True), ("jpeg", jpeg, True)):
+        cases = [("raw", CAMERA, False, 0), ("deflate", CAMERA, True, 0), ("jpeg q80", jpeg, True, 80)]
+        cases.append(("jpeg q50", jpeg, True, 50))
+        for row, camera, deflate, quality in cases:
             fox = scene.foxglove(shaped=True, deflate=deflate)
             try:
                 try:
@@ -95,6 +154,8 @@ def run(rate: str) -> int:
                 except TimeoutError:
                     print(f"{row:8} skipped: the daemon offers no {camera}")
                     continue
+                if quality:
+                    set_quality(scene, camera, quality)
                 fox.subscribe(camera, ODOM, FLOAT)
                 time.sleep(WARMUP)
                 cpu0, wire0, t0 = scene.daemon_cpu(), scene.link.sent_bytes(), time.monotonic()
@@ -110,6 +171,10 @@ def run(rate: str) -> int:
                 f"{row:8} {fps:8.1f} {med * 1e3:6.0f}ms {p90 * 1e3:6.0f}ms {odom:8.1f} {flt:7.1f} "
                 f"{(wire1 - wire0) / (t1 - t0) / 1e3:10.0f} {100 * (cpu1 - cpu0) / (t1 - t0):6.1f}"
             )
+    print("JPEG encoders on one frame of the lab's camera, 1280x720 rgb8 (ratio: ms / Pillow's ms):")
+    print(f"{'encoder':20} {'ms':>6} {'bytes':>8} {'ratio':>6}")
+    for name, ms, size, ratio in encoder_rows():
+        print(f"{name:20} {ms:6.2f} {size:8d} {ratio:6.2f}")
     print("deflate levels on this machine (one stream per payload, sync flush per message):")
     print(f"{'payload':28} {'level':>5} {'ratio':>6} {'ms/MB':>6}")
     for name, level, ratio, ms in deflate_levels():

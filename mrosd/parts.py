@@ -367,7 +367,7 @@ class Daemon:
     def status(self) -> DaemonStatus:
         """What runs and where, for the status file (``mrosd.runstatus``)."""
         import mrosd
-        from mrosd.runstatus import ClientDrops, DaemonStatus, WebStatus
+        from mrosd.runstatus import ClientDrops, DaemonStatus, EncoderCounts, WebStatus
 
         web = None
         if self.web is not None:
@@ -377,6 +377,16 @@ class Daemon:
                 rosbridge=list(self.web.rosbridge_urls) if self.web.rosbridge_port is not None else [],
                 token_required=bool(self.web.policy.token),
                 drops=[ClientDrops(client=c, dropped=d) for c, d in self.web.drops()],
+                encoders=[
+                    EncoderCounts(
+                        topic=t,
+                        encoded=c["encoded"],
+                        dropped=c["dropped"],
+                        refused=c["refused"],
+                        encode_ms=c["encodeMs"],
+                    )
+                    for t, c in self.web.encoders()
+                ],
             )
         return DaemonStatus(
             pid=os.getpid(),

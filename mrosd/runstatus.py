@@ -26,6 +26,7 @@ __all__ = [
     "MAX_STATUS_BYTES",
     "ClientDrops",
     "DaemonStatus",
+    "EncoderCounts",
     "WebStatus",
     "find_status",
     "remove_status",
@@ -46,6 +47,19 @@ class ClientDrops(msgspec.Struct, kw_only=True):
     dropped: dict[str, int] = {}
 
 
+class EncoderCounts(msgspec.Struct, kw_only=True):
+    """One ``T/compressed`` topic the web part encodes for browser clients (``mrosd.web.compressed``)."""
+
+    topic: str
+    encoded: int = 0
+    #: raw frames replaced by a newer one before they were encoded
+    dropped: int = 0
+    #: frames that could not be encoded
+    refused: int = 0
+    #: mean encode time per frame, ms (None: none yet)
+    encode_ms: float | None = None
+
+
 class WebStatus(msgspec.Struct, kw_only=True):
     """The web part's addresses as it bound them, and what it dropped for slow clients."""
 
@@ -56,6 +70,8 @@ class WebStatus(msgspec.Struct, kw_only=True):
     token_required: bool = False
     #: clients for which messages were dropped (the most dropping ones, bounded: ``mrosd.web.server``)
     drops: list[ClientDrops] = []
+    #: the ``T/compressed`` encoders that ran (the most encoding ones, bounded: ``mrosd.web.server``)
+    encoders: list[EncoderCounts] = []
 
 
 class DaemonStatus(msgspec.Struct, kw_only=True):

@@ -52,6 +52,9 @@ def part_lines(st: DaemonStatus) -> list[str]:
         for drops in st.web.drops:  # a client whose link is slower than its topics
             counts = ", ".join(f"{topic} {n}" for topic, n in drops.dropped.items())
             lines.append(f"web: dropped for {drops.client}: {counts}")
+        for enc in st.web.encoders:  # T/compressed made for browser clients
+            ms = f", {enc.encode_ms:.1f} ms per frame" if enc.encode_ms is not None else ""
+            lines.append(f"web: {enc.topic}: {enc.encoded} encoded, {enc.dropped} dropped, {enc.refused} refused{ms}")
     if st.rosout:
         lines.append("rosout: running (/rosout -> /rosout_agg)")
     if st.ixm_bridges:

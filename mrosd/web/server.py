@@ -336,11 +336,19 @@ class WebServer:
         rows.sort(key=lambda row: -sum(row[1].values()))
         return rows[:STATUS_CLIENTS]
 
+    def encoders(self) -> list[tuple[str, dict[str, Any]]]:
+        """Per ``T/compressed`` topic encoded here: (topic, its counters), the most encoding first, at most
+        ``STATUS_TOPICS``."""
+        rows = [(name, st.as_dict()) for name, st in self.hub.compressed.stats.items() if st.encoded or st.refused]
+        rows.sort(key=lambda row: -row[1]["encoded"])
+        return rows[:STATUS_TOPICS]
+
     async def _watch_drops(self) -> None:
-        last = 0
+        last: tuple[int, int] = (0, 0)
         while True:
             await asyncio.sleep(DROPS_PERIOD)
-            total = sum(sum(d.values()) for _, d in self.drops())
+            encoded = sum(row["encoded"] + row["refused"] for _, row in self.encoders())
+            total = (sum(sum(d.values()) for _, d in self.drops()), encoded)
             if total != last and self.on_drops is not None:
                 last = total
                 try:

@@ -4,8 +4,8 @@ Run as a script (``python tests/netns/scene.py MASTER_URI [--camera-hz 30] ...``
 one mrosd node publishes the three topics on absolute schedules (late ticks are sent at once: the rate holds) and
 prints ``ready`` once they are advertised. Every message carries ``header.stamp`` = the wall clock when it was
 published (the Float64, which has no header, carries that time as its value), so a client can measure the age of
-what it receives; the camera's pixels change each frame (a moving bar over a gradient), so deflate and JPEG see
-a picture, not a constant.
+what it receives; the camera's pixels change each frame (tests/web/stamped_camera.py's moving textured
+gradient, 8 frames cycled), so deflate and JPEG see a camera's picture, not a constant.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import argparse
 import asyncio
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 #: topic names of the scene (the camera's ``/compressed`` sibling is the web part's, not ours)
@@ -24,18 +25,12 @@ WIDTH, HEIGHT = 1280, 720
 
 
 def _frames(count: int) -> list[bytes]:
-    """``count`` rgb8 frames: a horizontal gradient with a bright bar at a different column in each."""
-    row = bytes(((x * 255) // WIDTH) for x in range(WIDTH) for _ in range(3))
-    base = bytearray(row * HEIGHT)
-    frames = []
-    for i in range(count):
-        frame = bytearray(base)
-        x0 = (i * WIDTH // count) * 3
-        bar = b"\xff" * 3 * 16
-        for y in range(0, HEIGHT * WIDTH * 3, WIDTH * 3):
-            frame[y + x0 : y + x0 + len(bar)] = bar[: max(0, WIDTH * 3 - x0)]
-        frames.append(bytes(frame))
-    return frames
+    """``count`` rgb8 frames of tests/web/stamped_camera.py's textured scene (what a camera could see: JPEG
+    compresses it as a camera's picture, not as a flat one); each frame the scene moved by 4 pixels."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "web"))
+    from stamped_camera import frames  # a script beside the web tests, not a package
+
+    return frames(WIDTH, HEIGHT, count)
 
 
 async def _every(hz: float, publish: Any) -> None:
@@ -67,7 +62,7 @@ async def main(argv: list[str]) -> None:
     header_cls = get_message_class("std_msgs/Header")
     odom_cls = get_message_class("nav_msgs/Odometry")
     float_cls = get_message_class("std_msgs/Float64")
-    frames = _frames(8)
+    frames = _frames(8)  # 8 of them cycled: 0.2 s to make (30: over 1 s of every lab's setup)
     async with mrosd.Node("wifi_scene", master_uri=args.master_uri, argv=[], host=args.host) as node:
         cam = await node.advertise(CAMERA, image_cls, queue_size=2)
         # deep queues: a daemon busy for a moment must not make the scene drop what the tests count
@@ -80,7 +75,12 @@ async def main(argv: list[str]) -> None:
             header = header_cls(stamp=Time.from_sec(time.time()), frame_id="camera")
             await cam.publish(
                 image_cls(
-                    header=header, height=HEIGHT, width=WIDTH, encoding="rgb8", step=WIDTH * 3, data=frames[i % 8]
+                    header=header,
+                    height=HEIGHT,
+                    width=WIDTH,
+                    encoding="rgb8",
+                    step=WIDTH * 3,
+                    data=frames[i % len(frames)],
                 )
             )
 

@@ -24,7 +24,7 @@ def test_roslibpy_with_cbor_and_deflate_keeps_the_small_topics_rates_beside_a_ra
     )
     try:
         assert "permessage-deflate" in client.opened.get("extensions", ""), client.opened
-        got = client.collect(seconds=4.0, warmup=2.0)
+        got = client.collect(seconds=3.0, warmup=2.0)
     finally:
         client.close()
     summary = {t: (s.count, round(s.rate, 1), round(s.median_age, 3)) for t, s in got.items()}

@@ -347,6 +347,30 @@ class WifiScene:
         """``argv`` run where the client sits: the client's namespace (shaped) or the robot's (loopback)."""
         return self.link.argv(self.link.client if shaped else self.link.robot, argv)
 
+    def page_url(self, shaped: bool = True) -> str:
+        """The page (served on the Foxglove port), with the token."""
+        return f"http://{self.host(shaped)}:{self.foxglove_port}/?token={TOKEN}"
+
+    def browser(self, shaped: bool = True) -> Any:
+        """tests/web/page_browser.mjs (headless Chromium) started where the client sits: a
+        ``tests.web.test_web_page.Browser`` (``do``, ``eval``, ``until``, ``shot``), stopped with the scene."""
+        from tests.web.test_web_page import NODE, Browser, cwd_env
+
+        assert NODE is not None
+        argv = self.client_argv([NODE, str(ROOT / "tests" / "web" / "page_browser.mjs")], shaped)
+        procs = self.procs
+
+        class NetnsBrowser(Browser):
+            def __init__(self) -> None:  # Browser's, with node started in the client's namespace
+                self.proc = procs.start(argv, cwd_env(), stdin=subprocess.PIPE)
+                self.lines: queue.Queue[dict[str, Any]] = queue.Queue()
+                self.log: list[dict[str, Any]] = []
+                threading.Thread(target=self._read, daemon=True).start()
+                self._ids = 0
+                self._wait(lambda m: m.get("event") == "ready", 30)
+
+        return NetnsBrowser()
+
     def foxglove(self, shaped: bool = True, deflate: bool = True) -> FoxgloveProbe:
         """A started @foxglove/ws-protocol client (offering permessage-deflate unless ``deflate`` is False)."""
         argv = ["node", str(FOXGLOVE_CLIENT), self.url(self.foxglove_port, shaped)]
