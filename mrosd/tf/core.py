@@ -22,6 +22,9 @@ DEFAULT_CACHE_TIME = 10.0
 MAX_FRAMES = 10_000
 #: Entries one frame's cache holds whatever its time window (1 kHz for the default 10 s).
 MAX_ENTRIES_PER_FRAME = 10_000
+#: tf2 ignores a transform whose rotation's squared norm is this far or further from 1
+#: (``QUATERNION_NORMALIZATION_TOLERANCE``, TF_DENORMALIZED_QUATERNION)
+QUATERNION_TOLERANCE = 10e-3
 #: tf2's guard against loops in the tree (``MAX_GRAPH_DEPTH``).
 MAX_GRAPH_DEPTH = 1000
 
@@ -219,6 +222,10 @@ class BufferCore:
         parent, child = parent.lstrip("/"), child.lstrip("/")
         if not parent or not child or parent == child or not all(math.isfinite(v) for v in pose):
             self.rejected += 1
+            return False
+        qx, qy, qz, qw = pose[3:]
+        if abs(qx * qx + qy * qy + qz * qz + qw * qw - 1.0) >= QUATERNION_TOLERANCE:
+            self.rejected += 1  # tf2's TF_DENORMALIZED_QUATERNION (a zero one would divide by zero in slerp)
             return False
         cache = self.frames.get(child)
         if cache is None:

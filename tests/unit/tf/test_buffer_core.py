@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import math
 
-from mrosd.tf.core import MAX_ENTRIES_PER_FRAME, BufferCore, FrameCache, slerp
+import pytest
+
+from mrosd.tf.core import MAX_ENTRIES_PER_FRAME, BufferCore, FrameCache, FrameNotFoundError, slerp
 
 S = 1_000_000_000
 POSE = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
@@ -48,3 +50,22 @@ def test_slerp_takes_the_short_arc_between_a_quaternion_and_its_negation() -> No
     neg = tuple(-c for c in q)
     mid = slerp(q, neg, 0.5)  # type: ignore[arg-type]
     assert max(abs(a - b) for a, b in zip(mid, q, strict=True)) < 1e-12
+
+
+def test_a_denormalized_quaternion_is_ignored_as_tf2_ignores_it() -> None:
+    """tf2 (TF_DENORMALIZED_QUATERNION) drops a transform whose |q|^2 is 0.01 or more away from 1: a broadcaster
+    sending a zero quaternion must not make a lookup across it divide by zero (slerp divides by the norms)."""
+    core = BufferCore()
+    s = 1_000_000_000
+    assert core.set_transform("world", "base", s, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0), authority="a", static=False)
+    assert core.set_transform("world", "base", 2 * s, (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0), authority="a", static=False)
+    for stamp in (s, 2 * s):  # a hostile broadcaster's frame: zero rotation at both stamps
+        assert not core.set_transform("base", "evil", stamp, (0.0,) * 7, authority="evil", static=False)
+    # tf2's own bounds: 1.004^2 = 1.008 is kept, 1.006^2 = 1.012 is not
+    assert core.set_transform("base", "near", s, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.004), authority="a", static=False)
+    assert not core.set_transform("base", "far", s, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.006), authority="a", static=False)
+    assert core.rejected == 3
+    with pytest.raises(FrameNotFoundError):
+        core.lookup("world", "evil", s + s // 2)
+    pose, _ = core.lookup("world", "base", s + s // 2)
+    assert pose[0] == pytest.approx(0.5)
