@@ -104,7 +104,11 @@ def slerp(
 ) -> tuple[float, float, float, float]:
     """tf2's ``Quaternion::slerp``: the shortest arc, no renormalisation."""
     dot = q0[0] * q1[0] + q0[1] * q1[1] + q0[2] * q1[2] + q0[3] * q1[3]
-    norms = math.sqrt(sum(c * c for c in q0) * sum(c * c for c in q1))
+    # plain left-to-right sums, as tf2's length2() and the walk's inlined copy: Python 3.12's sum() of floats
+    # compensates its rounding, which would make the same lookup differ in its last bits between versions
+    norm0 = q0[0] * q0[0] + q0[1] * q0[1] + q0[2] * q0[2] + q0[3] * q0[3]
+    norm1 = q1[0] * q1[0] + q1[1] * q1[1] + q1[2] * q1[2] + q1[3] * q1[3]
+    norms = math.sqrt(norm0 * norm1)
     theta = math.acos(max(-1.0, min(1.0, abs(dot) / norms)))  # half of angleShortestPath
     if theta == 0.0:
         return q0
