@@ -302,7 +302,7 @@ class Daemon:
         if self.budgets is not None:  # half the web budget for clients' sockets, half for the hub's TCPROS links
             server.max_clients = max(1, min(server.max_clients, self.budgets.web // 2))
         await server.start()
-        server.on_drops = self.publish_status  # what slow clients lose shows in `mros web status`
+        server.on_drops = self.publish_status  # what slow clients lose shows in `mros daemon status`
         self.web = server
         self._parts.append(("web", server))
         if web.tf_republisher:  # roslibjs's and roslibpy's TFClient, with no tf2_web_republisher node

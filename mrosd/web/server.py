@@ -120,7 +120,7 @@ class WebServer:
         self._runner: web.AppRunner | None = None
         self._rosbridge_runner: web.AppRunner | None = None
         #: called (at most every ``DROPS_PERIOD`` s) when clients' drop counts changed: the daemon rewrites its
-        #: status file (``mros web status`` shows them)
+        #: status file (``mros daemon status`` shows them)
         self.on_drops: Callable[[], None] | None = None
         self._drops_task: asyncio.Task[None] | None = None
 
