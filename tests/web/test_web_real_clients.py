@@ -388,6 +388,11 @@ async def test_a_foxglove_client_that_never_reads_costs_a_bound_and_the_other_ke
         await stalled.send(cmd="pause")
         await stalled.until("paused")
         await cam.wait_for_subscribers(1, timeout=10)
+        # both subscriptions have reached the server (a client's "subscribed" is only what it sent): a frame
+        # published before the live one's joined never reaches it
+        async with backports.timeout(10):
+            while server.hub.sink_count("/image") < 2:  # noqa: ASYNC110 - the server's own state
+                await asyncio.sleep(0.01)
         img = Image(height=1000, width=1000, encoding="mono8", step=1000, data=bytes(1000 * 1000))
         received = 0
         async with backports.timeout(60):

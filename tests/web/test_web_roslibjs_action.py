@@ -36,11 +36,36 @@ def browser(tmp_path_factory: pytest.TempPathFactory) -> ROBOT:
         wait_for_topic(daemon, "/test_action/status")
         assert server.poll() is None
         page = Browser(procs, origin, daemon.rosbridge_url)
+        # roslibjs's ActionClient advertises the goal topic and subscribes to the others as it is made; a goal sent
+        # at once can go before the bridge's links to the server exist (a goal of 1 s had its result lost): make
+        # it first, and wait until the master lists the bridge's goal publisher and result subscriber
+        page.send(cmd="action_client", server="/test_action", action="actionlib/TestAction")
+        page.until("action_client")
+        wait_for_bridge_ends(daemon)
         yield page, daemon
         page.close()
         daemon.close()
     finally:
         procs.close()
+
+
+def wait_for_bridge_ends(daemon: WebDaemon, timeout: float = 20.0) -> None:
+    """Until /test_action/goal has a publisher and /test_action/result, /test_action/feedback and
+    /test_action/status a subscriber besides the server's own ends (the bridge's, registered)."""
+    import time
+    import xmlrpc.client
+
+    deadline = time.monotonic() + timeout
+    with xmlrpc.client.ServerProxy(daemon.uri) as master:
+        while time.monotonic() < deadline:
+            _, _, (pubs, subs, _) = master.getSystemState("/test")
+            published = {name for name, nodes in pubs if nodes}
+            subscribed = {name for name, nodes in subs if nodes}
+            wanted = {f"/test_action/{t}" for t in ("result", "feedback", "status")}
+            if "/test_action/goal" in published and wanted <= subscribed:
+                return
+            time.sleep(0.05)
+    raise AssertionError(f"the bridge's action topics were not registered within {timeout} s")
 
 
 def wait_for_topic(daemon: WebDaemon, topic: str, timeout: float = 20.0) -> None:
