@@ -6,8 +6,17 @@ Pure functions of bytes (no sockets, no event loop), so they are tested and fuzz
 keep-alive (HTTP/1.1 default, HTTP/1.0 with the header), ``Expect: 100-continue``. Refused with
 ``HttpRefused`` (the status and one-line text to send before closing): other methods (405), chunked
 bodies (411), a repeated Content-Length or Content-Length with Transfer-Encoding (400, request
-smuggling), bodies over ``MAX_BODY_SIZE`` (413), garbage (400). Header blocks over ``MAX_HEADER_SIZE``
-are the caller's to refuse (431): it must stop buffering before a block is complete.
+smuggling), bodies over ``MAX_BODY_SIZE`` (413), garbage (400), and any request a browser sent (403).
+Header blocks over ``MAX_HEADER_SIZE`` are the caller's to refuse (431): it must stop buffering before a
+block is complete.
+
+**Browsers.** Any web page may POST to any address with ``fetch`` in ``no-cors`` mode and a ``text/plain``
+body: no preflight, so the call is made even though the page cannot read the answer. Through the master a
+page would set parameters or register a publisher whose node is on the attacker's machine (every subscriber
+of that topic then connects to it and takes its messages); through a node's slave API it would redirect the
+node's subscriptions or shut it down. No ROS client (rospy, roscpp, rosbridge, mrosd) sends ``Origin`` or
+``Sec-Fetch-*``; a browser sends ``Origin`` with every POST (DNS rebinding included). So a request carrying
+either is refused.
 """
 
 from __future__ import annotations
@@ -25,6 +34,7 @@ MAX_HEADER_SIZE = 64 * 1024
 _CONTENT_LENGTH = re.compile(rb"\r\ncontent-length:[ \t]*(?:([0-9]{1,12})[ \t]*(?=\r\n|$)|.*)")
 _BAD_FIELD_NAME = re.compile(rb"\r\n[^:\r\n]*[ \t]:")  # whitespace in a name or before its colon, obs-fold
 _CONNECTION = re.compile(rb"\r\nconnection:[ \t]*(close|keep-alive)[ \t]*(?=\r\n|$)")
+_FROM_A_BROWSER = re.compile(rb"\r\n(?:origin|sec-fetch-[a-z]+):")
 
 _REASONS = {
     400: b"Bad Request",
@@ -80,6 +90,8 @@ def parse_head(head: bytes) -> tuple[int, bool, bool]:
     if fields:
         if _BAD_FIELD_NAME.search(fields):
             raise HttpRefused(400, b"malformed header field\n")
+        if _FROM_A_BROWSER.search(fields):
+            raise HttpRefused(403, b"a web page may not call ROS XML-RPC (the request carries Origin)\n")
         lengths = _CONTENT_LENGTH.findall(fields)
         if b"\r\ntransfer-encoding" in fields:
             if lengths:  # which one frames the body is what request smuggling plays on

@@ -12,6 +12,7 @@ import os
 import shutil
 import subprocess
 import threading
+import xmlrpc.client
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -112,10 +113,15 @@ def daemon(tmp_path: Path) -> Iterator[WebDaemon]:
 def browse(page: str, attempts: list[tuple[str, str, int]]) -> tuple[int, list[dict[str, Any]]]:
     """Open ``page`` in Chromium and run ``ATTACK`` for each (socket URL, protocol, Twists) from it: the
     page's HTTP status and each attempt's result."""
+    return browse_with(ATTACK, page, [{"url": url, "protocol": protocol, "n": n} for url, protocol, n in attempts])
+
+
+def browse_with(script: str, page: str, arg: Any) -> tuple[int, Any]:
+    """Open ``page`` in Chromium and run the async function ``script`` on ``arg`` in it: the page's HTTP
+    status and the function's result."""
     assert NODE is not None
-    arg = json.dumps([{"url": url, "protocol": protocol, "n": n} for url, protocol, n in attempts])
     out = subprocess.run(
-        [NODE, str(HERE / "origin_browser.mjs"), page, ATTACK, arg],
+        [NODE, str(HERE / "origin_browser.mjs"), page, script, json.dumps(arg)],
         capture_output=True,
         timeout=90,
         check=True,
@@ -181,3 +187,102 @@ def test_clients_without_an_origin_still_connect(daemon: WebDaemon) -> None:
     with CmdVelCounter(daemon.uri) as counter:
         asyncio.run(main())
         assert counter.count > 0
+
+
+#: From the page it runs in, POSTs XML-RPC calls the way any page may: ``fetch`` in ``no-cors`` mode with a
+#: ``text/plain`` body (no preflight; the page cannot read the answer, but the call is made). Each item is
+#: ``{url, body}``; the result says whether the fetch went out without a network error.
+CSRF = """async (calls) => {
+  const results = [];
+  for (const {url, body} of calls) {
+    try {
+      await fetch(url, { method: "POST", mode: "no-cors", headers: { "Content-Type": "text/plain" }, body });
+      results.push("sent");
+    } catch (e) { results.push(String(e)); }
+  }
+  return results;
+}"""
+
+
+class _AttackerHost:
+    """The attacker's own machine: a master of its own and a node publishing Twists on /cmd_vel at 20 Hz. Its
+    slave API is what a hijacked subscriber on the robot would call (``requestTopic``) and take data from."""
+
+    def __init__(self) -> None:
+        self.node_uri = ""
+        self._ready = threading.Event()
+        self._stop: asyncio.Event | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread = threading.Thread(target=lambda: asyncio.run(self._main()), daemon=True)
+        self._thread.start()
+        assert self._ready.wait(20) and self.node_uri
+
+    async def _main(self) -> None:
+        import mrosd
+        from mrosd.master.server import Master
+        from mrosd.msg import get_message_class
+
+        twist = get_message_class("geometry_msgs/Twist")
+        self._loop = asyncio.get_running_loop()
+        self._stop = asyncio.Event()
+        async with (
+            Master("127.0.0.1", 0) as master,
+            mrosd.Node("attacker", master_uri=master.uri, argv=[], host="127.0.0.1") as node,
+        ):
+            pub = await node.advertise("/cmd_vel", twist)
+            self.node_uri = node.uri
+            self._ready.set()
+            while not self._stop.is_set():
+                pub.publish_nowait(twist(linear=get_message_class("geometry_msgs/Vector3")(x=2.0)))
+                try:
+                    await asyncio.wait_for(self._stop.wait(), 0.05)
+                except TimeoutError:
+                    pass
+
+    def close(self) -> None:
+        if self._loop is not None and self._stop is not None:
+            self._loop.call_soon_threadsafe(self._stop.set)
+        self._thread.join(10)
+
+
+def _call(method: str, *params: Any) -> str:
+    return xmlrpc.client.dumps(params, method)
+
+
+def test_a_foreign_page_cannot_call_the_master_or_a_nodes_slave_api(daemon: WebDaemon, foreign_site: int) -> None:
+    """Any page may POST to any port with ``fetch`` (no-cors, text/plain): XML-RPC needs no preflight, so a page
+    could set parameters, register a publisher on /cmd_vel whose node is on the attacker's machine (every
+    subscriber then connects to it and takes its Twists), or tell a node to shut down. Both the master and a
+    node's slave API refuse a request that carries ``Origin`` (a browser's); ROS clients send none."""
+    attacker = _AttackerHost()
+    try:
+        with CmdVelCounter(daemon.uri) as counter, xmlrpc.client.ServerProxy(daemon.uri) as master:
+            sub_api = master.lookupNode("/probe", "/cmd_vel_counter")[2]
+            calls = [
+                (daemon.uri, _call("setParam", "/page", "/pwned", 1)),
+                (daemon.uri, _call("registerPublisher", "/evil", "/cmd_vel", "geometry_msgs/Twist", attacker.node_uri)),
+                (sub_api, _call("publisherUpdate", "/master", "/cmd_vel", [attacker.node_uri])),
+            ]
+            for page in (f"http://attacker.test:{foreign_site}/", f"http://127.0.0.1:{foreign_site}/"):
+                _, results = browse_with(CSRF, page, [{"url": url, "body": body} for url, body in calls])
+                assert results == ["sent"] * len(calls), results
+            # DNS rebinding: the attacker's name now resolves to the robot, so its page is same-origin with the
+            # master's port and could read the answers too.
+            _, results = browse_with(
+                CSRF,
+                f"http://attacker.test:{daemon.port}/",
+                [{"url": "/", "body": _call("setParam", "/p", "/pwned2", 1)}],
+            )
+            _, _, names = master.getParamNames("/probe")
+            assert "/pwned" not in names and "/pwned2" not in names, names
+            state = master.getSystemState("/probe")[2]
+            assert ["/cmd_vel", ["/cmd_vel_counter"]] in state[1]
+            assert not [t for t, nodes in state[0] if t == "/cmd_vel"], state[0]
+            # Had either call gone through, the subscriber would be taking the attacker's Twists by now (20 Hz).
+            assert not counter.wait_for(1, 2.0), counter.count
+            # A ROS client (no Origin) still sets parameters and the node still answers.
+            assert master.setParam("/probe", "/fine", 1)[0] == 1
+            with xmlrpc.client.ServerProxy(sub_api) as node:
+                assert node.getPid("/probe")[0] == 1
+    finally:
+        attacker.close()

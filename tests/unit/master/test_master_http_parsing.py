@@ -89,3 +89,32 @@ def test_ambiguous_body_framing_is_refused_with_400(fields: bytes) -> None:
     with pytest.raises(HttpRefused) as info:
         parse_head(b"POST / HTTP/1.1\r\nHost: x\r\n" + fields)
     assert info.value.status == 400
+
+
+@pytest.mark.parametrize(
+    "field",
+    [
+        b"Origin: http://attacker.test:8000",
+        b"origin: null",
+        b"ORIGIN: http://127.0.0.1:11311",
+        b"Sec-Fetch-Mode: no-cors",
+        b"Sec-Fetch-Site: cross-site",
+    ],
+)
+def test_a_request_from_a_web_page_is_refused_with_403(field: bytes) -> None:
+    """A browser sends Origin with every POST; ROS clients never do (tests/web/test_web_origin_browser.py)."""
+    with pytest.raises(HttpRefused) as info:
+        parse_head(b"POST / HTTP/1.1\r\nHost: 127.0.0.1:11311\r\n" + field + b"\r\nContent-Length: 5")
+    assert info.value.status == 403 and b"web page" in info.value.text
+
+
+def test_what_ros_clients_send_is_accepted() -> None:
+    """rospy's xmlrpc.client, roscpp's XmlRpc++ and mrosd's client; an Origin inside a value is no field."""
+    for head in (
+        b"POST /RPC2 HTTP/1.1\r\nHost: localhost:11311\r\nAccept-Encoding: gzip\r\nContent-Type: text/xml\r\n"
+        b"User-Agent: Python-xmlrpc/3.11\r\nContent-Length: 100",
+        b"POST / HTTP/1.1\r\nUser-Agent: XMLRPC++ 0.7\r\nHost: robot:11311\r\nContent-Type: text/xml\r\n"
+        b"Content-length: 100",
+        b"POST / HTTP/1.1\r\nHost: x\r\nUser-Agent: mrosd\r\nX-Note: origin: none\r\nContent-Length: 100",
+    ):
+        assert parse_head(head)[0] == 100
