@@ -306,13 +306,18 @@ class Daemon:
         self.web = server
         self._parts.append(("web", server))
         if web.tf_republisher:  # roslibjs's and roslibpy's TFClient, with no tf2_web_republisher node
-            from mrosd.tf.republish_node import TFRepublisherNode
+            server.first_client_hooks.append(self._start_tf_republisher)  # joins the graph with the first client
 
-            try:
-                tf = TFRepublisherNode(self.master_uri, admission=self._tcpros_admission())
-                self._parts.append(("tf2_web_republisher", await tf.start()))
-            except (MrosError, OSError) as exc:
-                log.error("tf2_web_republisher did not start: %s; the web part runs without it", reason(exc))
+    async def _start_tf_republisher(self) -> None:
+        from mrosd.tf.republish_node import TFRepublisherNode
+
+        if any(name == "tf2_web_republisher" for name, _ in self._parts):
+            return  # started for an earlier web part's first client
+        try:
+            tf = TFRepublisherNode(self.master_uri, admission=self._tcpros_admission())
+            self._parts.append(("tf2_web_republisher", await tf.start()))
+        except (MrosError, OSError) as exc:
+            log.error("tf2_web_republisher did not start: %s; the web part runs without it", reason(exc))
 
     async def _start_fleet(self) -> None:
         from mrosd.fleet.bridge import FleetBridge

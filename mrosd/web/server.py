@@ -12,7 +12,7 @@ import asyncio
 import contextlib
 import errno
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from typing import Any
 
 from aiohttp import web
@@ -48,6 +48,8 @@ MAX_PENDING = 256
 MAX_PENDING_PER_ADDRESS = 32
 #: Bytes of unfinished fragmented messages (rosbridge ``fragment`` ops) held for all clients together.
 MAX_FRAGMENT_BYTES = 256 * 1024 * 1024
+#: Seconds a first rosbridge client waits for the web part's services to join the graph before its ops are read.
+GRAPH_SERVICES_WAIT = 10.0
 
 
 #: Times a port chosen by the first address (port 0) is tried on the others before giving up: another
@@ -123,6 +125,10 @@ class WebServer:
         #: status file (``mros daemon status`` shows them)
         self.on_drops: Callable[[], None] | None = None
         self._drops_task: asyncio.Task[None] | None = None
+        #: run once, when the first client is admitted, after rosapi's services joined the graph (the daemon
+        #: starts its tf2_web_republisher node this way); each failure is logged and the others go on
+        self.first_client_hooks: list[Callable[[], Awaitable[Any]]] = []
+        self._graph_task: asyncio.Task[None] | None = None
 
     @property
     def max_clients(self) -> int:
@@ -168,9 +174,6 @@ class WebServer:
             self._runner, self.port = await self._listen(self._foxglove, self.port, page=True)
             if self.rosbridge_port is not None:
                 self._rosbridge_runner, self.rosbridge_port = await self._listen(self._rosbridge, self.rosbridge_port)
-                from mrosd.web import rosapi  # rosapi's services in the graph, as its node registers them
-
-                await rosapi.register(self.hub)
         except BaseException:
             await self.aclose()
             raise
@@ -258,6 +261,7 @@ class WebServer:
             pending.check_lifted()
             ws = pending
         try:
+            await self._join_graph(wait=True)
             if not ws.prepared:
                 writer = await ws.prepare(request)
             session = RosbridgeSession(
@@ -279,6 +283,27 @@ class WebServer:
             self.admission.release(address)
         return ws
 
+    async def _join_graph(self, *, wait: bool) -> None:
+        """The web part's own services (rosapi's, and the hooks': tf2_web_republisher) join the graph when the
+        first client is admitted, not when the daemon starts: until someone uses the web part, the graph is what
+        roscore's would be (ros_comm's test_rosmaster counts every service in it). A rosbridge client ``wait``s
+        for them (bounded), so its first ``call_service`` finds them; a Foxglove client sees them advertised."""
+        if self._graph_task is None:
+            self._graph_task = asyncio.get_running_loop().create_task(self._graph_services(), name="web graph")
+        if wait and not self._graph_task.done():
+            await asyncio.wait({self._graph_task}, timeout=GRAPH_SERVICES_WAIT)
+
+    async def _graph_services(self) -> None:
+        if self.rosbridge_port is not None:
+            from mrosd.web import rosapi  # rosapi's services in the graph, as its node registers them
+
+            await rosapi.register(self.hub)  # each failure is logged there
+        for hook in self.first_client_hooks:
+            try:
+                await hook()
+            except Exception as exc:
+                log.error("web: starting a service for the first client failed: %s", exc)
+
     def _token(self, request: web.Request) -> str | None:
         token = request.query.get("token")
         if token is not None:
@@ -299,6 +324,7 @@ class WebServer:
         if why is not None:
             raise web.HTTPServiceUnavailable(text=why + "\n")
         try:
+            await self._join_graph(wait=False)
             ws = web.WebSocketResponse(
                 protocols=fg.SUBPROTOCOLS,
                 compress=True,
@@ -358,11 +384,12 @@ class WebServer:
 
     async def aclose(self) -> None:
         """Close every client, stop listening, then close the hub (its subscriptions and node)."""
-        if self._drops_task is not None:
-            self._drops_task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._drops_task
-            self._drops_task = None
+        for task in (self._drops_task, self._graph_task):
+            if task is not None:
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
+        self._drops_task = self._graph_task = None
         runners = [r for r in (self._runner, self._rosbridge_runner) if r is not None]
         self._runner = self._rosbridge_runner = None
         # Clients first (aiohttp's cleanup would otherwise wait for each open WebSocket handler to end).

@@ -115,13 +115,13 @@ def no_republisher_node_but_mrosds(daemon: WebDaemon) -> None:
 
 def test_roslibpys_tfclient_receives_the_moving_frame_from_the_daemon(robot: Robot) -> None:
     procs, daemon, _ = robot
-    no_republisher_node_but_mrosds(daemon)
     client = procs.start([sys.executable, "-c", ROSLIBPY, str(daemon.rosbridge_port)], stderr=subprocess.DEVNULL)
     steps = [
         step_of([t["translation"][a] for a in "xyz"], [t["rotation"][a] for a in "xyzw"])
         for t in (json.loads(line) for line in iter_lines_until(client, 4, 30.0))
     ]
     assert steps == sorted(steps) and steps[-1] > steps[0]  # it moves, and only forward
+    no_republisher_node_but_mrosds(daemon)  # it joined the graph with the first web client
     procs.stop(client)
 
 
