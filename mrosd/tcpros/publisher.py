@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 from mrosd import backports
 from mrosd.errors import HandshakeError, LocalProtocolError
+from mrosd.lograte import RateLimitedLog
 from mrosd.msg.runtime import is_immutable
 from mrosd.spin import loop_spinner
 from mrosd.tcpros.protocol import TcprosProtocol
@@ -33,6 +34,8 @@ if TYPE_CHECKING:
     from mrosd.tcpros.owner import EndpointOwner
 
 log = logging.getLogger(__name__)
+#: what peers get wrong (a refused handshake): a few lines per topic and minute, never one per peer attempt
+_ratelog = RateLimitedLog(log, period=60.0, burst=3)
 
 #: A queued frame: the whole frame, or its pieces (length prefix, then the body's) for a large body that is
 #: never concatenated.
@@ -319,7 +322,9 @@ class Publisher:
                 latching=self.latch,
             )
         except HandshakeError as exc:
-            log.warning("%s: refusing subscriber %s: %s", self.topic, header.callerid, exc)
+            _ratelog.warning(
+                self.topic + ":refused", "%s: refusing subscriber %s: %s", self.topic, header.callerid, exc
+            )
             proto.write(encode_header(error_header(str(exc))))
             proto.close()
             return

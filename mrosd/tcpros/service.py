@@ -23,6 +23,7 @@ from mrosd.errors import (
     RemoteProtocolError,
     ServiceError,
 )
+from mrosd.lograte import RateLimitedLog
 from mrosd.spin import loop_spinner
 from mrosd.tcpros.protocol import TcprosProtocol
 from mrosd.tcpros.sockopts import enable_keepalive
@@ -37,6 +38,9 @@ if TYPE_CHECKING:
     from mrosd.tcpros.owner import EndpointOwner
 
 log = logging.getLogger(__name__)
+#: what peers get wrong (a refused handshake, a request the handler raises on): a few lines per service and
+#: minute, never one per call
+_ratelog = RateLimitedLog(log, period=60.0, burst=3)
 
 #: Requests a persistent client may pipeline before we stop reading from it (the bound of its queue).
 MAX_PENDING_REQUESTS = 64
@@ -126,7 +130,9 @@ class Service:
                 callerid=self.node.name,
             )
         except HandshakeError as exc:
-            log.warning("service %s: refusing client %s: %s", self.name, header.callerid, exc)
+            _ratelog.warning(
+                self.name + ":refused", "service %s: refusing client %s: %s", self.name, header.callerid, exc
+            )
             proto.write(encode_header(error_header(str(exc))))
             proto.close()
             return
@@ -160,7 +166,7 @@ class Service:
                     )
             return True, response.serialize()
         except Exception as exc:
-            log.warning("service %s: handler raised %r", self.name, exc)
+            _ratelog.warning(self.name + ":raised", "service %s: handler raised %r", self.name, exc)
             return False, f"error processing request: {exc}".encode()
 
     async def aclose(self) -> None:

@@ -396,7 +396,13 @@ class Subscriber:
             msg, views = _decode_view(self.msg_class, view.data, view)
         except MrosError as exc:
             view.release()
-            log.warning("%s: dropping a message from %s that does not decode: %s", self.topic, link.uri, exc)
+            _ratelog.warning(
+                self.topic + ":undecodable",
+                "%s: dropping a message from %s that does not decode: %s",
+                self.topic,
+                link.uri,
+                exc,
+            )
             return
         if views:
             view.views.extend(views)
@@ -414,7 +420,13 @@ class Subscriber:
                 # fields are read-only views into it, not copies (mrosd.msg.runtime.FrameBuffer).
                 msg = self.msg_class.deserialize(body)
             except MrosError as exc:
-                log.warning("%s: dropping a message from %s that does not decode: %s", self.topic, link.uri, exc)
+                _ratelog.warning(
+                    self.topic + ":undecodable",
+                    "%s: dropping a message from %s that does not decode: %s",
+                    self.topic,
+                    link.uri,
+                    exc,
+                )
                 return
             if self.max_leased:  # one API whatever the transport: release() and ``with`` (no lease here)
                 from mrosd.shm.views import leased_class
