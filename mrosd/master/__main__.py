@@ -40,7 +40,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         "0 = never, as rosmaster)",
     )
     parser.add_argument("--no-uvloop", action="store_true", help="use the stock asyncio loop (as MROSD_LOOP=asyncio)")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log every notification failure")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log failed notifications (rate-limited)")
     return parser.parse_args(argv)
 
 

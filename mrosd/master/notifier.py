@@ -20,10 +20,14 @@ from typing import Any
 
 from mrosd import backports
 from mrosd.errors import XmlRpcError
+from mrosd.lograte import RateLimitedLog
 from mrosd.master.registry import Notification
 from mrosd.xmlrpc import XmlRpcClient
 
 log = logging.getLogger(__name__)
+#: notifications to nodes that do not answer: any process may register at an address where nothing listens, so a
+#: few lines per method and minute, then a count, never one line per failed call
+_ratelog = RateLimitedLog(log, period=60.0, burst=3)
 
 #: Caller id the master uses for its own calls, as rosmaster does.
 MASTER_CALLER_ID = "/master"
@@ -176,11 +180,11 @@ class Notifier:
             reply = await self._xmlrpc.call(note.api, note.method, MASTER_CALLER_ID, *note.args, timeout=self._timeout)
         except XmlRpcError as exc:
             self.failed += 1
-            log.info("%s%s to %s failed: %s", note.method, note.args[:1], note.api, exc)
+            _ratelog.log(logging.INFO, note.method, "%s%s to %s failed: %s", note.method, note.args[:1], note.api, exc)
             reply = None
         except Exception as exc:  # encoding errors and the like: the caller's value, not our bug
             self.failed += 1
-            log.warning("%s to %s could not be sent: %s", note.method, note.api, exc)
+            _ratelog.warning(note.method + ":unsent", "%s to %s could not be sent: %s", note.method, note.api, exc)
             reply = None
         else:
             self.sent += 1

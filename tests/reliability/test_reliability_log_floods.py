@@ -103,3 +103,25 @@ async def test_a_publisher_of_bodies_that_do_not_decode_is_a_few_lines(
         await sub.aclose()
     assert got == ["last"]
     assert 0 < _lines(caplog, "does not decode") <= MAX_LINES
+
+
+async def test_failed_notifications_are_a_few_lines(caplog: pytest.LogCaptureFixture) -> None:
+    """The daemon logs at INFO by default: 200 subscribers registered at an address where nothing answers (each
+    then fails its publisherUpdate) were 200 lines."""
+    from mrosd.master import Master
+    from mrosd.xmlrpc import XmlRpcClient
+
+    caplog.set_level(logging.INFO, logger="mrosd")
+    async with Master("127.0.0.1", 0, cleanup_interval=0) as master:
+        client = XmlRpcClient()
+        try:
+            for i in range(REPEATS):  # the discard port of 200 loopback addresses: refused at once
+                dead = f"http://127.0.0.{i + 2}:9/"
+                await client.call(master.uri, "registerSubscriber", f"/ghost{i}", "/t", "std_msgs/String", dead)
+            await client.call(master.uri, "registerPublisher", "/pub", "/t", "std_msgs/String", "http://127.0.0.1:9/")
+            async with backports.timeout(20):
+                while master.api.notifier.failed < REPEATS:  # noqa: ASYNC110 - a counter, no event to wait on
+                    await asyncio.sleep(0.05)
+        finally:
+            await client.aclose()
+    assert 0 < _lines(caplog, "publisherUpdate") <= MAX_LINES
