@@ -238,8 +238,8 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     to_ros2: list[str] = msgspec.field(default_factory=list)
     from_ros2: list[str] = msgspec.field(default_factory=list)
     queue_size: Count = 16
-    #: "listed" (the globs), "all" (every ROS 1 topic with a publisher and every ROS 2 one, at most
-    #: ``max_topics``) or "demand" (a topic crosses only while the other side subscribes)
+    #: "listed" (the globs), "all" (every ROS 1 topic with a publisher, at most ``max_topics``) or "demand" (a
+    #: topic crosses only while the other side subscribes); from ROS 2, every mode takes only ``from_ros2``
     mode: Literal["listed", "all", "demand"] = "listed"
     #: "jazzy" (RIHS01 hashes: Jazzy, Kilted, Lyrical) or "humble" (``TypeHashNotSupported``)
     distro: Literal["jazzy", "humble"] = "jazzy"
