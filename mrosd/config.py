@@ -252,6 +252,10 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     mapping_rules: list[str] = msgspec.field(default_factory=list)
     #: ROS 2 share trees (``<pkg>/msg/*.msg``) whose types are republished on ROS 1
     ros2_share: list[str] = msgspec.field(default_factory=list)
+    #: TLS with client certificates for ``tls/`` endpoints (docs/ros2.md, "Trust"), as ``[fleet]``'s
+    tls_root_ca: str = ""
+    tls_certificate: str = ""
+    tls_private_key: str = ""
 
 
 class LogConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

@@ -83,9 +83,7 @@ for name in sys.argv[1:]:
 
 
 def _token(zid: str, n: int, kind: str, name: str, ros2_type: str, type_hash: str, qos: str = "::,:,:,:,,") -> str:
-    return (
-        f"@ros2_lv/0/{zid}/0/{n}/{kind}/%/%/evil/{mangle_name(name)}/{dds_type_name(ros2_type)}/{type_hash}/{qos}"
-    )
+    return f"@ros2_lv/0/{zid}/0/{n}/{kind}/%/%/evil/{mangle_name(name)}/{dds_type_name(ros2_type)}/{type_hash}/{qos}"
 
 
 def _peer(endpoint: str) -> Any:
@@ -136,9 +134,7 @@ def _lookup(master_uri: str, name: str) -> bool:
 # --- case 1: names not imported ----------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize(
-    ("mode", "from_ros2"), [("listed", ("/imported",)), ("demand", ()), ("all", ("/imported",))]
-)
+@pytest.mark.parametrize(("mode", "from_ros2"), [("listed", ("/imported",)), ("demand", ()), ("all", ("/imported",))])
 async def test_a_stranger_publishes_only_into_names_from_ros2_imports(
     procs: Processes, tmp_path: Path, mode: str, from_ros2: tuple[str, ...]
 ) -> None:
@@ -452,3 +448,53 @@ async def test_thousands_of_announcements_hold_bounded_state_and_a_few_lines(
                 await asyncio.to_thread(peer.close)
     refusals = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
     assert len(refusals) <= 20, f"{len(refusals)} lines: {refusals[:5]}"
+
+
+# --- mutual TLS ---------------------------------------------------------------------------------------------
+
+
+def _tls_session(endpoint: str, tls: dict[str, str]) -> Any:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    for key, value in tls.items():
+        conf.insert_json5(f"transport/link/tls/{key}", f'"{value}"')
+    if "connect_certificate" in tls:
+        conf.insert_json5("transport/link/tls/enable_mtls", "true")
+    return zenoh.open(conf)
+
+
+async def test_with_client_certificates_a_stranger_cannot_link_and_a_laptop_with_one_can(tmp_path: Path) -> None:
+    """``router = true`` on a ``tls/`` endpoint with the CA, certificate and key: a ROS 2 machine whose session
+    shows a certificate of that CA links and its publisher is imported; one that knows the (public) CA but has
+    no certificate cannot open a session at all."""
+    from tests.fleet.test_fleet_tls import make_ca_and_cert
+
+    tls = make_ca_and_cert(tmp_path / "pki", "robots")
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    async with AsyncExitStack() as stack:
+        master = await stack.enter_async_context(Master(host="127.0.0.1", port=0))
+        options = Ros2Options(domain_id=0, connect=(), listen=(endpoint,), router=True, from_ros2=("/chatter",), **tls)
+        bridge = await stack.enter_async_context(Ros2Bridge(options, master.uri, host="127.0.0.1"))
+        with pytest.raises(zenoh.ZError):  # no link to any endpoint
+            await asyncio.to_thread(_tls_session, endpoint, {"root_ca_certificate": tls["tls_root_ca"]})
+        laptop = await asyncio.to_thread(
+            _tls_session,
+            endpoint,
+            {
+                "root_ca_certificate": tls["tls_root_ca"],
+                "connect_certificate": tls["tls_certificate"],
+                "connect_private_key": tls["tls_private_key"],
+            },
+        )
+        try:
+            token = laptop.liveliness().declare_token(
+                _token(str(laptop.zid()), 1, "MP", "/chatter", "std_msgs/msg/String", STRING_HASH)
+            )
+            inbound = bridge.inbound
+            assert inbound is not None
+            await bridge.wait_until(lambda: "/chatter" in inbound.topics, 20)
+            token.undeclare()
+        finally:
+            await asyncio.to_thread(laptop.close)
