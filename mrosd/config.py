@@ -238,8 +238,8 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     to_ros2: list[str] = msgspec.field(default_factory=list)
     from_ros2: list[str] = msgspec.field(default_factory=list)
     queue_size: Count = 16
-    #: "listed" (the globs), "all" (every ROS 1 topic with a publisher and every ROS 2 one, at most
-    #: ``max_topics``) or "demand" (a topic crosses only while the other side subscribes)
+    #: "listed" (the globs), "all" (every ROS 1 topic with a publisher, at most ``max_topics``) or "demand" (a
+    #: topic crosses only while the other side subscribes); from ROS 2, every mode takes only ``from_ros2``
     mode: Literal["listed", "all", "demand"] = "listed"
     #: "jazzy" (RIHS01 hashes: Jazzy, Kilted, Lyrical) or "humble" (``TypeHashNotSupported``)
     distro: Literal["jazzy", "humble"] = "jazzy"
@@ -252,6 +252,10 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     mapping_rules: list[str] = msgspec.field(default_factory=list)
     #: ROS 2 share trees (``<pkg>/msg/*.msg``) whose types are republished on ROS 1
     ros2_share: list[str] = msgspec.field(default_factory=list)
+    #: TLS with client certificates for ``tls/`` endpoints (docs/ros2.md, "Trust"), as ``[fleet]``'s
+    tls_root_ca: str = ""
+    tls_certificate: str = ""
+    tls_private_key: str = ""
 
 
 class LogConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

@@ -51,7 +51,8 @@ def group() -> None:
     type=click.Choice(["listed", "all", "demand"]),
     default="listed",
     show_default=True,
-    help="listed: the globs; all: every topic; demand: only while the other side subscribes",
+    help="listed: the globs; all: every ROS 1 topic; demand: only while the other side subscribes "
+    "(from ROS 2, every mode takes only --from-ros2)",
 )
 @click.option("--distro", type=click.Choice(["jazzy", "humble"]), default="jazzy", show_default=True)
 @click.option("--router", is_flag=True, help="Be the Zenoh router ROS 2 nodes connect to (listens on tcp/[::]:7447)")

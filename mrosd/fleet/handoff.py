@@ -4,11 +4,14 @@ Zenoh runs its callbacks on its own threads; the loop must not wait for Zenoh ei
 link blocks). ``Inbox`` takes samples from any thread into per-topic drop-oldest queues and wakes the loop at
 most once per batch; ``Outbox`` takes bodies from the loop into per-key drop-oldest queues that one sender
 thread writes to Zenoh, and repeats the discovery announcements each period from that same thread.
+``ReplyFuture`` carries the outcome of one query (a service call) from Zenoh's threads into a future on the
+loop; the fleet and ros2 parts both call services that way.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import threading
 import time
@@ -16,10 +19,41 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
+from mrosd.errors import ServiceError
 from mrosd.fleet.keys import ANNOUNCE_PERIOD
 from mrosd.fleet.limits import DropOldestQueue
 
 log = logging.getLogger(__name__)
+
+
+class ReplyFuture:
+    """The first outcome of a Zenoh query, from any thread to ``future`` on the loop: a reply's body
+    (``ok``) or a ``ServiceError`` (``fail``); what comes after the first is ignored, and so is everything once
+    the loop is closed."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+        self.future: asyncio.Future[bytes] = loop.create_future()
+
+    def ok(self, body: bytes) -> None:
+        """A reply's body (from any thread)."""
+        self._hand(body, None)
+
+    def fail(self, error: str) -> None:
+        """The call failed: ``error`` is the ``ServiceError``'s text (from any thread)."""
+        self._hand(None, error)
+
+    def _hand(self, body: bytes | None, error: str | None) -> None:
+        with contextlib.suppress(RuntimeError):  # the loop is closed: nobody waits any more
+            self._loop.call_soon_threadsafe(self._settle, body, error)
+
+    def _settle(self, body: bytes | None, error: str | None) -> None:
+        if self.future.done():
+            return
+        if error is not None:
+            self.future.set_exception(ServiceError(error))
+        elif body is not None:
+            self.future.set_result(body)
 
 
 class Inbox:

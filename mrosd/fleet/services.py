@@ -21,6 +21,7 @@ from typing import Any
 
 from mrosd import backports
 from mrosd.errors import MrosError, ServiceError
+from mrosd.fleet.handoff import ReplyFuture
 from mrosd.fleet.keys import Item, ItemKind, data_key, discovery_key
 from mrosd.fleet.link import QUERY_TIMEOUT, FleetLink, ReceivedService, SentService, ratelog
 from mrosd.fleet.raw import FleetTypeError, RawBody, checker, raw_service_class, service_class
@@ -225,28 +226,17 @@ class Services:
         """
         link = self.link
         zenoh = link.zenoh
-        loop = asyncio.get_running_loop()
-        done: asyncio.Future[bytes] = loop.create_future()
+        outcome = ReplyFuture(asyncio.get_running_loop())
 
-        def settle(value: bytes | None, error: str | None) -> None:
-            if done.done():
-                return
-            if error is not None:
-                done.set_exception(ServiceError(error))
-            elif value is not None:
-                done.set_result(value)
-
-        def on_reply(reply: Any) -> None:
+        def on_reply(reply: Any) -> None:  # Zenoh's thread
             if reply.ok is not None:
-                value = reply.ok.payload.to_bytes()
-                loop.call_soon_threadsafe(settle, value, None)
+                outcome.ok(reply.ok.payload.to_bytes())
             else:
                 text = reply.err.payload.to_bytes()[:500].decode("utf-8", "replace")
-                loop.call_soon_threadsafe(settle, None, f"the remote service answered an error: {text}")
+                outcome.fail(f"the remote service answered an error: {text}")
 
         def on_done() -> None:
-            with contextlib.suppress(RuntimeError):
-                loop.call_soon_threadsafe(settle, None, f"no answer from {key} across the fleet")
+            outcome.fail(f"no answer from {key} across the fleet")
 
         self._sn += 1
         link.session.get(
@@ -259,7 +249,7 @@ class Services:
         )
         try:
             async with backports.timeout(QUERY_TIMEOUT + 1.0):
-                return await done
+                return await outcome.future
         except TimeoutError:
             raise ServiceError(f"no answer from {key} within {QUERY_TIMEOUT:.0f} s") from None
 

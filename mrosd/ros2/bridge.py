@@ -30,6 +30,7 @@ from mrosd.ros2.attachment import encode_attachment, gid_of
 from mrosd.ros2.inbound import Inbound
 from mrosd.ros2.keys import (
     DURABILITY_TRANSIENT_LOCAL,
+    MAX_TOKEN_LENGTH,
     EntityKind,
     LivelinessToken,
     Qos,
@@ -122,15 +123,18 @@ class Ros2Bridge:
 
     def __init__(self, options: Ros2Options, master_uri: str, *, host: str | None = None) -> None:
         self.options = options
-        # "all" takes everything; "demand" takes what the globs name, everything if they name nothing
+        # The modes widen only what goes to ROS 2: "all" sends everything, "demand" what the globs name (everything
+        # if they name nothing). What comes from ROS 2 is always what ``from_ros2`` lists, nothing by default: any
+        # peer of the Zenoh network can announce a publisher or a server under any name (``/cmd_vel``), so
+        # importing a name into ROS 1 is never implied.
         everything: tuple[str, ...] = ("/**",)
         if options.mode == "all":
-            self.to_ros2, self.from_ros2 = everything, everything
+            self.to_ros2 = everything
         elif options.mode == "demand":
             self.to_ros2 = options.to_ros2 or everything
-            self.from_ros2 = options.from_ros2 or everything
         else:
-            self.to_ros2, self.from_ros2 = options.to_ros2, options.from_ros2
+            self.to_ros2 = options.to_ros2
+        self.from_ros2 = options.from_ros2
         self.demand = options.mode == "demand"
         self.filter = NameFilter(include=self.to_ros2)
         self.node = Node(options.node_name, master_uri, argv=[], host=host, rosout=False, logger_services=False)
@@ -193,7 +197,7 @@ class Ros2Bridge:
                 changed=self._changed.set,
                 call_timeout=self.options.service_timeout,
             )
-            if self.from_ros2:
+            if self.from_ros2 or self.demand:  # "demand" follows ROS 2 subscribers' tokens even importing nothing
                 self._start_inbound(asyncio.get_running_loop())
             await self._advertise_status()
         except BaseException:
@@ -216,7 +220,9 @@ class Ros2Bridge:
         )
 
         def heard(sample: Any) -> None:  # on Zenoh's thread
-            inbox.put(TOKENS, (str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
+            key = str(sample.key_expr)
+            # no rmw_zenoh token is this long: the queue holds only what parse_token could take (None: refused)
+            inbox.put(TOKENS, (key if len(key) <= MAX_TOKEN_LENGTH else None, sample.kind == zenoh.SampleKind.PUT))
 
         self._token_sub = self.session.liveliness().declare_subscriber(
             f"@ros2_lv/{self.options.domain_id}/**", heard, history=True
@@ -234,7 +240,7 @@ class Ros2Bridge:
             self.inbound.deliver(name[3:], items)
             self._changed.set()
 
-    async def _tokens(self, items: list[tuple[str, bool]], previous: asyncio.Task[None] | None) -> None:
+    async def _tokens(self, items: list[tuple[str | None, bool]], previous: asyncio.Task[None] | None) -> None:
         if previous is not None:
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await asyncio.shield(previous)
@@ -242,6 +248,9 @@ class Ros2Bridge:
         if inbound is None or inbox is None or self._closed:
             return
         for key, alive in items:
+            if key is None:
+                _ratelog.warning("token", "ros2: ignoring a liveliness token over %d characters", MAX_TOKEN_LENGTH)
+                continue
             if "/SS/" in key and self.services is not None:  # cheap first look; the kind chunk decides
                 try:
                     tok = parse_token(key)

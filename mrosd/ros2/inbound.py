@@ -47,15 +47,21 @@ if TYPE_CHECKING:
 __all__ = ["Inbound", "ros1_type_name"]
 
 log = logging.getLogger(__name__)
+#: what a peer's announcements can make us say: a few lines per kind a minute, under one key per kind (a key per
+#: name would be one line per name of a flood), the rest counted in the next line that passes
 _ratelog = RateLimitedLog(log, period=60.0, burst=3)
 
 #: ROS 2 topics republished on ROS 1 at most (each holds a ROS 1 publisher and a Zenoh subscription); a peer
 #: announcing more gets one log line, as the fleet part's ``max_received`` bounds what it takes
 MAX_RECEIVED_TOPICS = 256
-#: refused names remembered so each is logged once
-MAX_REFUSED_NAMES = 1024
 #: ROS 2 topics whose subscribers are followed for mode "demand" at most
 MAX_DEMANDED_TOPICS = 4096
+#: liveliness keys remembered per topic: its ROS 2 publishers (the topic stays on ROS 1 while one is left), or,
+#: for mode "demand", its ROS 2 subscribers; a peer announcing more of one topic is not remembered beyond this
+#: (rmw_zenoh graphs have a handful per topic), so memory follows the cap, not the announcements
+MAX_SOURCES = 256
+#: liveliness keys of ROS 2 subscribers followed for mode "demand", over all topics
+MAX_FOLLOWED_SUBSCRIBERS = 16_384
 
 #: a CDR body this big or bigger is converted on a worker thread (1080p rgb8 takes about 1 ms, 64 kB some µs),
 #: and so is every body of that topic behind it, in order; at most ``OFFLOAD_BACKLOG`` wait (drop-oldest)
@@ -137,7 +143,8 @@ class Inbound:
         self.mapper = mapper
         self.own_zid = own_zid
         self.topics: dict[str, ReceivedTopic] = {}
-        self._refused: set[str] = set()
+        #: liveliness keys in ``remote_subscribers``
+        self._followed = 0
         self._full_logged = False
 
     async def token(
@@ -152,7 +159,8 @@ class Inbound:
         if tok.zid == self.own_zid or tok.domain_id != self.domain_id:
             return None
         if tok.kind is EntityKind.SUBSCRIPTION:
-            self._remote_subscriber(tok.topic, key, alive)
+            if self.demand:  # only "demand" sends by them: other modes keep nothing of a subscriber's token
+                self._remote_subscriber(tok.topic, key, alive)
             return None
         if tok.kind is not EntityKind.PUBLISHER:
             return None
@@ -162,10 +170,11 @@ class Inbound:
                 known.sources.discard(key)
                 if not known.sources:  # the last ROS 2 publisher went: so does the ROS 1 one
                     del self.topics[tok.topic]
+                    self._full_logged = False
                     await self._close(known)
             return None
         if known is not None:
-            if known.key.rsplit("/", 1)[-1] == tok.type_hash:
+            if known.key.rsplit("/", 1)[-1] == tok.type_hash and len(known.sources) < MAX_SOURCES:
                 known.sources.add(key)
                 if _transient_local(tok) and not known.latched:
                     self._latch(known, session, inbox, make_token)
@@ -191,13 +200,18 @@ class Inbound:
     def _remote_subscriber(self, topic: str, key: str, alive: bool) -> None:
         keys = self.remote_subscribers.get(topic)
         if alive:
+            if self._followed >= MAX_FOLLOWED_SUBSCRIBERS or (keys is not None and len(keys) >= MAX_SOURCES):
+                return
             if keys is None:
                 if len(self.remote_subscribers) >= MAX_DEMANDED_TOPICS:
                     return
                 keys = self.remote_subscribers[topic] = set()
-            keys.add(key)
-        elif keys is not None:
+            if key not in keys:
+                keys.add(key)
+                self._followed += 1
+        elif keys is not None and key in keys:
             keys.discard(key)
+            self._followed -= 1
             if not keys:
                 del self.remote_subscribers[topic]
 
@@ -205,11 +219,7 @@ class Inbound:
         """A canonical global ROS name; anything else a peer announces is refused, one line per name."""
         if topic.startswith("/") and is_valid_name(topic) and canonicalize(topic) == topic:
             return True
-        if topic not in self._refused:
-            if len(self._refused) >= MAX_REFUSED_NAMES:
-                self._refused.clear()
-            self._refused.add(topic)
-            log.warning("ros2: %r announced by ROS 2 is not a ROS name; not bridged", topic[:200])
+        _ratelog.warning("name", "ros2: %r announced by ROS 2 is not a ROS name; not bridged", topic[:200])
         return False
 
     async def _start(self, tok: LivelinessToken, session: Any, inbox: Inbox, make_token: Any) -> ReceivedTopic | None:
@@ -221,12 +231,12 @@ class Inbound:
             back = await asyncio.to_thread(self.mapper.ros1_for, ros2_type)
             ros1_type, mapping = back.ros1_type, back.mapping
         except (MrosError, ValueError) as exc:
-            _ratelog.warning(f"in {tok.topic}", "ros2: %s from ROS 2 is not bridged: %s", tok.topic, exc)
+            _ratelog.warning("type", "ros2: %s from ROS 2 is not bridged: %s", tok.topic[:200], exc)
             return None
         ours = HUMBLE_TYPE_HASH if self.humble else mapping.type_hash
         if ours != tok.type_hash:
             _ratelog.warning(
-                f"hash {tok.topic}",
+                "hash",
                 "ros2: %s: the ROS 2 publisher's %s hash %s is not ours (%s); not bridged",
                 tok.topic,
                 ros2_type,

@@ -26,6 +26,7 @@ from mrosd.errors import RemoteProtocolError
 __all__ = [
     "ADMIN_SPACE",
     "DEFAULT_QOS",
+    "MAX_TOKEN_LENGTH",
     "EntityKind",
     "LivelinessToken",
     "Qos",

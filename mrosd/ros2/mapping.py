@@ -46,8 +46,21 @@ _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 _SELECTION = re.compile(r"^[A-Za-z][A-Za-z0-9_]*(\.[A-Za-z][A-Za-z0-9_]*)*$")
 
 _PACKAGE_KEYS = {"ros1_package_name", "ros2_package_name"}
-_MESSAGE_KEYS = {"ros1_message_name", "ros2_message_name", "fields_1_to_2"}
-_SERVICE_KEYS = {"ros1_service_name", "ros2_service_name", "request_fields_1_to_2", "response_fields_1_to_2"}
+
+
+class _Shape(msgspec.Struct, frozen=True):
+    """The keys of a typed rule beyond the package pair: its two names, then its field-pair mappings."""
+
+    names: tuple[str, str]
+    fields: tuple[str, ...]
+
+    @property
+    def keys(self) -> set[str]:
+        return {*self.names, *self.fields}
+
+
+_MESSAGE = _Shape(("ros1_message_name", "ros2_message_name"), ("fields_1_to_2",))
+_SERVICE = _Shape(("ros1_service_name", "ros2_service_name"), ("request_fields_1_to_2", "response_fields_1_to_2"))
 
 
 class MappingRuleError(ConfigError):
@@ -250,7 +263,7 @@ def _parse_rule(item: Any, where: str, rules: MappingRules) -> None:
     if not isinstance(item, dict):
         raise MappingRuleError(f"{where}: a rule is a mapping of keys, not {type(item).__name__}")
     keys = set(item)
-    unknown = keys - _PACKAGE_KEYS - _MESSAGE_KEYS - _SERVICE_KEYS
+    unknown = keys - _PACKAGE_KEYS - _MESSAGE.keys - _SERVICE.keys
     if unknown:
         raise MappingRuleError(f"{where}: unknown key {sorted(map(str, unknown))[0]!r}")
     missing = _PACKAGE_KEYS - keys
@@ -258,40 +271,30 @@ def _parse_rule(item: Any, where: str, rules: MappingRules) -> None:
         raise MappingRuleError(f"{where}: {sorted(missing)[0]!r} is missing")
     pkg1 = _name(item, "ros1_package_name", where)
     pkg2 = _name(item, "ros2_package_name", where)
-    is_msg, is_srv = bool(keys & _MESSAGE_KEYS), bool(keys & _SERVICE_KEYS)
+    is_msg, is_srv = bool(keys & _MESSAGE.keys), bool(keys & _SERVICE.keys)
     if is_msg and is_srv:
         raise MappingRuleError(f"{where}: a rule is for a message or a service, not both")
     if is_msg:
-        for key in ("ros1_message_name", "ros2_message_name"):
-            if key not in item:
-                raise MappingRuleError(f"{where}: {key!r} is missing")
-        rules.messages.append(
-            MessageRule(
-                pkg1,
-                _name(item, "ros1_message_name", where),
-                pkg2,
-                _name(item, "ros2_message_name", where),
-                _fields(item, "fields_1_to_2", where),
-                where,
-            )
-        )
+        one, two, (fields,) = _typed(item, _MESSAGE, where)
+        rules.messages.append(MessageRule(pkg1, one, pkg2, two, fields, where))
     elif is_srv:
-        for key in ("ros1_service_name", "ros2_service_name"):
-            if key not in item:
-                raise MappingRuleError(f"{where}: {key!r} is missing")
-        rules.services.append(
-            ServiceRule(
-                pkg1,
-                _name(item, "ros1_service_name", where),
-                pkg2,
-                _name(item, "ros2_service_name", where),
-                _fields(item, "request_fields_1_to_2", where),
-                _fields(item, "response_fields_1_to_2", where),
-                where,
-            )
-        )
+        one, two, (request, response) = _typed(item, _SERVICE, where)
+        rules.services.append(ServiceRule(pkg1, one, pkg2, two, request, response, where))
     else:
         rules.packages.append(PackageRule(pkg1, pkg2))
+
+
+def _typed(item: dict[str, Any], shape: _Shape, where: str) -> tuple[str, str, list[tuple[tuple[str, str], ...]]]:
+    """A message or service rule's ROS 1 and ROS 2 names and its field pairs, one tuple per ``shape.fields``.
+
+    Raises:
+        MappingRuleError: a name is missing or not a name, or a field mapping is not pairs of selections.
+    """
+    for key in shape.names:
+        if key not in item:
+            raise MappingRuleError(f"{where}: {key!r} is missing")
+    one, two = (_name(item, key, where) for key in shape.names)
+    return one, two, [_fields(item, key, where) for key in shape.fields]
 
 
 def _name(item: dict[str, Any], key: str, where: str) -> str:

@@ -4,7 +4,10 @@
 (``rmw_zenohd``'s part: mode ``router``, listening on ``tcp/[::]:7447`` unless ``listen`` says otherwise), so a
 robot with no ROS 2 install serves the ROS 2 machines that join it. Otherwise the bridge is a Zenoh ``client`` of
 the router it dials, or a ``peer`` others may dial when ``listen`` is set. ``distro = "humble"`` puts rmw_zenoh's
-Humble placeholder ``TypeHashNotSupported`` where Jazzy puts the RIHS01 hash.
+Humble placeholder ``TypeHashNotSupported`` where Jazzy puts the RIHS01 hash. ``tls_root_ca``,
+``tls_certificate`` and ``tls_private_key`` make ``tls/`` endpoints mutual TLS, as zenoh's own configuration
+names it (``transport/link/tls``: ``root_ca_certificate``, ``listen_*`` and ``connect_*`` certificate and key,
+``enable_mtls``), so a session without a certificate of that CA cannot link at all.
 """
 
 from __future__ import annotations
@@ -55,6 +58,10 @@ class Ros2Options(msgspec.Struct, frozen=True, kw_only=True):
     mapping_rules: tuple[str, ...] = ()
     #: ROS 2 share trees whose ``<pkg>/msg/*.msg`` types may cross to ROS 1
     ros2_share: tuple[str, ...] = ()
+    #: PEM files: the CA every peer's certificate must be signed by, this end's certificate and its key
+    tls_root_ca: str = ""
+    tls_certificate: str = ""
+    tls_private_key: str = ""
 
     @property
     def humble(self) -> bool:
@@ -66,7 +73,8 @@ def ros2_options(cfg: Ros2Config, environ: Mapping[str, str] | None = None) -> R
     ``connect`` (the router we now are) is dropped and ``listen`` defaults to rmw_zenohd's endpoint.
 
     Raises:
-        ConfigError: ``ROS_DOMAIN_ID`` is not a number from 0 to 232, or a mapping rules file is wrong.
+        ConfigError: ``ROS_DOMAIN_ID`` is not a number from 0 to 232, a mapping rules file is wrong, or a
+            ``tls/`` endpoint lacks its CA (or, listening, its certificate and key).
     """
     load_mapping_rules(cfg.mapping_rules)  # a bad file is one line at start, not a surprise at the first topic
     env = os.environ if environ is None else environ
@@ -80,6 +88,12 @@ def ros2_options(cfg: Ros2Config, environ: Mapping[str, str] | None = None) -> R
     if cfg.router:
         connect = () if connect == DEFAULT_CONNECT else connect
         listen = listen or ROUTER_LISTEN
+    if any(ep.startswith(("tls/", "quic/")) for ep in (*listen, *connect)) and not cfg.tls_root_ca:
+        raise ConfigError("ros2.tls_root_ca: tls/ and quic/ endpoints need the CA certificate file")
+    if any(ep.startswith(("tls/", "quic/")) for ep in listen) and not (cfg.tls_certificate and cfg.tls_private_key):
+        raise ConfigError(
+            "ros2.tls_certificate: a tls/ or quic/ listen endpoint needs tls_certificate and tls_private_key"
+        )
     return Ros2Options(
         domain_id=domain,
         connect=connect,
@@ -94,6 +108,9 @@ def ros2_options(cfg: Ros2Config, environ: Mapping[str, str] | None = None) -> R
         service_timeout=cfg.service_timeout,
         mapping_rules=tuple(cfg.mapping_rules),
         ros2_share=tuple(cfg.ros2_share),
+        tls_root_ca=cfg.tls_root_ca,
+        tls_certificate=cfg.tls_certificate,
+        tls_private_key=cfg.tls_private_key,
     )
 
 
@@ -120,6 +137,19 @@ def zenoh_config(zenoh: Any, options: Ros2Options) -> Any:
         config.insert_json5("scouting/multicast/enabled", "false")
         # rmw_zenoh's session config stamps every sample; TRANSIENT_LOCAL's advanced publisher needs it
         config.insert_json5("timestamping/enabled", "true")
+        tls = {
+            "root_ca_certificate": options.tls_root_ca,
+            "listen_certificate": options.tls_certificate,
+            "connect_certificate": options.tls_certificate,
+            "listen_private_key": options.tls_private_key,
+            "connect_private_key": options.tls_private_key,
+        }
+        for key, value in tls.items():
+            if value:
+                config.insert_json5(f"transport/link/tls/{key}", msgspec.json.encode(value).decode())
+        if options.tls_certificate and options.tls_private_key:
+            # every end shows a certificate of the CA: an address and a port are not enough to link
+            config.insert_json5("transport/link/tls/enable_mtls", "true")
     except Exception as exc:
         raise ConfigError(f"ros2: Zenoh refused the configuration: {exc}") from exc
     return config

@@ -4,11 +4,14 @@
 response are mapped (``mrosd.ros2.srvtypes``) and a queryable (``complete``) is declared on the service key
 ``<domain>/<name>/<pkg>::srv::dds_::<X>_/<hash>`` with an ``SS`` token (QoS: rmw's services default, keep last
 10). A query (``rmw_client_data.cpp``: the request's CDR, an attachment with sequence number, timestamp and
-the client's GID) is admitted on Zenoh's thread (attachment parsed, calls in flight capped) and served on the
-loop: the CDR is converted to ROS 1, the service called on its own TCPROS connection with a timeout, and the
-reply's CDR goes back with the attachment ``rmw_service_data.cpp`` writes (the request's sequence number and
-GID, a fresh timestamp). Anything else is an error reply: rmw_zenoh's client then logs it and the call fails,
-it never hangs.
+the client's GID) is decided on Zenoh's thread: its attachment parsed and its CDR converted to ROS 1 first (a
+malformed request is an error reply at once and takes no slot), then admitted under the caps of calls in
+flight: in all, per service, and per calling peer (the query's source id when it carries one, else the
+client's GID; a hostile peer can claim any, so the total and per-service caps are what bound it). It is then
+served on the loop: the service called on its own TCPROS connection with a timeout, and the reply's CDR goes
+back with the attachment ``rmw_service_data.cpp`` writes (the request's sequence number and GID, a fresh
+timestamp). Anything else is an error reply: rmw_zenoh's client then logs it and the call fails, it never
+hangs.
 
 **ROS 2 -> ROS 1.** A service server's ``SS`` token (another session's) matching ``from_ros2``, whose type
 mrosd knows in its ROS 1 form with the same hash, is advertised on the ROS 1 master; a ROS 1 call becomes a
@@ -25,11 +28,13 @@ import contextlib
 import logging
 import threading
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from mrosd import backports
 from mrosd.errors import MasterUnreachableError, MrosError, RemoteProtocolError, ServiceError
+from mrosd.fleet.handoff import ReplyFuture
 from mrosd.fleet.keys import NameFilter
 from mrosd.lograte import RateLimitedLog
 from mrosd.names import canonicalize, is_valid_name
@@ -43,15 +48,20 @@ if TYPE_CHECKING:
     from mrosd.ros2.types import TypeMapper
     from mrosd.tcpros.node import Node
 
-__all__ = ["CALL_TIMEOUT", "MAX_INFLIGHT_CALLS", "Ros2Services"]
+__all__ = ["CALL_TIMEOUT", "MAX_CALLS_PER_PEER", "MAX_INFLIGHT_CALLS", "Ros2Services"]
 
 log = logging.getLogger(__name__)
+#: a few lines per kind a minute: what peers can trigger is logged under one key per kind, never one per name
 _ratelog = RateLimitedLog(log, period=60.0, burst=3)
 
 #: seconds a call may take in either direction (rmw_zenoh's querier default is 10 s)
 CALL_TIMEOUT = 10.0
 #: calls in flight at once in each direction; more are refused at once
 MAX_INFLIGHT_CALLS = 64
+#: of the calls from ROS 2 in flight, from one calling peer (as the fleet part's services)
+MAX_CALLS_PER_PEER = 8
+#: ROS 2 servers remembered per service provided on ROS 1 (the service stays while one is left)
+MAX_SERVERS = 256
 #: services bridged in each direction at most
 MAX_SERVICES = 256
 #: seconds allowed to probe a ROS 1 service for its type
@@ -61,6 +71,16 @@ PROBE_TIMEOUT = 3.0
 MAX_SERVICE_BODY = 16 * 1024 * 1024
 #: rmw's rmw_qos_profile_services_default: reliable, volatile, keep last 10 (the token's QoS)
 SERVICE_QOS = Qos(depth=10)
+
+
+def _caller_of(query: Any, gid: bytes) -> str:
+    """Who calls, for the per-peer cap (Zenoh's thread): the query's source session when it says one, else
+    the calling client's GID from the attachment (rmw_zenoh's clients set no source info)."""
+    with contextlib.suppress(Exception):
+        info = query.source_info
+        if info is not None and info.source_id is not None:
+            return f"zid {info.source_id.zid}"
+    return f"gid {gid.hex()}"
 
 
 @dataclass
@@ -133,12 +153,17 @@ class Ros2Services:
         self.provided: dict[str, ProvidedService] = {}
         #: services being set up -> the liveliness keys of their servers seen meanwhile
         self._providing: dict[str, set[str]] = {}
+        #: of ``max_calls``, how many one calling peer and one service may hold
+        self.per_peer = max(1, min(MAX_CALLS_PER_PEER, self.max_calls // 4))
+        self.per_service = max(1, self.max_calls // 2)
+        self._by_peer: Counter[str] = Counter()
+        self._by_service: Counter[str] = Counter()
         self.inflight_in = 0
         self.inflight_out = 0
         self.closed = False
         self._tasks: set[asyncio.Task[None]] = set()
         self._loop = asyncio.get_running_loop()
-        #: guards ``inflight_in`` (raised on Zenoh's threads, lowered on the loop)
+        #: guards ``inflight_in`` and its counters (raised on Zenoh's threads, lowered on the loop)
         self._lock = threading.Lock()
 
     def _hash(self, mapping: ServiceMapping) -> str:
@@ -214,7 +239,7 @@ class Ros2Services:
         os_.key = data_key(self.domain_id, name, mapping.ros2_type, self._hash(mapping))
         loop = self._loop
 
-        def on_query(query: Any) -> None:  # Zenoh's thread: admit or refuse at once
+        def on_query(query: Any) -> None:  # Zenoh's thread: checked, then admitted or refused, at once
             why = ""
             try:
                 payload = query.payload
@@ -223,22 +248,21 @@ class Ros2Services:
                 attachment = decode_attachment(raw.to_bytes() if raw is not None else b"")
                 if not body or len(body) > MAX_SERVICE_BODY:
                     why = f"a request of {len(body)} bytes"
-            except RemoteProtocolError as exc:
+                else:  # bounded by the body's size: a malformed request never takes a slot
+                    request = bytes(self.mapper.to_ros1(mapping.request_type, body))
+            except (RemoteProtocolError, MrosError) as exc:
                 why = str(exc)
             if not why:
-                with self._lock:
-                    admitted = not self.closed and self.inflight_in < self.max_calls
-                    if admitted:
-                        self.inflight_in += 1
-                if admitted:
+                peer = _caller_of(query, attachment.gid)
+                if self._admit(name, peer):
                     try:
-                        loop.call_soon_threadsafe(self._spawn, self._serve(os_, query, body, attachment))
+                        loop.call_soon_threadsafe(self._spawn, self._serve(os_, query, request, attachment, peer))
                         return  # handed over: the loop replies and drops it
                     except RuntimeError:  # the loop is gone
-                        self._call_done()
+                        self._call_done(name, peer)
                 why = "too many calls in flight"
             os_.refused += 1
-            _ratelog.warning(f"bad query {name}", "ros2: refusing a call of %s: %s", name, why)
+            _ratelog.warning("bad query", "ros2: refusing a call of %s: %s", name, why)
             with contextlib.suppress(Exception):
                 query.reply_err(f"mrosd: {name}: {why}".encode())
             with contextlib.suppress(Exception):
@@ -255,13 +279,12 @@ class Ros2Services:
             return
         log.info("ros2: service %s (%s) -> %s", name, mapping.ros1_type, os_.key)
 
-    async def _serve(self, os_: OfferedService, query: Any, body: bytes, attachment: Any) -> None:
+    async def _serve(self, os_: OfferedService, query: Any, request: bytes, attachment: Any, peer: str) -> None:
         mapping, raw = os_.mapping, os_.raw
         assert mapping is not None
         try:
             os_.calls += 1
             try:
-                request = bytes(self.mapper.to_ros1(mapping.request_type, body))
                 proxy = self.node.service_proxy(os_.name, raw)  # one connection per call
                 response = await proxy.call(raw._request_class(request), timeout=self.call_timeout)
                 cdr = bytes(self.mapper.to_cdr(mapping.response_type, response.data))
@@ -276,13 +299,32 @@ class Ros2Services:
         except Exception as exc:  # Zenoh refused the reply (the querier is gone): nothing to tell anyone
             _ratelog.warning(f"reply {os_.name}", "ros2: cannot answer a call of %s: %s", os_.name, exc)
         finally:
-            self._call_done()
+            self._call_done(os_.name, peer)
             with contextlib.suppress(Exception):
                 query.drop()
 
-    def _call_done(self) -> None:
+    def _admit(self, service: str, peer: str) -> bool:
+        """Take a slot for a call of ``service`` from ``peer`` if the caps allow (any thread)."""
+        with self._lock:
+            if (
+                self.closed
+                or self.inflight_in >= self.max_calls
+                or self._by_service[service] >= self.per_service
+                or self._by_peer[peer] >= self.per_peer
+            ):
+                return False
+            self.inflight_in += 1
+            self._by_service[service] += 1
+            self._by_peer[peer] += 1
+            return True
+
+    def _call_done(self, service: str, peer: str) -> None:
         with self._lock:
             self.inflight_in -= 1
+            for counter, name in ((self._by_service, service), (self._by_peer, peer)):
+                counter[name] -= 1
+                if counter[name] <= 0:
+                    del counter[name]
 
     @staticmethod
     def _withdraw(os_: OfferedService) -> None:
@@ -310,15 +352,25 @@ class Ros2Services:
                     self.changed()
             return
         if ps is not None:
-            ps.servers.add(key)
+            if len(ps.servers) < MAX_SERVERS:
+                ps.servers.add(key)
             return
         if pending is not None:  # being set up (its types load off the loop): one ROS 1 service per name
-            pending.add(key)
+            if len(pending) < MAX_SERVERS:
+                pending.add(key)
             return
         if tok.domain_id != self.domain_id or name not in self.from_filter or name in self.offered:
             return
-        if not self._carriable(name) or len(self.provided) >= MAX_SERVICES:
-            _ratelog.warning(f"svc {name[:200]}", "ros2: service %r from ROS 2 is not provided on ROS 1", name[:200])
+        if not self._carriable(name):
+            _ratelog.warning("svc name", "ros2: service %r from ROS 2 is not a ROS name; not provided", name[:200])
+            return
+        if len(self.provided) >= MAX_SERVICES:
+            _ratelog.warning(
+                "max services in",
+                "ros2: ROS 2 offers more than %d services; %s is not provided",
+                MAX_SERVICES,
+                name[:200],
+            )
             return
         self._providing[name] = {key}
         try:
@@ -342,11 +394,11 @@ class Ros2Services:
                 str(cls._response_class._full_text),
             )
         except (MrosError, ValueError) as exc:
-            _ratelog.warning(f"provide {name}", "ros2: service %s from ROS 2 is not provided: %s", name, exc)
+            _ratelog.warning("provide", "ros2: service %s from ROS 2 is not provided: %s", name[:200], exc)
             return
         if tok.type_hash != self._hash(mapping):
             _ratelog.warning(
-                f"hash {name}",
+                "svc hash",
                 "ros2: service %s: the ROS 2 server's %s hash %s is not ours (%s); not provided",
                 name,
                 mapping.ros2_type,
@@ -363,7 +415,7 @@ class Ros2Services:
         except MrosError:
             pass
         else:
-            _ratelog.warning(f"taken {name}", "ros2: %s is a ROS 1 service already; not provided from ROS 2", name)
+            _ratelog.warning("taken", "ros2: %s is a ROS 1 service already; not provided from ROS 2", name)
             return
         servers = self._providing.get(name)
         if not servers:
@@ -420,38 +472,24 @@ class Ros2Services:
             cdr = bytes(self.mapper.to_cdr(ps.mapping.request_type, request))
         except MrosError as exc:
             raise ServiceError(str(exc)) from None
-        loop = asyncio.get_running_loop()
-        done: asyncio.Future[bytes] = loop.create_future()
-
-        def settle(value: bytes | None, error: str | None) -> None:
-            if done.done():
-                return
-            if error is not None:
-                done.set_exception(ServiceError(error))
-            elif value is not None:
-                done.set_result(value)
+        outcome = ReplyFuture(asyncio.get_running_loop())
 
         def on_reply(reply: Any) -> None:  # Zenoh's thread
-            value: bytes | None = None
-            error: str | None = None
             if reply.ok is not None:
                 body = reply.ok.payload.to_bytes()
                 if len(body) > MAX_SERVICE_BODY:
-                    error = f"ros2: {ps.name}: a response of {len(body)} bytes"
+                    outcome.fail(f"ros2: {ps.name}: a response of {len(body)} bytes")
                 else:
-                    value = body
+                    outcome.ok(body)
+                return
+            text = reply.err.payload.to_bytes()[:500].decode("utf-8", "replace")
+            if text == "Timeout":  # Zenoh's own error reply once the query's timeout has passed
+                outcome.fail(f"ros2: {ps.name}: no answer from ROS 2 within {self.call_timeout:g} s")
             else:
-                text = reply.err.payload.to_bytes()[:500].decode("utf-8", "replace")
-                if text == "Timeout":  # Zenoh's own error reply once the query's timeout has passed
-                    error = f"ros2: {ps.name}: no answer from ROS 2 within {self.call_timeout:g} s"
-                else:
-                    error = f"ros2: {ps.name}: the ROS 2 server answered an error: {text}"
-            with contextlib.suppress(RuntimeError):
-                loop.call_soon_threadsafe(settle, value, error)
+                outcome.fail(f"ros2: {ps.name}: the ROS 2 server answered an error: {text}")
 
         def on_done() -> None:
-            with contextlib.suppress(RuntimeError):
-                loop.call_soon_threadsafe(settle, None, f"ros2: {ps.name}: no answer from ROS 2")
+            outcome.fail(f"ros2: {ps.name}: no answer from ROS 2")
 
         ps.sequence += 1
         attachment = encode_attachment(ps.sequence, time.time_ns(), ps.gid)
@@ -466,7 +504,7 @@ class Ros2Services:
         )
         try:
             async with backports.timeout(self.call_timeout + 1.0):
-                body = await done
+                body = await outcome.future
         except TimeoutError:
             raise ServiceError(f"ros2: {ps.name}: no answer within {self.call_timeout:.0f} s") from None
         try:

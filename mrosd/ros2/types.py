@@ -41,6 +41,9 @@ _FIELD_NAME = re.compile(r"^(?!.*__)(?!.*_$)[a-z][a-z0-9_]*$")
 #: a message_definition longer than this is refused before it is parsed (the largest standard ones, with every
 #: nested definition, are a few tens of kB)
 MAX_DEFINITION_SIZE = 1 << 20
+#: ROS 1 type names whose presence on the search path is remembered (a ROS 2 peer can announce any number of
+#: made-up types; the table is emptied when full)
+MAX_KNOWN_NAMES = 1024
 
 
 class UnmappableTypeError(MsgError):
@@ -228,6 +231,8 @@ class TypeMapper:
                 hit = True
             except MsgError:
                 hit = False
+            if len(self._ros1_known) >= MAX_KNOWN_NAMES:  # names come from peers' announcements: never unbounded
+                self._ros1_known.clear()
             self._ros1_known[ros1_type] = hit
         return hit
 

@@ -38,3 +38,18 @@ def test_unknown_keys_and_out_of_range_domains_are_refused() -> None:
         parse_config("[ros2]\nbogus = 1\n")
     with pytest.raises(ConfigError):
         parse_config("[ros2]\ndomain_id = 300\n")
+
+
+def test_tls_endpoints_need_the_ca_and_a_listening_one_its_certificate_and_key() -> None:
+    """Mutual TLS as ``[fleet]`` does: the CA for any ``tls/`` endpoint, a certificate and key to listen on one
+    (and then every session must show one of that CA: ``enable_mtls``)."""
+    with pytest.raises(ConfigError, match="tls_root_ca"):
+        ros2_options(parse_config('[ros2]\nconnect = ["tls/robot:7447"]\n').ros2, {})
+    with pytest.raises(ConfigError, match="tls_certificate"):
+        ros2_options(
+            parse_config('[ros2]\nrouter = true\nlisten = ["tls/[::]:7447"]\ntls_root_ca = "ca.pem"\n').ros2, {}
+        )
+    text = '[ros2]\nrouter = true\nlisten = ["tls/[::]:7447"]\ntls_root_ca = "ca.pem"\n'
+    text += 'tls_certificate = "robot.pem"\ntls_private_key = "robot.key"\n'
+    opts = ros2_options(parse_config(text).ros2, {})
+    assert (opts.tls_root_ca, opts.tls_certificate, opts.tls_private_key) == ("ca.pem", "robot.pem", "robot.key")

@@ -112,7 +112,8 @@ async def test_mode_all_follows_the_ros1_graph_both_ways(
 ) -> None:
     from zenoh_ros2_sdk import ROS2Publisher
 
-    options = Ros2Options(domain_id=0, connect=(f"tcp/127.0.0.1:{router}",), mode="all")
+    # "all" sends every ROS 1 topic; from ROS 2 it takes what from_ros2 lists, as every mode does
+    options = Ros2Options(domain_id=0, connect=(f"tcp/127.0.0.1:{router}",), mode="all", from_ros2=("/**",))
     pub = await asyncio.to_thread(
         ROS2Publisher,
         topic="/ros2_side",
@@ -158,7 +159,7 @@ async def test_mode_demand_bridges_only_while_the_other_side_subscribes(
     from zenoh_ros2_sdk import ROS2Publisher, ROS2Subscriber
 
     got, callback = _string_queue()
-    options = Ros2Options(domain_id=0, connect=(f"tcp/127.0.0.1:{router}",), mode="demand")
+    options = Ros2Options(domain_id=0, connect=(f"tcp/127.0.0.1:{router}",), mode="demand", from_ros2=("/dem/**",))
     common: dict[str, Any] = {"domain_id": 0, "router_ip": "127.0.0.1", "router_port": router}
     ros2_pub = await asyncio.to_thread(ROS2Publisher, topic="/dem/in", msg_type="std_msgs/msg/String", **common)
     try:
