@@ -1,0 +1,265 @@
+"""What the web part gained after issue 31, attacked as a hostile admitted client against a real daemon (one
+per module): ``x-mrosd.imageSettings`` and ``x-mrosd.subscribeDelivery`` flooded with hostile values,
+permessage-deflate offered with hostile parameters and HTTP a parser refuses, and the dead-man switch hit by
+clients that connect, drive and vanish in a loop. The bar of issue 31 throughout: the master answers getPid
+within 1 s, the daemon's RSS grows < 256 MiB, a refusal is one (rate-limited) line, never a traceback.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import os
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import pytest
+
+from mrosd import backports
+from tests.rosenv import Processes
+from tests.web.webdaemon import CmdVelCounter, MiB, Watch, WebDaemon
+
+FOXGLOVE = ["foxglove.websocket.v1"]
+CAMERA = "/cam/image"
+
+#: an Image topic at 10 Hz, so the hub offers ``/cam/image/compressed``
+CAMERA_NODE = """
+import asyncio, sys
+import mrosd
+from mrosd.msg import get_message_class
+Image = get_message_class("sensor_msgs/Image")
+async def main():
+    async with mrosd.Node("cam", master_uri=sys.argv[1], argv=[], host="127.0.0.1") as node:
+        pub = await node.advertise(sys.argv[2], Image)
+        print("ready", flush=True)
+        while True:
+            await pub.publish(Image(height=8, width=8, encoding="mono8", step=8, data=bytes(64)))
+            await asyncio.sleep(0.1)
+asyncio.run(main())
+"""
+
+
+@pytest.fixture(scope="module")
+def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[WebDaemon]:
+    tmp = tmp_path_factory.mktemp("doors")
+    procs = Processes(tmp)
+    run = WebDaemon(procs, tmp)
+    camera = procs.start([sys.executable, "-c", CAMERA_NODE, run.uri, CAMERA], None)
+    assert camera.stdout is not None and camera.stdout.readline().strip() == b"ready"
+    yield run
+    run.close()
+    procs.close()
+
+
+def _quiet(log: str) -> list[str]:
+    return [line for line in log.splitlines() if not line.startswith("<6>")]
+
+
+async def _until_advertised(ws: aiohttp.ClientWebSocketResponse, topic: str) -> int:
+    async with backports.timeout(20):
+        while True:
+            msg = await ws.receive()
+            assert msg.type == aiohttp.WSMsgType.TEXT, msg
+            op = json.loads(msg.data)
+            if op["op"] == "advertise":
+                for channel in op["channels"]:
+                    if channel["topic"] == topic:
+                        return int(channel["id"])
+
+
+def test_hostile_image_settings_and_delivery_ops_are_refused_and_hold_nothing(daemon: WebDaemon) -> None:
+    """Out-of-range, ill-typed and non-JSON values, a 1 MB topic name, topics that are not made here, 20,000
+    distinct topics, then 100,000 ``subscribeDelivery`` ops: each settings op is one status reply, nothing is
+    kept for a topic that is not an offered ``T/compressed``, and the topic's own settings still work."""
+    virtual = CAMERA + "/compressed"
+    hostile: list[dict[str, Any] | str] = [
+        {"topic": virtual, "maxWidth": 10**9},
+        {"topic": virtual, "maxWidth": -1},
+        {"topic": virtual, "maxWidth": 1},
+        {"topic": virtual, "quality": 1000},
+        {"topic": virtual, "quality": 0},
+        {"topic": virtual, "maxRate": 1e6},
+        {"topic": virtual, "maxRate": -1},
+        {"topic": virtual, "maxRate": "fast"},
+        {"topic": virtual, "quality": 5.5},
+        {"topic": "/x" * 400_000, "quality": 5},
+        {"topic": "/rosout", "quality": 5},
+        {"topic": CAMERA, "quality": 5},
+        {"topic": 7, "quality": 5},
+        f'{{"op":"x-mrosd.imageSettings","topic":"{virtual}","maxRate":NaN}}',
+        f'{{"op":"x-mrosd.imageSettings","topic":"{virtual}","maxRate":1e999}}',
+    ]
+    distinct = 20_000
+
+    async def main() -> None:
+        async with aiohttp.ClientSession() as http:
+            ws = await http.ws_connect(daemon.foxglove_url, protocols=FOXGLOVE, max_msg_size=0)
+            await _until_advertised(ws, virtual)
+            replies: list[dict[str, Any]] = []
+            want = len(hostile) + distinct + 1
+
+            async def read() -> None:
+                while len(replies) < want:
+                    msg = await ws.receive()
+                    assert msg.type == aiohttp.WSMsgType.TEXT, msg
+                    op = json.loads(msg.data)
+                    if op["op"] in ("status", "x-mrosd.imageSettings"):
+                        replies.append(op)
+
+            reader = asyncio.create_task(read())
+            for op in hostile:
+                await ws.send_str(op if isinstance(op, str) else json.dumps({"op": "x-mrosd.imageSettings", **op}))
+            for i in range(distinct):
+                await ws.send_str(
+                    json.dumps({"op": "x-mrosd.imageSettings", "topic": f"/t{i}/compressed", "quality": 5})
+                )
+            for _ in range(100_000):
+                await ws.send_str('{"op":"x-mrosd.subscribeDelivery"}')
+            await ws.send_str(json.dumps({"op": "x-mrosd.imageSettings", "topic": virtual, "quality": 42}))
+            async with backports.timeout(60):
+                await reader
+            errors = [r for r in replies if r["op"] == "status"]
+            assert len(errors) == len(hostile) + distinct, [r for r in replies if r["op"] != "status"]
+            assert all(r["level"] == 2 and len(r["message"]) < 1_000_000 for r in errors)
+            assert replies[-1] == {
+                "op": "x-mrosd.imageSettings",
+                "topic": virtual,
+                "quality": 42,
+                "maxWidth": 0,
+                "maxRate": 0.0,
+            }, replies[-1]
+            await ws.close()
+
+    with Watch(daemon) as watch:
+        asyncio.run(main())
+    print(watch)
+    assert watch.worst < 1.0 and watch.failed == 0, watch
+    assert watch.growth < 256 * MiB, watch
+    log = daemon.log()
+    assert "Traceback" not in log
+
+
+def _frame(payload: bytes, opcode: int = 1, rsv1: bool = False) -> bytes:
+    """One masked client frame (FIN set)."""
+    mask = os.urandom(4)
+    size = len(payload)
+    head = bytes([0x80 | (0x40 if rsv1 else 0) | opcode])
+    if size < 126:
+        head += bytes([0x80 | size])
+    else:
+        head += bytes([0x80 | 127]) + size.to_bytes(8, "big")
+    return head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(payload))
+
+
+async def _handshake(port: int, extensions: str, protocol: str | None, then: bytes = b"") -> tuple[str, bytes]:
+    """A raw WebSocket handshake offering ``extensions``; (status line, what the server sent: its answer, and
+    with ``then`` sent after the handshake, what follows until the server closes, at most 2 s)."""
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    key = base64.b64encode(os.urandom(16)).decode()
+    request = (
+        f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+        f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Extensions: {extensions}\r\n"
+    )
+    if protocol:
+        request += f"Sec-WebSocket-Protocol: {protocol}\r\n"
+    writer.write(request.encode() + b"\r\n" + then)
+    got = b""
+    try:
+        async with backports.timeout(2):
+            got = await reader.readuntil(b"\r\n\r\n")
+            while then and (chunk := await reader.read(65536)):
+                got += chunk
+    except (TimeoutError, asyncio.IncompleteReadError):
+        pass
+    writer.close()
+    return got.split(b"\r\n", 1)[0].decode(), got
+
+
+HOSTILE_OFFERS = [
+    "permessage-deflate; client_max_window_bits=8",
+    "permessage-deflate; server_max_window_bits=8",
+    "permessage-deflate; client_max_window_bits=8; server_max_window_bits=8; server_no_context_takeover",
+    "permessage-deflate; server_max_window_bits=0",
+    "permessage-deflate; server_max_window_bits=99",
+    "permessage-deflate; client_max_window_bits=x",
+    "permessage-deflate; server_no_context_takeover; server_no_context_takeover",
+    "permessage-deflate, permessage-deflate; client_max_window_bits=9, x-webkit-deflate-frame",
+    "permessage-deflate; " + "a=b; " * 4000,  # a header line past aiohttp's 8 KiB
+]
+
+
+def test_hostile_deflate_offers_and_unparsable_http_are_one_line_each(daemon: WebDaemon) -> None:
+    """Each offer gets a handshake with or without deflate (never a broken one), a header line past the
+    parser's limit gets 400; 100 such requests are a few log lines in all, no traceback (aiohttp logged each
+    with its traceback at ERROR). Not yet held, so not asserted here: a client that negotiates deflate and
+    goes at once can leave aiohttp's deflating send task failing unretrieved (an asyncio traceback, about one
+    run in three; see docs/reliability.md, doors-5)."""
+
+    async def main() -> None:
+        ports = ((daemon.foxglove_port, "foxglove.websocket.v1"), (daemon.rosbridge_port, None))
+        for port, protocol in ports:
+            for offer in HOSTILE_OFFERS:
+                status, _ = await _handshake(port, offer, protocol)
+                assert status in ("HTTP/1.1 101 Switching Protocols", "HTTP/1.0 400 Bad Request"), (offer, status)
+            # a frame marked compressed on a connection that did not negotiate deflate: a protocol error close
+            _, got = await _handshake(port, "x-nothing", protocol, _frame(b"\x00", rsv1=True))
+            assert b"\x88\x02\x03\xea" in got, got[-20:]
+            for _ in range(50):
+                status, _ = await _handshake(port, HOSTILE_OFFERS[-1], protocol)
+                assert status == "HTTP/1.0 400 Bad Request", status
+
+    before = len(_quiet(daemon.log()))
+    with Watch(daemon) as watch:
+        asyncio.run(main())
+    print(watch)
+    lines = _quiet(daemon.log())[before:]
+    print("\n".join(lines[-20:]))
+    assert not any("Error handling request" in line or "LineTooLong" in line for line in lines if line[:3] == "<3>")
+    assert sum("malformed HTTP request" in line for line in lines) <= 6, lines
+    assert watch.worst < 1.0 and watch.failed == 0, watch
+
+
+TWIST = {"linear": {"x": 0.5, "y": 0.0, "z": 0.0}, "angular": {"x": 0.0, "y": 0.0, "z": 0.3}}
+
+
+def test_clients_that_drive_and_vanish_in_a_loop_cost_one_zero_each_and_nothing_stays(daemon: WebDaemon) -> None:
+    """300 rosbridge clients, 20 at a time: each advertises /cmd_vel, publishes one moving Twist and drops its
+    connection without a close. Each is followed by its one zero (no more), the daemon's tasks and threads come
+    back to where they were, getPid stays under 1 s."""
+    clients, at_once = 300, 20
+
+    async def drive_and_vanish(http: aiohttp.ClientSession) -> None:
+        ws = await http.ws_connect(daemon.rosbridge_url)
+        await ws.send_str(json.dumps({"op": "advertise", "topic": "/cmd_vel", "type": "geometry_msgs/Twist"}))
+        await ws.send_str(json.dumps({"op": "publish", "topic": "/cmd_vel", "msg": TWIST}))
+        await asyncio.sleep(0.05)
+        transport = ws._response.connection.transport if ws._response.connection else None
+        assert transport is not None
+        transport.abort()  # no close frame: the browser was killed
+
+    async def main() -> None:
+        async with aiohttp.ClientSession() as http:
+            for _ in range(clients // at_once):
+                await asyncio.gather(*(drive_and_vanish(http) for _ in range(at_once)))
+
+    threads0 = _threads(daemon)
+    with CmdVelCounter(daemon.uri) as counter, Watch(daemon) as watch:
+        asyncio.run(main())
+        # every client's Twist and its zero (the first few Twists may come before the counter's connection)
+        assert counter.wait_for(2 * clients - 20, 30), counter.count
+    print(watch, "received", counter.count)
+    log = daemon.log()
+    assert counter.count <= 2 * clients + 5, counter.count
+    assert log.count("dead-man") >= 1 and "Traceback" not in log
+    assert watch.worst < 1.0 and watch.failed == 0, watch
+    assert watch.growth < 256 * MiB, watch
+    assert _threads(daemon) <= threads0 + 4, (threads0, _threads(daemon))
+
+
+def _threads(daemon: WebDaemon) -> int:
+    text = Path(f"/proc/{daemon.proc.pid}/status").read_text()
+    return int(text.split("Threads:")[1].split()[0])
