@@ -265,3 +265,81 @@ def test_clients_that_drive_and_vanish_in_a_loop_cost_one_zero_each_and_nothing_
 def _threads(daemon: WebDaemon) -> int:
     text = Path(f"/proc/{daemon.proc.pid}/status").read_text()
     return int(text.split("Threads:")[1].split()[0])
+
+
+#: A /tf publisher inventing frames and stamps: messages of ``per`` transforms as fast as it can, for
+#: ``seconds``; then one message whose transform count claims 10^9.
+TF_FLOOD = """
+import asyncio, sys, time
+import mrosd
+from mrosd.msg import get_message_class
+TFMessage = get_message_class("tf2_msgs/TFMessage")
+TS = get_message_class("geometry_msgs/TransformStamped")
+async def main():
+    per, seconds = int(sys.argv[2]), float(sys.argv[3])
+    async with mrosd.Node("tf_flood", master_uri=sys.argv[1], argv=[], host="127.0.0.1") as node:
+        pub = await node.advertise("/tf", TFMessage, queue_size=4)
+        await pub.wait_for_subscribers(1, timeout=30)
+        started, k, base = time.monotonic(), 0, time.time_ns()
+        while time.monotonic() - started < seconds:
+            ts = []
+            for j in range(per):
+                t = TS(child_frame_id=f"f{(k * per + j) % 10000}")
+                t.header.frame_id = "world"
+                stamp = base + k * 1000
+                t.header.stamp.secs, t.header.stamp.nsecs = stamp // 10**9, stamp % 10**9
+                t.transform.rotation.w = 1.0
+                ts.append(t)
+            await pub.publish(TFMessage(transforms=ts))
+            k += 1
+        pub.publish_serialized((10**9).to_bytes(4, "little") + bytes(60))
+        print("sent", k * per, flush=True)
+        await asyncio.sleep(3600)
+asyncio.run(main())
+"""
+
+
+def test_a_tf_flood_while_a_web_client_uses_the_republisher_does_not_hold_the_master(
+    daemon: WebDaemon, tmp_path: Path
+) -> None:
+    """A rosbridge client asks ``/republish_tfs`` (the daemon's Buffer then follows /tf), and a rogue node
+    publishes 1,000-transform messages of ever new frames and stamps for 6 s, then one claiming 10^9
+    transforms. Before: the Buffer stored each message on the loop as it came (getPid 5 s, the daemon's own
+    nodes lost the master, +250 MiB in 15 s and growing); now an inbox bounded in bytes, a storing task that
+    yields every 5 ms, and 250,000 entries for all frames together."""
+    request = {
+        "source_frames": ["f1"],
+        "target_frame": "world",
+        "angular_thres": 0,
+        "trans_thres": 0,
+        "rate": 10,
+        "timeout": {"secs": 60, "nsecs": 0},
+    }
+
+    async def ask() -> None:
+        async with aiohttp.ClientSession() as http:
+            ws = await http.ws_connect(daemon.rosbridge_url)
+            await ws.send_str(
+                json.dumps({"op": "call_service", "id": "r", "service": "/republish_tfs", "args": request})
+            )
+            reply = json.loads((await ws.receive(timeout=10)).data)
+            assert reply["result"] is True, reply
+            await ws.close()
+
+    asyncio.run(ask())
+    procs = Processes(tmp_path)
+    try:
+        with Watch(daemon) as watch:
+            flood = procs.start([sys.executable, "-c", TF_FLOOD, daemon.uri, "1000", "6"], None)
+            assert flood.stdout is not None
+            sent = flood.stdout.readline().decode()
+            asyncio.run(ask())  # the republisher still answers
+        print(watch, sent.strip())
+        assert sent.startswith("sent"), sent
+        assert watch.worst < 1.0 and watch.failed == 0, watch
+        assert watch.growth < 256 * MiB, watch
+        log = daemon.log()
+        assert "Traceback" not in log
+        assert log.count("claims 1000000000 transforms") == 1
+    finally:
+        procs.close()

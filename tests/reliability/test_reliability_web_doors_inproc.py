@@ -175,3 +175,18 @@ async def test_compressed_subscription_churn_leaves_no_encoder_task_or_subscript
         stats = hub.compressed.status()
         assert sum(s["encoded"] for s in stats.values()) > 0
         await ws.close()
+
+
+def test_the_tf_buffer_holds_a_bounded_number_of_entries_over_all_frames() -> None:
+    """10,000 invented frames with 30 stamps each (300,000 transforms, all within the cache window): at most
+    ``MAX_TOTAL_ENTRIES`` are kept, each frame its share, the newest kept; lookups still answer."""
+    from mrosd.tf.core import MAX_TOTAL_ENTRIES, BufferCore
+
+    core = BufferCore()
+    for k in range(30):
+        for j in range(10_000):
+            pose = (float(k), 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
+            core.set_transform("world", f"f{j}", 10**9 + k * 1000, pose, authority="rogue", static=False)
+    assert core.entries == sum(len(c.stamps) for c in core.frames.values()) <= MAX_TOTAL_ENTRIES
+    pose, _ = core.lookup("world", "f7", 0)
+    assert pose[0] == 29.0
