@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import contextlib
 import json
 import os
 import sys
@@ -265,6 +266,67 @@ def test_clients_that_drive_and_vanish_in_a_loop_cost_one_zero_each_and_nothing_
 def _threads(daemon: WebDaemon) -> int:
     text = Path(f"/proc/{daemon.proc.pid}/status").read_text()
     return int(text.split("Threads:")[1].split()[0])
+
+
+#: ``n`` nodes, each latching one message of ``mb`` MiB on /big (a latched map, a point cloud, an image)
+LATCHERS = """
+import asyncio, sys
+import mrosd
+from mrosd.msg import get_message_class
+U8 = get_message_class("std_msgs/UInt8MultiArray")
+async def main():
+    n, mb = int(sys.argv[2]), int(sys.argv[3])
+    nodes = []
+    for i in range(n):
+        node = mrosd.Node(f"latcher_{i}", master_uri=sys.argv[1], argv=[], host="127.0.0.1")
+        await node.start()
+        pub = await node.advertise("/big", U8, latch=True)
+        await pub.publish(U8(data=bytes([i]) * (mb * 1024 * 1024)))
+        nodes.append((node, pub))
+    print("ready", flush=True)
+    await asyncio.sleep(3600)
+asyncio.run(main())
+"""
+
+
+def test_big_latched_messages_of_many_publishers_are_remembered_within_a_byte_bound(tmp_path: Path) -> None:
+    """10 publishers each latch 10 MiB on /big; two Foxglove clients subscribe one after the other (the second
+    is replayed what the hub remembered). Before: the hub kept a copy of every latched body, without a byte
+    bound (this test +301 MiB; 6 x 40 MiB and 4 clients +720 MiB); now it holds the received bodies (no copy)
+    and at most 64 MiB of them over all topics, newest first (+201 MiB; 6 x 40 MiB and 4 clients +480 MiB:
+    what stays is each TCPROS link's receive buffer of its big message)."""
+    procs = Processes(tmp_path)
+    fresh = WebDaemon(procs, tmp_path)  # its own: the RSS peak of this attack alone
+    try:
+        latchers = procs.start([sys.executable, "-c", LATCHERS, fresh.uri, "10", "10"], None)
+        assert latchers.stdout is not None and latchers.stdout.readline().strip() == b"ready"
+
+        async def main() -> list[int]:
+            counts = []
+            async with aiohttp.ClientSession() as http:
+                for _ in range(2):
+                    ws = await http.ws_connect(fresh.foxglove_url, protocols=FOXGLOVE, max_msg_size=0)
+                    channel = await _until_advertised(ws, "/big")
+                    await ws.send_str(
+                        json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": channel}]})
+                    )
+                    got = 0
+                    with contextlib.suppress(TimeoutError):
+                        while got < 10:
+                            msg = await ws.receive(timeout=3)
+                            got += msg.type == aiohttp.WSMsgType.BINARY
+                    counts.append(got)
+            return counts
+
+        with Watch(fresh) as watch:
+            counts = asyncio.run(main())
+        print(watch, "messages per client", counts)
+        assert all(c >= 1 for c in counts), counts  # each client gets the topic's latched data
+        assert watch.growth < 256 * MiB, watch
+        assert watch.worst < 1.0 and watch.failed == 0, watch
+    finally:
+        fresh.close()
+        procs.close()
 
 
 #: A /tf publisher inventing frames and stamps: messages of ``per`` transforms as fast as it can, for
