@@ -313,7 +313,7 @@ def test_big_latched_messages_of_many_publishers_are_remembered_within_a_byte_bo
                     got = 0
                     with contextlib.suppress(TimeoutError):
                         while got < 10:
-                            msg = await ws.receive(timeout=3)
+                            msg = await ws.receive(timeout=1.5)
                             got += msg.type == aiohttp.WSMsgType.BINARY
                     counts.append(got)
             return counts
