@@ -190,3 +190,28 @@ def test_the_tf_buffer_holds_a_bounded_number_of_entries_over_all_frames() -> No
     assert core.entries == sum(len(c.stamps) for c in core.frames.values()) <= MAX_TOTAL_ENTRIES
     pose, _ = core.lookup("world", "f7", 0)
     assert pose[0] == 29.0
+
+
+def test_a_pick_asks_only_the_subscriptions_it_visits() -> None:
+    """A client subscribed to 500 topics, each with a few small messages: choosing who sends next asks the
+    subscriptions up to the first whose message fits, not all 500 per message (before: 252,500 calls for
+    these 2,000 messages, half of the daemon's CPU with 500 busy topics)."""
+    import collections
+
+    from mrosd.web.delivery import DeficitRoundRobin
+
+    queues = {k: collections.deque([100] * 4) for k in range(500)}
+    calls = 0
+
+    def head(key: int) -> int | None:
+        nonlocal calls
+        calls += 1
+        return queues[key][0] if queues[key] else None
+
+    drr: DeficitRoundRobin[int] = DeficitRoundRobin()
+    order = []
+    while (key := drr.pick(queues, head)) is not None:
+        order.append(key)
+        queues[key].popleft()
+    assert len(order) == 2000 and all(not q for q in queues.values())
+    assert calls < 5 * 2000, calls
