@@ -2,18 +2,27 @@
 
 One Buffer holds one subscription to each topic, whatever number of lookups it serves. Messages are decoded
 raw (``AnyMsg``) so that each transform keeps its broadcaster (the publisher's caller id), as tf2_ros does.
+
+The Buffer runs on the daemon's loop, which is the master's: a /tf publisher must not be able to hold it.
+Received messages wait in an inbox bounded in bytes (the oldest /tf message dropped first, counted in
+``dropped``) and a task stores them, giving the loop back every ``SLICE_S`` seconds; a message claiming more
+than ``MAX_TRANSFORMS`` transforms is refused before it is decoded. Before: a publisher of 1,000-transform
+messages kept the loop in the Buffer for seconds at a time (getPid 5 s, the daemon's own nodes lost the master).
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import time as _time
+from collections import deque
 from typing import TYPE_CHECKING, Any
 
 from mrosd import backports
 from mrosd.errors import MrosError
 from mrosd.lograte import RateLimitedLog
 from mrosd.msg import Time, get_message_class
+from mrosd.msg.runtime import FrameBuffer
 from mrosd.tf.core import DEFAULT_CACHE_TIME, BufferCore, Pose, TransformError
 
 if TYPE_CHECKING:
@@ -28,6 +37,14 @@ Transform = get_message_class("geometry_msgs/Transform")
 Vector3 = get_message_class("geometry_msgs/Vector3")
 Quaternion = get_message_class("geometry_msgs/Quaternion")
 Header = get_message_class("std_msgs/Header")
+
+
+#: Transforms one message may carry (tf2 has no bound; a robot's broadcasters send tens, a big one hundreds).
+MAX_TRANSFORMS = 10_000
+#: Bytes of received messages waiting to be stored (always at least the newest message).
+INBOX_BYTES = 8 * 1024 * 1024
+#: Longest the storing task holds the loop before it yields.
+SLICE_S = 0.005
 
 
 def stamp_ns(stamp: Any) -> int:
@@ -63,11 +80,19 @@ class Buffer:
         self.core = BufferCore(cache_time=cache_time)
         self._subs: list[Subscriber] = []
         self._changed = asyncio.Event()
+        #: received (message body, caller id, static), waiting for ``_store``
+        self._inbox: deque[tuple[bytes | bytearray | memoryview, str, bool]] = deque()
+        self._inbox_bytes = 0
+        self._inbox_ready = asyncio.Event()
+        self._storer: asyncio.Task[None] | None = None
+        #: /tf messages dropped from the inbox (the Buffer stored slower than they came)
+        self.dropped = 0
 
     async def start(self) -> Buffer:
         from mrosd.tcpros import AnyMsg
 
         if self.node is not None:
+            self._storer = asyncio.get_running_loop().create_task(self._store(), name="tf buffer")
             self._subs.append(await self.node.subscribe("/tf", AnyMsg, self._on_tf, queue_size=1000))
             self._subs.append(await self.node.subscribe("/tf_static", AnyMsg, self._on_tf_static, queue_size=1000))
         return self
@@ -76,6 +101,12 @@ class Buffer:
         for sub in self._subs:
             await sub.aclose()
         self._subs.clear()
+        storer, self._storer = self._storer, None
+        if storer is not None:
+            storer.cancel()
+            await asyncio.gather(storer, return_exceptions=True)
+        self._inbox.clear()
+        self._inbox_bytes = 0
 
     async def __aenter__(self) -> Buffer:
         return await self.start()
@@ -99,22 +130,61 @@ class Buffer:
         return ok
 
     def _feed(self, raw: RawMessage, static: bool) -> None:
-        try:
-            msg = TFMessage.deserialize(raw.data)
-        except MrosError as exc:
-            _peer_log.warning("tf decode", "a /tf message from %s does not decode: %s", raw.header.callerid, exc)
-            return
-        authority = raw.header.callerid or "no callerid"
-        for t in msg.transforms:
-            self.core.set_transform(
-                t.header.frame_id,
-                t.child_frame_id,
-                stamp_ns(t.header.stamp),
-                pose_of(t.transform),
-                authority=authority,
-                static=static,
+        """Queue a received message for ``_store`` (bounded: the oldest /tf message goes first)."""
+        body = raw.data
+        if not isinstance(body, bytes | FrameBuffer):
+            body = bytes(body)  # a view into a shared-memory ring is only ours during this call
+        callerid = raw.header.callerid or "no callerid"
+        count = int.from_bytes(bytes(body[:4]), "little") if len(body) >= 4 else 0
+        if count > MAX_TRANSFORMS:
+            _peer_log.warning(
+                "tf size", "a /tf message from %s claims %d transforms; at most %d", callerid, count, MAX_TRANSFORMS
             )
-        self._changed.set()
+            return
+        self._inbox.append((body, callerid, static))
+        self._inbox_bytes += len(body)
+        while self._inbox_bytes > INBOX_BYTES and len(self._inbox) > 1:
+            oldest = next((i for i, item in enumerate(self._inbox) if not item[2]), None)
+            if oldest is None:
+                break  # only /tf_static waits: it is latched, sent once, never dropped
+            dropped = self._inbox[oldest]
+            del self._inbox[oldest]
+            self._inbox_bytes -= len(dropped[0])
+            self.dropped += 1
+        self._inbox_ready.set()
+
+    async def _store(self) -> None:
+        loop_time = _time.monotonic
+        while True:
+            await self._inbox_ready.wait()
+            self._inbox_ready.clear()
+            slice_end = loop_time() + SLICE_S
+            while self._inbox:
+                body, callerid, static = self._inbox.popleft()
+                self._inbox_bytes -= len(body)
+                try:
+                    msg = TFMessage.deserialize(body)
+                except MrosError as exc:
+                    _peer_log.warning("tf decode", "a /tf message from %s does not decode: %s", callerid, exc)
+                    continue
+                del body
+                for i, t in enumerate(msg.transforms):
+                    self.core.set_transform(
+                        t.header.frame_id,
+                        t.child_frame_id,
+                        stamp_ns(t.header.stamp),
+                        pose_of(t.transform),
+                        authority=callerid,
+                        static=static,
+                    )
+                    if i % 64 == 63 and loop_time() > slice_end:
+                        self._changed.set()
+                        await asyncio.sleep(0)
+                        slice_end = loop_time() + SLICE_S
+                self._changed.set()
+                if loop_time() > slice_end:
+                    await asyncio.sleep(0)
+                    slice_end = loop_time() + SLICE_S
 
     def _on_tf(self, raw: RawMessage) -> None:
         self._feed(raw, False)

@@ -22,6 +22,11 @@ DEFAULT_CACHE_TIME = 10.0
 MAX_FRAMES = 10_000
 #: Entries one frame's cache holds whatever its time window (1 kHz for the default 10 s).
 MAX_ENTRIES_PER_FRAME = 10_000
+#: Entries of all frames together (about 180 bytes each: 45 MB). The two bounds above allow 10^8, which a
+#: /tf publisher inventing frames and stamps fills at the rate the daemon decodes (+250 MiB in 15 s). Past
+#: it, the frame being written keeps at most its fair share (this over the frames known), oldest out first:
+#: 100 frames keep 2,500 entries each (250 Hz for 10 s), 10,000 frames 25 each.
+MAX_TOTAL_ENTRIES = 250_000
 #: tf2 ignores a transform whose rotation's squared norm is this far or further from 1
 #: (``QUATERNION_NORMALIZATION_TOLERANCE``, TF_DENORMALIZED_QUATERNION)
 QUATERNION_TOLERANCE = 10e-3
@@ -220,6 +225,8 @@ class BufferCore:
     #: every frame id seen, as child or parent, in first-seen order (tf2's frame ids)
     known: dict[str, None] = field(default_factory=dict)
     rejected: int = 0
+    #: entries of every frame's cache (``MAX_TOTAL_ENTRIES``)
+    entries: int = 0
 
     def set_transform(self, parent: str, child: str, stamp: int, pose: Pose, *, authority: str, static: bool) -> bool:
         """Store one transform (frame ids with a leading '/' stripped, as tf2 does); False when ignored."""
@@ -238,11 +245,19 @@ class BufferCore:
                 return False
             cache = self.frames[child] = FrameCache(static=static)
         elif static and not cache.static:
+            self.entries -= len(cache.stamps)
             cache.static, cache.stamps, cache.parents, cache.poses = True, [], [], []
         self.known.setdefault(child)
         self.known.setdefault(parent)
         cache.authority = authority
+        before = len(cache.stamps)
         ok = cache.insert(stamp, parent, pose, int(self.cache_time * 1e9))
+        self.entries += len(cache.stamps) - before
+        if self.entries > MAX_TOTAL_ENTRIES:
+            cut = len(cache.stamps) - max(1, MAX_TOTAL_ENTRIES // len(self.frames))
+            if cut > 0:
+                del cache.stamps[:cut], cache.parents[:cut], cache.poses[:cut]
+                self.entries -= cut
         if not ok:
             self.rejected += 1
         return ok

@@ -35,7 +35,8 @@ from typing import Any, cast
 from mrosd.errors import MrosError
 from mrosd.fleet.keys import glob_match
 from mrosd.images.compress import encode_image
-from mrosd.images.encoding import MAX_SIDE, EncodeSettings, RawImage
+from mrosd.images.encoding import MAX_SIDE, EncodeSettings
+from mrosd.images.wire import read_image
 from mrosd.lograte import RateLimitedLog
 from mrosd.tcpros import Node
 from mrosd.tcpros.subscriber import Subscriber
@@ -138,22 +139,20 @@ class SourceStats:
         }
 
 
-def compress_image_body(body: bytes | bytearray | memoryview, settings: EncodeSettings, image_cls: Any) -> bytes:
+def compress_image_body(body: bytes | bytearray | memoryview, settings: EncodeSettings) -> bytes:
     """A serialized sensor_msgs/Image -> the serialized CompressedImage the plugin would publish (same header).
-    Pure; runs in a worker thread.
+    Pure; runs in a worker thread. The pixels are read where TCPROS received them (``read_image``: no copy
+    of a frame that may be 100 MB).
 
     Raises:
         MrosError: the body is not an Image (``MsgError``), or the image cannot be encoded (``ImageError``).
     """
-    body = bytes(body)
-    msg = image_cls.deserialize(body)
-    frame = encode_image(RawImage.of(msg), settings)
-    # the header is the body's first field: seq, stamp (secs, nsecs), then frame_id as a length-prefixed string
-    header_len = 16 + int.from_bytes(body[12:16], "little")
+    view = read_image(body)
+    frame = encode_image(view.image, settings)
     fmt = frame.format.encode()
     return b"".join(
         (
-            body[:header_len],
+            view.header,
             len(fmt).to_bytes(4, "little"),
             fmt,
             len(frame.data).to_bytes(4, "little"),
@@ -239,7 +238,7 @@ class CompressedSource:
                 started = time.perf_counter_ns()
                 try:
                     out = await loop.run_in_executor(
-                        owner.executor(), compress_image_body, body, settings.encode_settings(), owner.image_cls
+                        owner.executor(), compress_image_body, body, settings.encode_settings()
                     )
                 except (MrosError, ValueError, RuntimeError, OSError) as exc:  # an encoder's own refusal too
                     self.stats.refused += 1
@@ -284,9 +283,6 @@ class CompressedTopics:
         #: settings set by clients, per offered virtual topic (at most one entry per offered topic)
         self.overrides: dict[str, ImageSettings] = {}
         self._executor: ThreadPoolExecutor | None = None
-        from mrosd.msg import get_message_class
-
-        self.image_cls = get_message_class(IMAGE_TYPE)
 
     def executor(self) -> ThreadPoolExecutor:
         if self._executor is None:

@@ -17,8 +17,8 @@ subscription goes next, and tell it each subscription's next message size.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection, Hashable, Sequence
-from typing import Generic, TypeVar
+from collections.abc import Callable, Collection, Hashable
+from typing import Generic, TypeVar, cast
 
 __all__ = ["BIG_MESSAGE_BYTES", "QUANTUM_BYTES", "DeficitRoundRobin"]
 
@@ -38,9 +38,14 @@ BIG_MESSAGE_BYTES = 256 * 1024
 
 
 class DeficitRoundRobin(Generic[K]):
-    """The round-robin state of one client: whose visit it is, and each subscription's credit in bytes."""
+    """The round-robin state of one client: whose visit it is, and each subscription's credit in bytes.
 
-    __slots__ = ("_current", "_deficit", "quantum")
+    A pick costs the subscriptions it visits up to the first whose message fits, not all of them: the
+    order is kept as a ring, rebuilt only when the subscriptions change. (It used to list and ask every
+    subscription on each message: a client of 500 topics made that half of the daemon's CPU.)
+    """
+
+    __slots__ = ("_current", "_deficit", "_index", "_ring", "quantum")
 
     def __init__(self, quantum: int = QUANTUM_BYTES) -> None:
         if quantum < 1:
@@ -49,6 +54,9 @@ class DeficitRoundRobin(Generic[K]):
         self._deficit: dict[K, int] = {}
         #: the subscription whose visit is under way (it keeps sending while its next message fits its credit)
         self._current: K | None = None
+        #: the subscriptions in their order as last seen, and each one's place in it
+        self._ring: list[K] = []
+        self._index: dict[K, int] = {}
 
     def credit(self, key: K) -> int:
         """Bytes ``key`` may still send in the current round (for tests and status)."""
@@ -73,39 +81,66 @@ class DeficitRoundRobin(Generic[K]):
                 return current
             if size is None:
                 deficit.pop(current, None)  # an idle subscription banks no credit
-        listed = list(keys)
-        n = len(listed)
+        n = len(keys)
         if n == 0:
             self._current = None
             deficit.clear()
+            self._ring, self._index = [], {}
             return None
-        start = 0 if current is None else listed.index(current) + 1
-        order = [listed[(start + i) % n] for i in range(n)]
-        sizes = [head(k) for k in order]
-        if all(s is None for s in sizes):
-            self._current = None
-            deficit.clear()
-            return None
-        # the rounds in which every waiting subscription only gains credit, skipped at once
-        waiting = [(k, s) for k, s in zip(order, sizes, strict=True) if s is not None]
-        rounds = min(-(-(s - deficit.get(k, 0)) // self.quantum) for k, s in waiting)
-        bonus = max(0, rounds - 1) * self.quantum
-        for key, size in zip(order, sizes, strict=True):
+        if len(self._ring) != n:
+            self._rebuild(keys)
+        key = self._visit(keys, head, current, n)
+        if key is _STALE:  # a subscription replaced by another (same count): the ring is rebuilt once
+            self._rebuild(keys)
+            key = self._visit(keys, head, current, n)
+        return None if key is _STALE else cast("K | None", key)
+
+    def _rebuild(self, keys: Collection[K]) -> None:
+        self._ring = list(keys)
+        self._index = {k: i for i, k in enumerate(self._ring)}
+
+    def _visit(self, keys: Collection[K], head: Callable[[K], int | None], current: K | None, n: int) -> object:
+        """One round from the subscription after ``current``: the first whose message fits its credit plus a
+        quantum; when none does, the rounds in which every waiting one would only gain credit are skipped at
+        once (never a loop per quantum: a 2.7 MB frame over a 64 KiB quantum is 43 rounds)."""
+        deficit, quantum, ring = self._deficit, self.quantum, self._ring
+        start = 0 if current is None else self._index.get(current, -1) + 1
+        waiting: list[tuple[K, int]] = []
+        for i in range(n):
+            key = ring[(start + i) % n]
+            if key not in keys:
+                return _STALE
+            size = head(key)
             if size is None:
                 deficit.pop(key, None)
                 continue
-            credit = deficit.get(key, 0) + bonus + self.quantum
+            credit = deficit.get(key, 0) + quantum
             if size <= credit:
-                deficit[key] = credit - size
-                self._current = key
-                self._forget_gone(listed)
-                return key
+                return self._chosen(key, credit - size, keys)
+            deficit[key] = credit
+            waiting.append((key, size))
+        if not waiting:
+            self._current = None
+            deficit.clear()
+            return None
+        rounds = min(-(-(size - deficit[key]) // quantum) for key, size in waiting)
+        bonus = (rounds - 1) * quantum
+        for key, size in waiting:
+            credit = deficit[key] + bonus + quantum
+            if size <= credit:
+                return self._chosen(key, credit - size, keys)
             deficit[key] = credit
         raise AssertionError("unreachable: the skipped rounds leave a subscription whose message fits")
 
-    def _forget_gone(self, keys: Sequence[K]) -> None:
-        """Credit of subscriptions no longer listed (unsubscribed) is dropped once it could matter for memory."""
+    def _chosen(self, key: K, credit: int, keys: Collection[K]) -> K:
+        self._deficit[key] = credit
+        self._current = key
         if len(self._deficit) > 2 * len(keys) + 8:
-            alive = set(keys)
-            for key in [k for k in self._deficit if k not in alive]:
-                del self._deficit[key]
+            # credit of subscriptions no longer listed (unsubscribed), dropped once it could matter for memory
+            for gone in [k for k in self._deficit if k not in keys]:
+                del self._deficit[gone]
+        return key
+
+
+#: ``_visit``'s answer when the ring names a subscription that is gone
+_STALE = object()

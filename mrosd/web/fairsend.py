@@ -250,6 +250,23 @@ class FairSender(Generic[K, S]):
             self._poll = None
 
 
+def settle_deflate_writes(ws: Any) -> None:
+    """The session ends with its sender cancelled: let aiohttp's deflating writes that are still running end
+    quietly. aiohttp deflates a message over 16 KiB in a task of its own, shielded from the sender's
+    cancellation; a client that closes right after its handshake (the Foxglove server's first advertisements
+    are that large) leaves the task to fail on the closing transport, and asyncio would log its error with
+    a traceback ("Task exception was never retrieved") for every such client. The error is the client's
+    going, already handled: it is retrieved here."""
+    writer = getattr(ws, "_writer", None)
+    for task in list(getattr(writer, "_background_tasks", ())):
+        task.add_done_callback(_retrieve)
+
+
+def _retrieve(task: asyncio.Future[Any]) -> None:
+    if not task.cancelled():
+        task.exception()
+
+
 def delivery_counts(subs: Mapping[Any, Any], topic_of: Callable[[Any], str]) -> list[dict[str, Any]]:
     """Per subscription: its topic, messages sent, dropped (queue bound, newest-only, link) and bytes queued."""
     return [

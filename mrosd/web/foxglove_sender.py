@@ -21,7 +21,13 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from mrosd.web import foxglove as fg
-from mrosd.web.fairsend import DEFLATE_MAX_BYTES, FairSender, delivery_counts, is_precompressed
+from mrosd.web.fairsend import (
+    DEFLATE_MAX_BYTES,
+    FairSender,
+    delivery_counts,
+    is_precompressed,
+    settle_deflate_writes,
+)
 from mrosd.web.hub import PAUSE_BYTES
 from mrosd.web.session import ClientSession
 
@@ -109,6 +115,7 @@ class FoxgloveSender(ClientSession):
                     self.sent_messages += 1
         finally:
             self._fair.close()
+            settle_deflate_writes(self.ws)
 
     async def _send_message_data(
         self, sub_id: int, receipt_ns: int, body: bytes | bytearray, deflate: bool = False

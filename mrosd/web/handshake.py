@@ -14,6 +14,7 @@ from typing import Any
 
 from aiohttp import WSMsgType, web
 from aiohttp._websocket import reader_py
+from aiohttp.http_exceptions import HttpProcessingError
 
 from mrosd.lograte import RateLimitedLog
 from mrosd.web import rosbridge as rb
@@ -22,7 +23,7 @@ from mrosd.web.admission import OriginGate
 log = logging.getLogger(__name__)
 _ratelog = RateLimitedLog(log)
 
-__all__ = ["AUTH_FRAME", "AUTH_TIMEOUT", "AuthFirstResponse", "gate_middleware", "read_auth"]
+__all__ = ["AUTH_FRAME", "AUTH_TIMEOUT", "AuthFirstResponse", "PeerErrorLog", "gate_middleware", "read_auth"]
 
 #: Seconds a client that has not authenticated may take to send its ``auth`` op: a script or a browser on the
 #: robot's network sends it in its first round trip; a stranger holding the connection open is closed.
@@ -31,6 +32,30 @@ AUTH_TIMEOUT = 5.0
 #: level, end) is a few hundred bytes; 16 KiB leaves room for long tokens and a few small ops a client may
 #: send right after it, and bounds what a stranger makes the daemon hold (x the pending connections).
 AUTH_FRAME = 16 * 1024
+
+
+class PeerErrorLog(logging.LoggerAdapter):  # type: ignore[type-arg]
+    """The logger aiohttp's request handler writes to (``AppRunner(logger=...)``): a request it cannot parse
+    (a header line over 8 KiB, a malformed header, a bad chunk) is the peer's doing, and aiohttp logs each with
+    its traceback at ERROR; here it is one line, rate-limited over all peers. Any other error (ours) keeps
+    its traceback."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.getLogger("aiohttp.server"), {})
+
+    def exception(self, msg: object, *args: object, exc_info: Any = True, **kwargs: Any) -> None:
+        if isinstance(exc_info, HttpProcessingError):
+            remote = str(args[0]) if args else "?"
+            _ratelog.warning(
+                "malformed http", "web: refused a malformed HTTP request from %s: %s", remote, _reason(exc_info)
+            )
+            return
+        super().exception(msg, *args, exc_info=exc_info, **kwargs)
+
+
+def _reason(exc: HttpProcessingError) -> str:
+    """The error on one line, at most 200 characters (aiohttp's message quotes what the peer sent)."""
+    return " ".join(f"{exc.code} {type(exc).__name__} {exc.message}".split())[:200]
 
 
 def gate_middleware(gate: OriginGate, page_port: Callable[[], int]) -> Any:

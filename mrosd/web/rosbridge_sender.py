@@ -22,7 +22,13 @@ from typing import TYPE_CHECKING, Any
 
 from mrosd.errors import MrosError
 from mrosd.web import rosbridge as rb
-from mrosd.web.fairsend import DEFLATE_MAX_BYTES, FairSender, frame_head, is_precompressed
+from mrosd.web.fairsend import (
+    DEFLATE_MAX_BYTES,
+    FairSender,
+    frame_head,
+    is_precompressed,
+    settle_deflate_writes,
+)
 from mrosd.web.hub import PAUSE_BYTES
 from mrosd.web.queue import trim_to_budget
 from mrosd.web.session import ClientSession
@@ -96,6 +102,7 @@ class RosbridgeSender(ClientSession):
             await self._send_loop()
         finally:
             self._fair.close()
+            settle_deflate_writes(self.ws)
 
     async def _write_plain(self, opcode: int, data: bytes) -> None:
         """One frame not deflated (RSV1 clear), written past aiohttp's compressor (``mrosd.web.fairsend``)."""

@@ -26,7 +26,7 @@ from mrosd.web.admission import Admission, OriginGate
 from mrosd.web.assets import MAX_ASSET_BYTES, AssetReader
 from mrosd.web.fairsend import IN_FLIGHT_BYTES
 from mrosd.web.foxglove_server import FoxgloveSession
-from mrosd.web.handshake import AuthFirstResponse, gate_middleware, read_auth, refuse_later
+from mrosd.web.handshake import AuthFirstResponse, PeerErrorLog, gate_middleware, read_auth, refuse_later
 from mrosd.web.hub import WebHub
 from mrosd.web.limits import SessionLimits
 from mrosd.web.page import index, page_routes
@@ -188,7 +188,9 @@ class WebServer:
         app.router.add_get("/", handler)
         if page:
             page_routes(app)
-        runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=CLOSE_TIMEOUT)
+        runner = web.AppRunner(
+            app, handle_signals=False, access_log=None, shutdown_timeout=CLOSE_TIMEOUT, logger=PeerErrorLog()
+        )
         await runner.setup()
         attempts = BIND_ATTEMPTS
         while True:

@@ -22,7 +22,15 @@ from mrosd.web.queue import Ledger
 
 log = logging.getLogger(__name__)
 
-__all__ = ["MAX_QUEUED_BYTES", "PAUSE_BYTES", "HoldingSink", "SharedSubscriptions", "TopicSink"]
+__all__ = [
+    "MAX_LATCHED_BYTES",
+    "MAX_QUEUED_BYTES",
+    "PAUSE_BYTES",
+    "HoldingSink",
+    "LatchedStore",
+    "SharedSubscriptions",
+    "TopicSink",
+]
 
 #: Bytes queued for all clients together (each client also has its own budget, SessionLimits.client_bytes).
 MAX_QUEUED_BYTES = 256 * 1024 * 1024
@@ -70,7 +78,7 @@ class HoldingSink:
 
 
 #: caller id -> latched message body (named here: ``Shared``'s own ``bytes`` field shadows the type inside it)
-LatchedBodies = dict[str, bytes]
+LatchedBodies = dict[str, bytes | bytearray]
 
 
 @dataclass(slots=True)
@@ -90,13 +98,46 @@ class Shared:
 
 #: latching publishers remembered per topic (a dict keeps insertion order: the oldest goes first)
 MAX_LATCHED_PUBLISHERS = 64
+#: Bytes of latched messages remembered over all topics. Each is the body as received (held, not copied,
+#: unless it is a view of a shared-memory ring), so what a topic costs here is what its publishers latched;
+#: without this bound, publishers latching big messages on a topic a client watched made the daemon hold all
+#: of them (6 publishers of 40 MB and 4 clients: +720 MiB). Past it, the oldest remembered message of any
+#: topic goes first; a client that joins later misses that one (the newest of every topic is kept first).
+MAX_LATCHED_BYTES = 64 * 1024 * 1024
 
 
-def _keep_latched(entry: Shared, callerid: str, body: bytes | bytearray) -> None:
-    entry.latched.pop(callerid, None)
-    entry.latched[callerid] = bytes(body)  # the frame decoder may reuse a large body's buffer
-    while len(entry.latched) > MAX_LATCHED_PUBLISHERS:
-        del entry.latched[next(iter(entry.latched))]
+class LatchedStore:
+    """The latched bodies of every shared subscription, oldest first, bounded by ``MAX_LATCHED_BYTES``."""
+
+    def __init__(self, max_bytes: int = MAX_LATCHED_BYTES) -> None:
+        self.max_bytes = max_bytes
+        self.size = 0
+        #: (entry id, caller id) -> (entry, body size), oldest first
+        self._order: dict[tuple[int, str], tuple[Shared, int]] = {}
+
+    def keep(self, entry: Shared, callerid: str, body: bytes | bytearray | memoryview) -> None:
+        if not isinstance(body, bytes | bytearray):
+            body = bytes(body)  # a view into a ring is ours only during the callback
+        self._forget(entry, callerid)
+        entry.latched[callerid] = body
+        self._order[(id(entry), callerid)] = (entry, len(body))
+        self.size += len(body)
+        while len(entry.latched) > MAX_LATCHED_PUBLISHERS:
+            self._forget(entry, next(iter(entry.latched)))
+        while self.size > self.max_bytes and len(self._order) > 1:
+            (_, oldest_caller), (oldest_entry, _) = next(iter(self._order.items()))
+            self._forget(oldest_entry, oldest_caller)
+
+    def drop(self, entry: Shared) -> None:
+        """The subscription closed: forget what it latched."""
+        for callerid in list(entry.latched):
+            self._forget(entry, callerid)
+
+    def _forget(self, entry: Shared, callerid: str) -> None:
+        entry.latched.pop(callerid, None)
+        gone = self._order.pop((id(entry), callerid), None)
+        if gone is not None:
+            self.size -= gone[1]
 
 
 class SharedSubscriptions:
@@ -116,6 +157,7 @@ class SharedSubscriptions:
         self.ledger = Ledger()
         self.max_queued_bytes = max_queued_bytes
         self.entries: dict[str, Shared] = {}
+        self.latched = LatchedStore()
         self._before = before_subscribe
         self._lock = asyncio.Lock()
 
@@ -134,7 +176,7 @@ class SharedSubscriptions:
             entry.bytes += len(body)
             header = getattr(msg, "header", None)  # a made topic's bodies (``compressed``) come without one
             if header is not None and header.latching == "1":
-                _keep_latched(entry, header.callerid or "", body)
+                self.latched.keep(entry, header.callerid or "", body)
             behind = True
             for sink in entry.sinks:
                 try:
@@ -213,6 +255,7 @@ class SharedSubscriptions:
                 self._set_reading(entry, True)  # the sink that left may have been the one holding it
             if not entry.sinks:
                 del self.entries[topic]
+                self.latched.drop(entry)
                 await entry.subscriber.aclose()
 
     def stats(self, topic: str) -> tuple[int, int] | None:
@@ -229,3 +272,4 @@ class SharedSubscriptions:
         entries, self.entries = self.entries, {}
         for entry in entries.values():
             entry.sinks.clear()
+            self.latched.drop(entry)
