@@ -22,6 +22,7 @@ from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.web.server import WebServer
+from tests.web.inloop import node
 
 Twist = get_message_class("geometry_msgs/Twist")
 TwistStamped = get_message_class("geometry_msgs/TwistStamped")
@@ -31,10 +32,6 @@ TwistStamped = get_message_class("geometry_msgs/TwistStamped")
 async def master() -> AsyncIterator[Master]:
     async with Master(host="127.0.0.1", port=0) as m:
         yield m
-
-
-def node(name: str, master: str) -> mrosd.Node:
-    return mrosd.Node(name, master_uri=master, argv=[], host="127.0.0.1")
 
 
 async def _received(topic: str, cls: Any, robot: mrosd.Node) -> asyncio.Queue[Any]:

@@ -22,7 +22,7 @@ from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.web.foxglove_server import SessionLimits
 from mrosd.web.server import WebServer
-from tests.reliability.test_reliability_web import node, until
+from tests.web.inloop import node, until
 
 String = get_message_class("std_msgs/String")
 KiB = 1024

@@ -22,6 +22,7 @@ from mrosd.master import Master
 from mrosd.msg import get_message_class, get_service_class
 from mrosd.web import rosbridge as rb
 from mrosd.web.server import WebServer
+from tests.web.inloop import node
 
 String = get_message_class("std_msgs/String")
 Image = get_message_class("sensor_msgs/Image")
@@ -175,10 +176,6 @@ def test_fragments_refused_with_a_reason() -> None:
     assert joiner.expire(31.0) == [("a", 1, 3)]
     with pytest.raises(rb.RosbridgeRefusal, match="without an id"):
         joiner.feed(rb.Fragment(num=0, total=2, data="x"), 0.0)
-
-
-def node(name: str, master: str) -> mrosd.Node:
-    return mrosd.Node(name, master_uri=master, argv=[], host="127.0.0.1")
 
 
 @pytest.fixture

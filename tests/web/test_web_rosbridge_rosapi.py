@@ -19,13 +19,13 @@ from typing import Any
 import aiohttp
 import pytest
 
-import mrosd
 from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import TypeStore, get_message_class, get_service_class
 from mrosd.web import rosbridge_publishers
 from mrosd.web.server import WebServer
 from tests.rosenv import ROS_PYTHON, needs_ros, ros_env
+from tests.web.inloop import node
 from tests.web.test_web_real_clients import NodeClient
 from tests.web.test_web_rosbridge_types import bridge_process, make_workspace, roslibpy_client, wait_for_service
 
@@ -40,10 +40,6 @@ SetBool = get_service_class("std_srvs/SetBool")
 async def master() -> AsyncIterator[Master]:
     async with Master(host="127.0.0.1", port=0) as m:
         yield m
-
-
-def node(name: str, master: str) -> mrosd.Node:
-    return mrosd.Node(name, master_uri=master, argv=[], host="127.0.0.1")
 
 
 async def call(ws: aiohttp.ClientWebSocketResponse, service: str, args: Any = None, **extra: Any) -> dict[str, Any]:
