@@ -74,6 +74,18 @@ async def publish_forever(pub: Any, msg: Any, period: float = 0.05) -> None:
         await asyncio.sleep(period)
 
 
+async def first_across(robot: Robot, topic: str, cls: Any, pub: Any, msg: Any, listener: mrosd.Node) -> Any:
+    """The first ``msg`` that reaches ``listener`` on ``topic`` of ``robot``: once ``robot``'s bridge has heard of
+    the topic, ``listener`` subscribes and ``pub`` publishes ``msg`` every 50 ms until one arrives (bounded)."""
+    await robot.bridge.wait_until(lambda: topic in robot.bridge.received, 15)
+    sub = await listener.subscribe(topic, cls)
+    sender = asyncio.create_task(publish_forever(pub, msg))
+    try:
+        return await sub.next(timeout=10)
+    finally:
+        sender.cancel()
+
+
 def bare_peer(endpoint: str) -> Any:
     """A bare Zenoh session linked to ``endpoint``: it can put and ask anything (a bridge, or a hostile peer)."""
     cfg = zenoh.Config()
