@@ -1,6 +1,7 @@
 """Helpers of the web tests that run the master, the ``WebServer`` and the ROS nodes in the test's own event loop
-(tests/web and the web's hostile tests in tests/reliability): a node on loopback, a bounded wait on the server's
-state, and a sink on the hub that records what it is given.
+(tests/web and the web's hostile tests in tests/reliability): a node on loopback, a rosbridge server with a node
+and an HTTP client session, a bounded wait on the server's state, and a sink on the hub that records what it is
+given.
 
 It knows nothing of daemons in subprocesses (tests/web/webdaemon.py) nor of browsers.
 """
@@ -8,15 +9,33 @@ It knows nothing of daemons in subprocesses (tests/web/webdaemon.py) nor of brow
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+
+import aiohttp
 
 import mrosd
 from mrosd import backports
+from mrosd.web.server import WebServer
 
 
 def node(name: str, master: str) -> mrosd.Node:
     """A node on 127.0.0.1 with no command-line remappings, registered with ``master``."""
     return mrosd.Node(name, master_uri=master, argv=[], host="127.0.0.1")
+
+
+@asynccontextmanager
+async def rosbridge_and_node(
+    master: str, name: str
+) -> AsyncIterator[tuple[WebServer, mrosd.Node, aiohttp.ClientSession]]:
+    """A ``WebServer`` with its rosbridge port, a node ``name`` and an HTTP session for WebSocket clients, all on
+    ``master``; closed in the reverse order."""
+    async with (
+        WebServer(master, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
+        node(name, master) as robot,
+        aiohttp.ClientSession() as http,
+    ):
+        yield server, robot, http
 
 
 async def until(cond: Callable[[], object], timeout: float = 10.0, step: float = 0.005) -> None:
@@ -46,4 +65,4 @@ class Collect:
         pass
 
 
-__all__ = ["Collect", "node", "until"]
+__all__ = ["Collect", "node", "rosbridge_and_node", "until"]
