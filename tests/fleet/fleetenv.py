@@ -18,6 +18,7 @@ from mrosd.fleet.bridge import FleetBridge
 from mrosd.fleet.keys import NameFilter
 from mrosd.fleet.options import FleetOptions
 from mrosd.master import Master
+from tests.netns.nsutil import ZENOH_PORT, lab_daemon_config
 from tests.rosenv import free_port
 
 zenoh = pytest.importorskip("zenoh", reason="the fleet tests need eclipse-zenoh (pip install 'mrosd[fleet]')")
@@ -73,6 +74,18 @@ async def publish_forever(pub: Any, msg: Any, period: float = 0.05) -> None:
         await asyncio.sleep(period)
 
 
+async def first_across(robot: Robot, topic: str, cls: Any, pub: Any, msg: Any, listener: mrosd.Node) -> Any:
+    """The first ``msg`` that reaches ``listener`` on ``topic`` of ``robot``: once ``robot``'s bridge has heard of
+    the topic, ``listener`` subscribes and ``pub`` publishes ``msg`` every 50 ms until one arrives (bounded)."""
+    await robot.bridge.wait_until(lambda: topic in robot.bridge.received, 15)
+    sub = await listener.subscribe(topic, cls)
+    sender = asyncio.create_task(publish_forever(pub, msg))
+    try:
+        return await sub.next(timeout=10)
+    finally:
+        sender.cancel()
+
+
 def bare_peer(endpoint: str) -> Any:
     """A bare Zenoh session linked to ``endpoint``: it can put and ask anything (a bridge, or a hostile peer)."""
     cfg = zenoh.Config()
@@ -83,32 +96,14 @@ def bare_peer(endpoint: str) -> Any:
     return zenoh.open(cfg)
 
 
-#: The master port of every daemon of the netns lab and the benchmark (each robot in its own namespace).
-MASTER_PORT = 11311
-ZENOH_PORT = 7447
-
-
 def daemon_config(tmp: Path, robot: str, listen: str, connect: str, extra: str) -> Path:
-    """An mrosd.toml for one robot of the lab: master on loopback, no IXM or rosout, [fleet] plus ``extra``."""
-    path = tmp / f"{robot}.toml"
+    """An mrosd.toml for one robot of the netns lab and the benchmark: [fleet] plus ``extra``."""
     connect_list = f'"tcp/{connect}:{ZENOH_PORT}"' if connect else ""
-    path.write_text(
-        textwrap.dedent(
-            f"""
-            [master]
-            host = "127.0.0.1"
-            port = {MASTER_PORT}
-            [ixm]
-            enabled = false
-            [rosout]
-            enabled = false
-            [fleet]
-            enabled = true
-            robot = "{robot}"
-            listen = ["tcp/{listen}:{ZENOH_PORT}"]
-            connect = [{connect_list}]
-            """
-        )
-        + extra
-    )
-    return path
+    fleet_section = f"""
+    [fleet]
+    enabled = true
+    robot = "{robot}"
+    listen = ["tcp/{listen}:{ZENOH_PORT}"]
+    connect = [{connect_list}]
+    """
+    return lab_daemon_config(tmp / f"{robot}.toml", textwrap.dedent(fleet_section) + extra)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 
 from mrosd.msg import get_message_class, get_service_class
-from tests.fleet.fleetenv import fleet, publish_forever
+from tests.fleet.fleetenv import first_across, fleet, publish_forever
 
 String = get_message_class("std_msgs/String")
 SetBool = get_service_class("std_srvs/SetBool")
@@ -73,13 +73,7 @@ async def test_tf_frames_get_the_robot_name() -> None:
         pub = await a.advertise("/tf", tf_message)
         t = stamped(child_frame_id="base_link")
         t.header.frame_id = "odom"
-        await r2.bridge.wait_until(lambda: "/robot1/tf" in r2.bridge.received, 15)
-        sub = await b.subscribe("/robot1/tf", tf_message)
-        sender = asyncio.create_task(publish_forever(pub, tf_message(transforms=[t])))
-        try:
-            msg = await sub.next(timeout=10)
-        finally:
-            sender.cancel()
+        msg = await first_across(r2, "/robot1/tf", tf_message, pub, tf_message(transforms=[t]), b)
         assert (msg.transforms[0].header.frame_id, msg.transforms[0].child_frame_id) == (
             "robot1/odom",
             "robot1/base_link",

@@ -18,9 +18,9 @@ from typing import Any
 
 import pytest
 
-from tests.fleet.fleetenv import MASTER_PORT, daemon_config
+from tests.fleet.fleetenv import daemon_config
 from tests.interop.tcpros.test_tcpros_interop import roscpp_node
-from tests.netns.nsutil import NetnsLab
+from tests.netns.nsutil import MASTER_PORT, NetnsLab
 from tests.netns.test_netns_ros import TALKER
 from tests.rosenv import ROS_PYTHON, Processes, needs_ros, ros_env
 

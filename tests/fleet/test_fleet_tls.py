@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from mrosd.msg import get_message_class
-from tests.fleet.fleetenv import fleet, publish_forever
+from tests.fleet.fleetenv import first_across, fleet
 
 pytest.importorskip("zenoh", reason="the fleet tests need eclipse-zenoh (pip install 'mrosd[fleet]')")
 String = get_message_class("std_msgs/String")
@@ -71,13 +71,7 @@ async def test_topic_crosses_a_tls_link(tmp_path: Path) -> None:
     async with fleet("robot1", "robot2", transport="tls", **tls) as (r1, r2), r1.node("t") as a, r2.node("l") as b:
         pub = await a.advertise("/chatter", String)
         pub.publish_nowait(String(data="over tls"))
-        await r2.bridge.wait_until(lambda: "/robot1/chatter" in r2.bridge.received, 15)
-        sub = await b.subscribe("/robot1/chatter", String)
-        sender = asyncio.create_task(publish_forever(pub, String(data="over tls")))
-        try:
-            assert (await sub.next(timeout=10)).data == "over tls"
-        finally:
-            sender.cancel()
+        assert (await first_across(r2, "/robot1/chatter", String, pub, String(data="over tls"), b)).data == "over tls"
         assert r2.bridge.status()["peers"]
 
 

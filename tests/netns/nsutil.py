@@ -15,10 +15,16 @@ import random
 import shutil
 import signal
 import subprocess
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 HOSTS = 3
+#: The master port of every daemon in the labs (each robot in its own namespace, so the default port is free).
+MASTER_PORT = 11311
+#: The Zenoh port the labs' daemons and routers listen on (rmw_zenohd's).
+ZENOH_PORT = 7447
 
 
 def netns_unavailable() -> str | None:
@@ -33,6 +39,34 @@ def netns_unavailable() -> str | None:
         return f"`ip netns add` fails here: {made.stderr.decode().strip()}"
     subprocess.run(["ip", "netns", "del", probe], capture_output=True, check=False)
     return None
+
+
+def delete_namespaces(made: list[str]) -> None:
+    """Kill what runs in each namespace of ``made`` and delete them, newest first; ``made`` is emptied."""
+    for ns in reversed(made):
+        # only processes this test started live in these namespaces; any left would keep the veth alive
+        pids = subprocess.run(["ip", "netns", "pids", ns], capture_output=True, check=False, timeout=10)
+        for pid in pids.stdout.split():
+            with contextlib.suppress(ProcessLookupError, ValueError):
+                os.kill(int(pid), signal.SIGKILL)
+        subprocess.run(["ip", "netns", "del", ns], capture_output=True, check=False, timeout=10)
+    made.clear()
+
+
+def lab_daemon_config(path: Path, sections: str) -> Path:
+    """Write an mrosd.toml for one daemon of a lab to ``path``: the master on loopback at MASTER_PORT, no IXM, no
+    rosout, then ``sections`` (TOML text: the part under test)."""
+    head = f"""
+    [master]
+    host = "127.0.0.1"
+    port = {MASTER_PORT}
+    [ixm]
+    enabled = false
+    [rosout]
+    enabled = false
+    """
+    path.write_text(textwrap.dedent(head) + sections)
+    return path
 
 
 def _ip(*args: str) -> None:
@@ -87,14 +121,7 @@ class NetnsLab:
         return ["ip", "netns", "exec", self.hosts[host], *argv]
 
     def teardown(self) -> None:
-        for ns in reversed(self._made):
-            # only processes this test started live in these namespaces; any left would keep the veth alive
-            pids = subprocess.run(["ip", "netns", "pids", ns], capture_output=True, check=False, timeout=10)
-            for pid in pids.stdout.split():
-                with contextlib.suppress(ProcessLookupError, ValueError):
-                    os.kill(int(pid), signal.SIGKILL)
-            subprocess.run(["ip", "netns", "del", ns], capture_output=True, check=False, timeout=10)
-        self._made.clear()
+        delete_namespaces(self._made)
 
     def leftovers(self) -> list[str]:
         listed = subprocess.run(["ip", "netns", "list"], capture_output=True, check=False).stdout.decode()

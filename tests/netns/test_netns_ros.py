@@ -13,12 +13,11 @@ from pathlib import Path
 
 import pytest
 
-from tests.netns.nsutil import NetnsLab
+from tests.netns.nsutil import MASTER_PORT, NetnsLab
 from tests.rosenv import ROS_PYTHON, Processes, iter_lines_until, needs_ros, ros_env
 
 pytestmark = pytest.mark.root
 
-MASTER_PORT = 11311
 
 TALKER = textwrap.dedent(
     """

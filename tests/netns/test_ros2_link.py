@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from tests.fleet.test_fleet_netns import Arrivals
-from tests.netns.nsutil import NetnsLab
+from tests.netns.nsutil import MASTER_PORT, ZENOH_PORT, NetnsLab, lab_daemon_config
 from tests.netns.test_netns_ros import TALKER
 from tests.rosenv import ROS_PYTHON, Processes, needs_ros, ros_env
 
@@ -25,8 +25,6 @@ pytest.importorskip("zenoh", reason="the ros2 tests need eclipse-zenoh (pip inst
 pytest.importorskip("zenoh_ros2_sdk")
 pytestmark = [pytest.mark.root, pytest.mark.interop, needs_ros]
 
-MASTER_PORT = 11311
-ZENOH_PORT = 7447
 MASTER = f"http://127.0.0.1:{MASTER_PORT}/"
 CUT_SECONDS = 10.0
 #: Zenoh's peer reconnects with a backoff after its lease expired; rmw_zenoh's nodes see the same
@@ -79,25 +77,14 @@ def test_the_zenoh_link_cut_for_10s_then_data_resumes_and_ros1_never_stalls(
     netns_lab: NetnsLab, procs: Processes, tmp_path: Path
 ) -> None:
     lab = netns_lab
-    cfg = tmp_path / "robot.toml"
-    cfg.write_text(
-        textwrap.dedent(
-            f"""
-            [master]
-            host = "127.0.0.1"
-            port = {MASTER_PORT}
-            [ixm]
-            enabled = false
-            [rosout]
-            enabled = false
-            [ros2]
-            enabled = true
-            domain_id = 0
-            connect = ["tcp/{lab.addrs[1]}:{ZENOH_PORT}"]
-            to_ros2 = ["/chatter"]
-            """
-        )
-    )
+    ros2_section = f"""
+    [ros2]
+    enabled = true
+    domain_id = 0
+    connect = ["tcp/{lab.addrs[1]}:{ZENOH_PORT}"]
+    to_ros2 = ["/chatter"]
+    """
+    cfg = lab_daemon_config(tmp_path / "robot.toml", textwrap.dedent(ros2_section))
     messages = tmp_path / "messages" / "std_msgs" / "msg"
     messages.mkdir(parents=True)
     (messages / "String.msg").write_text("string data\n")

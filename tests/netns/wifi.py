@@ -25,7 +25,6 @@ import os
 import queue
 import random
 import re
-import signal
 import statistics
 import struct
 import subprocess
@@ -39,7 +38,7 @@ from types import TracebackType
 from typing import Any
 
 from tests.integration.daemon.daemonproc import NotifyListener, daemon_env
-from tests.netns.nsutil import netns_unavailable
+from tests.netns.nsutil import MASTER_PORT, delete_namespaces, netns_unavailable
 from tests.netns.scene import CAMERA, FLOAT, ODOM
 from tests.rosenv import Processes
 
@@ -49,7 +48,6 @@ ROOT = Path(__file__).resolve().parents[2]
 FOXGLOVE_CLIENT = ROOT / "tests" / "web" / "foxglove_client.mjs"
 SCENE = Path(__file__).resolve().parent / "scene.py"
 TOKEN = "wifi-lab-token-0123456789"
-MASTER_PORT = 11311
 
 
 def _ip(*args: str) -> str:
@@ -127,13 +125,7 @@ class ShapedLink:
         return ["ip", "netns", "exec", ns, *argv]
 
     def teardown(self) -> None:
-        for ns in reversed(self._made):
-            pids = subprocess.run(["ip", "netns", "pids", ns], capture_output=True, check=False, timeout=10)
-            for pid in pids.stdout.split():
-                with contextlib.suppress(ProcessLookupError, ValueError):
-                    os.kill(int(pid), signal.SIGKILL)
-            subprocess.run(["ip", "netns", "del", ns], capture_output=True, check=False, timeout=10)
-        self._made.clear()
+        delete_namespaces(self._made)
 
 
 def lab_unavailable() -> str | None:

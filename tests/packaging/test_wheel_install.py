@@ -31,7 +31,7 @@ pytestmark = [
         importlib.util.find_spec("build") is None, reason="needs the 'build' package ([dev] installs it)"
     ),
     # building twice (sdist, then the wheel from it) and installing the dependencies into a fresh venv take
-    # about 80 s on an idle machine, longer than the suite's 120 s per test on a busy one
+    # half a minute or more on an idle machine, longer than the suite's 120 s per test on a busy one
     pytest.mark.timeout(900),
 ]
 
@@ -59,9 +59,12 @@ def dist(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Dist]:
     )
     assert built.returncode == 0, built.stdout[-3000:] + built.stderr[-3000:]
     d = Dist(out)
-    venv.EnvBuilder(with_pip=True).create(d.venv)
+    # The venv gets no pip of its own (ensurepip costs 5-17 s): this pip installs into it (`--python`, pip 22.3+),
+    # the wheel and its dependencies resolved as a user's pip would. --no-compile: the test imports a few modules
+    # only, so byte-compiling every installed file (pip's default) would be most of the install's time.
+    venv.EnvBuilder(with_pip=False).create(d.venv)
     installed = subprocess.run(
-        [str(d.bin / "python"), "-m", "pip", "install", "-q", str(d.wheel)],
+        [sys.executable, "-m", "pip", "--python", str(d.bin / "python"), "install", "-q", "--no-compile", str(d.wheel)],
         capture_output=True,
         text=True,
         timeout=600,

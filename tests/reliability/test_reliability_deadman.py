@@ -22,6 +22,7 @@ from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.web.server import WebServer
+from tests.web.inloop import node, rosbridge_and_node
 
 Twist = get_message_class("geometry_msgs/Twist")
 TwistStamped = get_message_class("geometry_msgs/TwistStamped")
@@ -31,10 +32,6 @@ TwistStamped = get_message_class("geometry_msgs/TwistStamped")
 async def master() -> AsyncIterator[Master]:
     async with Master(host="127.0.0.1", port=0) as m:
         yield m
-
-
-def node(name: str, master: str) -> mrosd.Node:
-    return mrosd.Node(name, master_uri=master, argv=[], host="127.0.0.1")
 
 
 async def _received(topic: str, cls: Any, robot: mrosd.Node) -> asyncio.Queue[Any]:
@@ -113,11 +110,7 @@ async def test_a_client_that_had_stopped_gets_no_zero(master: Master) -> None:
 
 
 async def test_a_rosbridge_client_that_drops_while_driving_is_followed_by_one_zero(master: Master) -> None:
-    async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("robot", master.uri) as robot,
-        aiohttp.ClientSession() as http,
-    ):
+    async with rosbridge_and_node(master.uri, "robot") as (server, robot, http):
         got = await _received("/cmd_vel", Twist, robot)
         ws = await http.ws_connect(server.rosbridge_url)
         await ws.send_str(json.dumps({"op": "advertise", "topic": "/cmd_vel", "type": "geometry_msgs/Twist"}))

@@ -10,12 +10,12 @@ from typing import Any
 
 import pytest
 
-import mrosd
 from mrosd import backports
 from mrosd.actions import ActionClient, ActionServer, ServerGoal, Status
 from mrosd.master import Master
 from mrosd.msg import Time, get_message_class
 from mrosd.tf import Buffer, transform_stamped
+from tests.web.inloop import node
 
 ActionGoal = get_message_class("actionlib/TestActionGoal")
 ActionResult = get_message_class("actionlib/TestActionResult")
@@ -29,10 +29,6 @@ TFMessage = get_message_class("tf2_msgs/TFMessage")
 async def master() -> AsyncIterator[str]:
     async with Master(host="127.0.0.1", port=0) as m:
         yield m.uri
-
-
-def node(name: str, master: str) -> mrosd.Node:
-    return mrosd.Node(name, master_uri=master, argv=[], host="127.0.0.1")
 
 
 async def ended(results: Any, goal_id: str, status: Status) -> None:

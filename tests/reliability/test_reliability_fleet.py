@@ -13,7 +13,7 @@ import pytest
 
 from mrosd.fleet.keys import ItemKind, discovery_key
 from mrosd.msg import get_message_class, get_service_class
-from tests.fleet.fleetenv import bare_peer, fleet, publish_forever
+from tests.fleet.fleetenv import bare_peer, first_across, fleet
 
 zenoh = pytest.importorskip("zenoh", reason="the fleet tests need eclipse-zenoh (pip install 'mrosd[fleet]')")
 
@@ -63,13 +63,7 @@ async def test_garbage_announcements_are_counted_and_ignored() -> None:
             # the honest robot still gets through
             pub = await a.advertise("/chatter", String)
             pub.publish_nowait(String(data="x"))
-            await r2.bridge.wait_until(lambda: "/robot1/chatter" in r2.bridge.received, 15)
-            sub = await b.subscribe("/robot1/chatter", String)
-            pub2 = asyncio.create_task(publish_forever(pub, String(data="x")))
-            try:
-                assert (await sub.next(timeout=10)).data == "x"
-            finally:
-                pub2.cancel()
+            assert (await first_across(r2, "/robot1/chatter", String, pub, String(data="x"), b)).data == "x"
             assert r2.bridge.status()["bad_announcements"] >= 4
             assert not [t for t in r2.bridge.received if "evil" in t]
         finally:

@@ -20,7 +20,7 @@ from mrosd.master import Master
 from mrosd.web.foxglove_server import SessionLimits
 from mrosd.web.server import WebServer
 from tests.reliability.test_reliability_rosbridge_fragments import barrier
-from tests.reliability.test_reliability_web import node
+from tests.web.inloop import node
 
 CAP = 50
 ADVERTISES = 2000

@@ -22,7 +22,7 @@ from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.web.foxglove_server import SessionLimits
 from mrosd.web.server import WebServer
-from tests.reliability.test_reliability_web import node, until
+from tests.web.inloop import node, rosbridge_and_node, until
 
 String = get_message_class("std_msgs/String")
 KiB = 1024
@@ -90,11 +90,7 @@ def held(server: WebServer) -> int:
 async def test_fragments_claiming_a_billion_parts_hold_only_the_bytes_sent(master: Master) -> None:
     """``total: 1000000000`` is a claim: the bridge keeps what arrived (a dict by part number), never a table
     of the claimed size; ``total: 1e9`` (not an integer) is refused and holds nothing."""
-    async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("robot", master.uri) as robot,
-        aiohttp.ClientSession() as http,
-    ):
+    async with rosbridge_and_node(master.uri, "robot") as (server, robot, http):
         ws, listener = await honest_setup(server, robot, http)
         await publish_in_fragments(ws, listener, "before", "honest-1")
         await ws.send_str(fragment("float", 0, 1e9, "x" * 100))
@@ -164,11 +160,7 @@ async def test_a_client_streaming_fragments_past_its_budget_holds_at_most_the_bu
 
 
 async def test_a_client_opening_thousands_of_ids_holds_at_most_max_fragmented(master: Master) -> None:
-    async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("robot", master.uri) as robot,
-        aiohttp.ClientSession() as http,
-    ):
+    async with rosbridge_and_node(master.uri, "robot") as (server, robot, http):
         hostile, listener = await honest_setup(server, robot, http)
         for i in range(3000):
             await hostile.send_str(fragment(f"id{i}", 0, 2, "v" * 10))

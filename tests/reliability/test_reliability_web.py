@@ -7,36 +7,26 @@ from __future__ import annotations
 
 import asyncio
 import json
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 
 import aiohttp
 import pytest
 
-import mrosd
 from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.web.foxglove_server import SessionLimits
 from mrosd.web.server import WebServer
+from tests.web.inloop import node, until
 
 Image = get_message_class("sensor_msgs/Image")
 MiB = 1024 * 1024
-
-
-async def until(cond: Callable[[], object], timeout: float = 10.0) -> None:
-    async with backports.timeout(timeout):
-        while not cond():  # noqa: ASYNC110 - the state lives in the server's callbacks
-            await asyncio.sleep(0.005)
 
 
 @pytest.fixture
 async def master() -> AsyncIterator[Master]:
     async with Master(host="127.0.0.1", port=0) as m:
         yield m
-
-
-def node(name: str, master: str) -> mrosd.Node:
-    return mrosd.Node(name, master_uri=master, argv=[], host="127.0.0.1")
 
 
 async def channels_of(ws: aiohttp.ClientWebSocketResponse, topics: set[str]) -> dict[str, int]:

@@ -18,6 +18,7 @@ from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.web.server import WebServer
+from tests.web.inloop import Collect
 
 Image = get_message_class("sensor_msgs/Image")
 CompressedImage = get_message_class("sensor_msgs/CompressedImage")
@@ -29,25 +30,6 @@ HOSTILE: dict[str, Any] = {
     "/unknown": Image(height=8, width=8, encoding="yuv999", step=8, data=b"\0" * 64),
     "/garbage": b"\x05\x00\x00\x00not an image at all",
 }
-
-
-class Collect:
-    """A client's sink on the hub (queues nothing): every body it is given."""
-
-    def __init__(self) -> None:
-        self.bodies: asyncio.Queue[bytes] = asyncio.Queue()
-
-    def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
-        self.bodies.put_nowait(bytes(body))
-
-    def backlog(self, topic: str) -> int:
-        return 0
-
-    def queued(self) -> int:
-        return 0
-
-    def shed_oldest(self) -> None:
-        pass
 
 
 @pytest.fixture

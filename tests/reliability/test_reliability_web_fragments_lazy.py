@@ -8,25 +8,19 @@ from __future__ import annotations
 
 import asyncio
 import json
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 
 import aiohttp
 import pytest
 
 import mrosd
-from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.web import rosbridge as rb
 from mrosd.web.server import WebServer
+from tests.web.inloop import until
 
 UInt8MultiArray = get_message_class("std_msgs/UInt8MultiArray")
-
-
-async def until(cond: Callable[[], object], timeout: float = 10.0) -> None:
-    async with backports.timeout(timeout):
-        while not cond():  # noqa: ASYNC110 - the state lives in the server's callbacks
-            await asyncio.sleep(0.005)
 
 
 @pytest.fixture

@@ -15,28 +15,22 @@ from __future__ import annotations
 import asyncio
 import json
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 from typing import Any
 
 import aiohttp
 import pytest
 
-import mrosd
 from mrosd import backports
 from mrosd.master import Master
 from mrosd.master.client import MasterClient
 from mrosd.msg import get_service_class, load_type
 from mrosd.web.probes import PROBE_TIMEOUT
 from mrosd.web.server import WebServer
+from tests.web.inloop import node, until
 
 Trigger = get_service_class("std_srvs/Trigger")
 ROGUE_SERVICES = 400
-
-
-async def until(cond: Callable[[], object], timeout: float = 10.0) -> None:
-    async with backports.timeout(timeout):
-        while not cond():  # noqa: ASYNC110 - the state lives in the server's callbacks
-            await asyncio.sleep(0.005)
 
 
 @pytest.fixture
@@ -44,10 +38,6 @@ async def master() -> AsyncIterator[Master]:
     # no graph sweep: the rogue's slave API is a closed port, and it must stay registered
     async with Master(host="127.0.0.1", port=0, cleanup_interval=0) as m:
         yield m
-
-
-def node(name: str, master: str) -> mrosd.Node:
-    return mrosd.Node(name, master_uri=master, argv=[], host="127.0.0.1")
 
 
 class Inbox:

@@ -1,5 +1,5 @@
-"""tests/web/roslib_tf_page.html (the real roslib: TFClient, ActionClient) in headless Chromium, driven through
-tests/web/roslib_browser.mjs, synchronously: for module-scoped fixtures beside a daemon in a subprocess.
+"""tests/web/roslib_page.html's tf part (the real roslib: TFClient, ActionClient) in headless Chromium, driven
+through tests/web/roslib_browser.mjs, synchronously: for module-scoped fixtures beside a daemon in a subprocess.
 
 The page is served by ``python -m http.server`` from tests/web (the import map names ``/node_modules/...``).
 """
@@ -53,7 +53,7 @@ def wait_for_page(origin: str, timeout: float = 10.0) -> None:
     deadline = time.monotonic() + timeout
     while True:
         try:
-            with urllib.request.urlopen(origin + "/roslib_tf_page.html", timeout=1.0):
+            with urllib.request.urlopen(origin + "/roslib_page.html", timeout=1.0):
                 return
         except (urllib.error.URLError, OSError):
             if time.monotonic() > deadline:
@@ -68,7 +68,7 @@ class Browser:
         assert NODE is not None
         self.procs = procs
         self.proc = procs.start(
-            [NODE, str(HERE / "roslib_browser.mjs"), f"{origin}/roslib_tf_page.html", rosbridge_url],
+            [NODE, str(HERE / "roslib_browser.mjs"), f"{origin}/roslib_page.html?part=tf", rosbridge_url],
             stdin=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
         )

@@ -21,12 +21,12 @@ import aiohttp
 import cbor2
 import pytest
 
-from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.web.server import WebServer
 from tests.rosenv import ROS_PYTHON, ros_available, ros_env
-from tests.web.test_web_real_clients import HERE, NodeClient, client_of, master, needs_node, node
+from tests.web.inloop import Collect, node, until
+from tests.web.test_web_real_clients import HERE, NodeClient, client_of, master, needs_node
 
 PIL = pytest.importorskip("PIL.Image")
 
@@ -55,31 +55,6 @@ def depth_image() -> Any:
 def decoded(hex_body: str) -> tuple[str, Any]:
     msg = CompressedImage.deserialize(bytes.fromhex(hex_body))
     return msg.format, PIL.open(io.BytesIO(bytes(msg.data)))
-
-
-class Collect:
-    """A sink on the hub as a client's (queues nothing): every body it is given."""
-
-    def __init__(self) -> None:
-        self.bodies: asyncio.Queue[bytes] = asyncio.Queue()
-
-    def deliver(self, topic: str, body: bytes | bytearray, receipt_ns: int) -> None:
-        self.bodies.put_nowait(bytes(body))
-
-    def backlog(self, topic: str) -> int:
-        return 0
-
-    def queued(self) -> int:
-        return 0
-
-    def shed_oldest(self) -> None:
-        pass
-
-
-async def until(cond: Any, timeout: float = 10.0) -> None:
-    async with backports.timeout(timeout):
-        while not cond():  # noqa: ASYNC110 - the conditions are the server's own state
-            await asyncio.sleep(0.02)
 
 
 @needs_node

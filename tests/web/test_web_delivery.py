@@ -12,7 +12,8 @@ from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.web.foxglove_sender import REPORT_PERIOD
 from mrosd.web.server import WebServer
-from tests.web.test_web_foxglove_integration import Client, master, node, server
+from tests.web.inloop import node
+from tests.web.test_web_foxglove_integration import Client, master, server
 
 __all__ = ["master", "server"]  # the fixtures this module shares with the Foxglove integration tests
 

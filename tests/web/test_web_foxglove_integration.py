@@ -5,25 +5,21 @@ from __future__ import annotations
 import asyncio
 import json
 import struct
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 from typing import Any
 
 import aiohttp
 import pytest
 
-import mrosd
 from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class
 from mrosd.web.foxglove_server import SessionLimits
 from mrosd.web.server import WebServer
+from tests.web.inloop import node, until
 
 String = get_message_class("std_msgs/String")
 Image = get_message_class("sensor_msgs/Image")
-
-
-def node(name: str, master: str) -> mrosd.Node:
-    return mrosd.Node(name, master_uri=master, argv=[], host="127.0.0.1")
 
 
 class Client:
@@ -69,13 +65,6 @@ class Client:
                 got = await self.receive(timeout)
                 if isinstance(got, bytes):
                     return got
-
-
-async def until(cond: Callable[[], object], timeout: float = 10.0) -> None:
-    """Re-check ``cond`` at each turn of the loop (the server runs in this loop too), bounded."""
-    async with backports.timeout(timeout):
-        while not cond():  # noqa: ASYNC110 - the state lives in the server's callbacks
-            await asyncio.sleep(0.005)
 
 
 @pytest.fixture

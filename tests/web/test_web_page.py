@@ -276,7 +276,8 @@ def test_the_page_shows_graph_rates_plot_and_image(
     browser.until("document.querySelector(\"#tree .num[data-path='data']\")")
     browser.eval("document.querySelector(\"#tree .num[data-path='data']\").click()")
     first = browser.until("mrosdPage.plot.points.length > 5 && mrosdPage.plot.points.map(p => p[1])")
-    time.sleep(4.0)  # a few seconds of the sine on the plot (and in the screenshot)
+    # a second more of the sine on the plot (and in the screenshot): SINE_HZ points after ``first``
+    browser.until(f"mrosdPage.plot.points.length >= {len(first) + int(SINE_HZ)}")
     later = browser.eval("mrosdPage.plot.points.map(p => p[1])")
     assert len(later) > len(first) and len(set(later)) > 5, later
     assert all(-1.0 <= v <= 1.0 for v in later)

@@ -24,12 +24,12 @@ from typing import Any
 
 import pytest
 
-import mrosd
 from mrosd import backports
 from mrosd.master import Master
 from mrosd.msg import get_message_class, get_service_class
 from mrosd.web.server import WebServer
 from tests.rosenv import ROS_PYTHON, ros_available, ros_env
+from tests.web.inloop import node
 
 HERE = Path(__file__).resolve().parent
 NODE = shutil.which("node")
@@ -145,10 +145,6 @@ async def client_of(master: Master) -> AsyncIterator[Any]:
     finally:
         for c in clients:
             await c.close()
-
-
-def node(name: str, master: str) -> mrosd.Node:
-    return mrosd.Node(name, master_uri=master, argv=[], host="127.0.0.1")
 
 
 @needs_node

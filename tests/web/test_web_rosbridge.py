@@ -22,6 +22,7 @@ from mrosd.master import Master
 from mrosd.msg import get_message_class, get_service_class
 from mrosd.web import rosbridge as rb
 from mrosd.web.server import WebServer
+from tests.web.inloop import rosbridge_and_node
 
 String = get_message_class("std_msgs/String")
 Image = get_message_class("sensor_msgs/Image")
@@ -177,10 +178,6 @@ def test_fragments_refused_with_a_reason() -> None:
         joiner.feed(rb.Fragment(num=0, total=2, data="x"), 0.0)
 
 
-def node(name: str, master: str) -> mrosd.Node:
-    return mrosd.Node(name, master_uri=master, argv=[], host="127.0.0.1")
-
-
 @pytest.fixture
 async def master() -> AsyncIterator[Master]:
     async with Master(host="127.0.0.1", port=0) as m:
@@ -196,11 +193,7 @@ async def receive(ws: aiohttp.ClientWebSocketResponse, op: str, timeout: float =
 
 
 async def test_rosbridge_subscribe_publish_services_and_rosapi(master: Master) -> None:
-    async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("robot", master.uri) as robot,
-        aiohttp.ClientSession() as http,
-    ):
+    async with rosbridge_and_node(master.uri, "robot") as (server, robot, http):
         cam = await robot.advertise("/image", Image)
         listener = await robot.subscribe("/cmd", String)
         await robot.advertise_service("/enable", SetBool, lambda r: SetBool._response_class(success=r.data))
@@ -245,11 +238,7 @@ async def test_rosbridge_subscribe_publish_services_and_rosapi(master: Master) -
 async def test_rosbridge_cbor_and_cbor_raw(master: Master) -> None:
     import cbor2
 
-    async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("robot", master.uri) as robot,
-        aiohttp.ClientSession() as http,
-    ):
+    async with rosbridge_and_node(master.uri, "robot") as (server, robot, http):
         cam = await robot.advertise("/image", Image)
         a = await http.ws_connect(server.rosbridge_url)
         b = await http.ws_connect(server.rosbridge_url)
@@ -277,11 +266,7 @@ async def test_rosbridge_cbor_and_cbor_raw(master: Master) -> None:
 
 
 async def test_a_rosbridge_client_provides_a_service_to_ros(master: Master) -> None:
-    async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("caller", master.uri) as caller,
-        aiohttp.ClientSession() as http,
-    ):
+    async with rosbridge_and_node(master.uri, "caller") as (server, caller, http):
         ws = await http.ws_connect(server.rosbridge_url)
         await ws.send_str(json.dumps({"op": "advertise_service", "service": "/toggle", "type": "std_srvs/SetBool"}))
         proxy = caller.service_proxy("/toggle", SetBool)
@@ -310,11 +295,7 @@ async def test_a_rosbridge_client_provides_a_service_to_ros(master: Master) -> N
 
 
 async def test_rosapi_details_and_unknown_types(master: Master) -> None:
-    async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("talker", master.uri) as talker,
-        aiohttp.ClientSession() as http,
-    ):
+    async with rosbridge_and_node(master.uri, "talker") as (server, talker, http):
         await talker.advertise("/chatter", String)
         ws = await http.ws_connect(server.rosbridge_url)
         calls = [
@@ -340,11 +321,7 @@ async def test_rosapi_details_and_unknown_types(master: Master) -> None:
 
 
 async def test_fragment_size_splits_a_message_into_fragment_ops(master: Master) -> None:
-    async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("talker", master.uri) as talker,
-        aiohttp.ClientSession() as http,
-    ):
+    async with rosbridge_and_node(master.uri, "talker") as (server, talker, http):
         pub = await talker.advertise("/long", String)
         ws = await http.ws_connect(server.rosbridge_url)
         await ws.send_str(json.dumps({"op": "subscribe", "topic": "/long", "fragment_size": 100}))
@@ -361,11 +338,7 @@ async def test_fragment_size_splits_a_message_into_fragment_ops(master: Master) 
 
 
 async def test_png_compression_sends_the_publish_op_as_a_png_whole_or_in_fragments(master: Master) -> None:
-    async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("camera", master.uri) as camera,
-        aiohttp.ClientSession() as http,
-    ):
+    async with rosbridge_and_node(master.uri, "camera") as (server, camera, http):
         cam = await camera.advertise("/image", Image)
         whole = await http.ws_connect(server.rosbridge_url)
         cut = await http.ws_connect(server.rosbridge_url)
@@ -401,11 +374,7 @@ async def test_png_compression_sends_the_publish_op_as_a_png_whole_or_in_fragmen
 async def test_a_client_sends_ops_cut_into_fragments(master: Master) -> None:
     """No real client sends fragment ops (roslib and roslibpy only read them): the documented wire ops from a
     raw client, pieces out of order, a 1 MB image published and a service called through them."""
-    async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("robot", master.uri) as robot,
-        aiohttp.ClientSession() as http,
-    ):
+    async with rosbridge_and_node(master.uri, "robot") as (server, robot, http):
         listener = await robot.subscribe("/image", Image)
         await robot.advertise_service("/enable", SetBool, lambda r: SetBool._response_class(success=r.data))
         ws = await http.ws_connect(server.rosbridge_url)

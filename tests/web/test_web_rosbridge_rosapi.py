@@ -19,7 +19,6 @@ from typing import Any
 import aiohttp
 import pytest
 
-import mrosd
 from mrosd import backports
 from mrosd.errors import MasterError
 from mrosd.master import Master
@@ -27,6 +26,7 @@ from mrosd.msg import TypeStore, get_message_class, get_service_class
 from mrosd.web import rosbridge_publishers
 from mrosd.web.server import WebServer
 from tests.rosenv import ROS_PYTHON, needs_ros, ros_env
+from tests.web.inloop import node, rosbridge_and_node
 from tests.web.test_web_real_clients import NodeClient
 from tests.web.test_web_rosbridge_types import bridge_process, make_workspace, roslibpy_client, wait_for_service
 
@@ -41,10 +41,6 @@ SetBool = get_service_class("std_srvs/SetBool")
 async def master() -> AsyncIterator[Master]:
     async with Master(host="127.0.0.1", port=0) as m:
         yield m
-
-
-def node(name: str, master: str) -> mrosd.Node:
-    return mrosd.Node(name, master_uri=master, argv=[], host="127.0.0.1")
 
 
 async def call(ws: aiohttp.ClientWebSocketResponse, service: str, args: Any = None, **extra: Any) -> dict[str, Any]:
@@ -86,11 +82,7 @@ async def test_a_roslibpy_handler_returning_false_answers_the_ros_caller_with_it
 
 
 async def test_call_service_ignores_the_clients_type_and_asks_the_service(master: Master) -> None:
-    async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("robot", master.uri) as robot,
-        aiohttp.ClientSession() as http,
-    ):
+    async with rosbridge_and_node(master.uri, "robot") as (server, robot, http):
         answer = SetBool._response_class
         await robot.advertise_service("/enable", SetBool, lambda r: answer(success=r.data, message="ok"))
         async with http.ws_connect(server.rosbridge_url) as ws:
@@ -101,11 +93,7 @@ async def test_call_service_ignores_the_clients_type_and_asks_the_service(master
 
 async def test_rosapi_is_in_the_graph_under_rosapis_types(master: Master) -> None:
     topics = get_service_class("rosapi/Topics")
-    async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("robot", master.uri) as robot,
-        aiohttp.ClientSession() as http,
-    ):
+    async with rosbridge_and_node(master.uri, "robot") as (server, robot, http):
         await robot.advertise("/chatter", String)
         with pytest.raises(MasterError):  # not before a web client comes (tests/web/test_web_graph_footprint.py)
             await robot.master.lookup_service("/rosapi/topics")
@@ -121,11 +109,7 @@ async def test_rosapi_is_in_the_graph_under_rosapis_types(master: Master) -> Non
 
 
 async def test_action_servers_ros_version_and_full_text_of_a_subscribed_topic(master: Master) -> None:
-    async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("robot", master.uri) as robot,
-        aiohttp.ClientSession() as http,
-    ):
+    async with rosbridge_and_node(master.uri, "robot") as (server, robot, http):
         for leaf, cls in [("goal", Goal), ("cancel", Goal), ("status", Status), ("feedback", Goal), ("result", Goal)]:
             await robot.advertise(f"/fibonacci/{leaf}", cls)
         await robot.advertise("/half/goal", Goal)  # not all five: not an action server
@@ -222,11 +206,7 @@ async def test_publish_on_a_fresh_socket_that_closes_at_once_reaches_rospy(
 async def test_lingering_publishers_are_bounded(master: Master, monkeypatch: pytest.MonkeyPatch) -> None:
     """A client that advertises and leaves: at most MAX_LINGERING publishers stay; the others go at once."""
     monkeypatch.setattr(rosbridge_publishers, "MAX_LINGERING", 2)
-    async with (
-        WebServer(master.uri, port=0, rosbridge_port=0, node_host="127.0.0.1") as server,
-        node("robot", master.uri) as robot,
-        aiohttp.ClientSession() as http,
-    ):
+    async with rosbridge_and_node(master.uri, "robot") as (server, robot, http):
         async with http.ws_connect(server.rosbridge_url) as ws:
             for i in range(5):
                 await ws.send_str(json.dumps({"op": "advertise", "topic": f"/t{i}", "type": "std_msgs/String"}))

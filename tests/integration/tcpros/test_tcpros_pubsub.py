@@ -7,6 +7,7 @@ import logging
 import os
 import socket
 import struct
+from collections.abc import Iterator
 
 import pytest
 
@@ -16,13 +17,24 @@ from mrosd.errors import HandshakeError, LocalProtocolError, ServiceError
 from mrosd.msg import get_message_class, get_service_class
 from mrosd.wire.header import ConnectionHeader, decode_connection_header, encode_header
 from mrosd.xmlrpc import XmlRpcClient
-from tests.rosenv import Processes, free_port, needs_ros, start_rosmaster_on
+from tests.rosenv import Processes, free_port, needs_ros, start_rosmaster, start_rosmaster_on
 
 pytestmark = needs_ros
 
 String = get_message_class("std_msgs/String")
 Int32 = get_message_class("std_msgs/Int32")
 SetBool = get_service_class("std_srvs/SetBool")
+
+
+@pytest.fixture(scope="module")
+def rosmaster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """One Debian ``rosmaster --core`` for the module (starting one costs a second of CPU): each test's nodes
+    unregister when they close, and no test here reads the whole graph. The restart test starts its own."""
+    procs = Processes(tmp_path_factory.mktemp("rosmaster"))
+    try:
+        yield start_rosmaster(procs)
+    finally:
+        procs.close()
 
 
 def node(name: str, master: str, **kw: object) -> mrosd.Node:

@@ -91,7 +91,8 @@ class Pair:
 
     @property
     def observes_graph(self) -> bool:
-        """Its output lists nodes, topics or services (so no other pair may run beside it)."""
+        """Its output lists nodes, topics or services, so no pair that registers a node (echo, call, ping) may run
+        beside it; it registers nothing itself, so other observers may (as each pair's two commands always do)."""
         return self.ros[1] in {"list", "info", "find", "machine"}
 
     @property
@@ -214,7 +215,7 @@ class Outcome:
 
 #: How long a command that waits (for a topic not published yet) is left running before its outcome is taken.
 WAIT_TIME = 3.0
-#: Pairs that do not read the graph run this many at a time (after the ones that do, which run alone).
+#: Pairs run this many at a time: the ones that read the graph first, then the others.
 PARALLEL = 4
 
 
@@ -246,11 +247,12 @@ def _run_pair(pair: Pair, master: str, tmp: Path) -> Outcome:
 
 
 def _run_pairs(master: str, tmp: Path, pairs: list[Pair]) -> dict[str, Outcome]:
-    """Graph-reading pairs one at a time, then the others PARALLEL at a time."""
-    results = {pair.ros_text: _run_pair(pair, master, tmp) for pair in pairs if pair.observes_graph}
-    with concurrent.futures.ThreadPoolExecutor(PARALLEL) as pool:
-        rest = {p.ros_text: pool.submit(_run_pair, p, master, tmp) for p in pairs if not p.observes_graph}
-        results.update({text: future.result() for text, future in rest.items()})
+    """Graph-reading pairs PARALLEL at a time, then (once they have all ended) the others PARALLEL at a time."""
+    results: dict[str, Outcome] = {}
+    for observers in (True, False):
+        with concurrent.futures.ThreadPoolExecutor(PARALLEL) as pool:
+            batch = {p.ros_text: pool.submit(_run_pair, p, master, tmp) for p in pairs if p.observes_graph is observers}
+            results.update({text: future.result() for text, future in batch.items()})
     return results
 
 
