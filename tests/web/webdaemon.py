@@ -118,11 +118,13 @@ class Watch:
 
 
 class CmdVelCounter:
-    """A real mrosd subscriber of /cmd_vel (geometry_msgs/Twist) in a thread of its own; ``count`` so far."""
+    """A real mrosd subscriber of /cmd_vel (geometry_msgs/Twist) in a thread of its own; ``count`` so far.
+    Several at once need a node ``name`` each."""
 
-    def __init__(self, master_uri: str, topic: str = "/cmd_vel") -> None:
+    def __init__(self, master_uri: str, topic: str = "/cmd_vel", name: str = "cmd_vel_counter") -> None:
         self.master_uri = master_uri
         self.topic = topic
+        self.name = name
         self.count = 0
         self._ready = threading.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -137,7 +139,7 @@ class CmdVelCounter:
         self._loop = asyncio.get_running_loop()
         self._done = asyncio.Event()
         try:
-            async with mrosd.Node("cmd_vel_counter", master_uri=self.master_uri, argv=[], host="127.0.0.1") as node:
+            async with mrosd.Node(self.name, master_uri=self.master_uri, argv=[], host="127.0.0.1") as node:
                 await node.subscribe(self.topic, get_message_class("geometry_msgs/Twist"), self._got)
                 self._ready.set()
                 await self._done.wait()
