@@ -296,10 +296,14 @@ class WebServer:
             await asyncio.wait({self._graph_task}, timeout=GRAPH_SERVICES_WAIT)
 
     async def _graph_services(self) -> None:
+        """Never raises (``aclose`` awaits it): a failure is one line, and the web part goes on without."""
         if self.rosbridge_port is not None:
             from mrosd.web import rosapi  # rosapi's services in the graph, as its node registers them
 
-            await rosapi.register(self.hub)  # each failure is logged there
+            try:
+                await rosapi.register(self.hub)  # each service's failure is logged there
+            except Exception as exc:
+                log.error("web: rosapi's services did not join the graph: %s", exc)
         for hook in self.first_client_hooks:
             try:
                 await hook()
