@@ -37,10 +37,17 @@ def client(goal, cancel_after):
         print("no server", flush=True)
         return
     # wait_for_server checks the server's subscriptions to goal and cancel, not ours to its feedback and result:
-    # a goal sent before they connect loses its first feedback (actionlib's own race, with any server)
+    # a goal sent before they connect loses its first feedback (actionlib's own race, with any server). rospy
+    # counts a connection before it is made (get_num_connections), so wait for the publisher's reply header:
+    # the publisher takes a subscriber when it answers its header.
     subs = (cli.action_client.feedback_sub, cli.action_client.result_sub)
+
+    def connected(sub):
+        conns = list(sub.impl.connections)
+        return bool(conns) and all("md5sum" in (getattr(c, "header", None) or {}) for c in conns)
+
     deadline = rospy.Time.now() + rospy.Duration(20)
-    while any(sub.get_num_connections() == 0 for sub in subs) and rospy.Time.now() < deadline:
+    while not all(connected(sub) for sub in subs) and rospy.Time.now() < deadline:
         rospy.sleep(0.01)
     print("up", flush=True)
     seen = []

@@ -45,7 +45,9 @@ async def test_ctrl_c_on_mros_action_send_cancels_the_goal(procs: Processes, ros
     env = mros_env(rosmaster, procs.tmp)
     sender = procs.start([sys.executable, "-m", "mros_cli.main", "action", "send", "/test_action", "goal: 100"], env)
     got = await asyncio.to_thread(lambda: list(iter_lines_until(sender, 2, 30.0)))
-    assert got == ["feedback:", "  feedback: 1"], got
+    # the goal runs: its feedback arrives (the first may be lost to rospy's publisher, which answers a new
+    # subscriber's header before it adds the connection to those it sends to)
+    assert got[0] == "feedback:" and got[1].startswith("  feedback: "), got
     sender.send_signal(signal.SIGINT)
     code = await asyncio.to_thread(sender.wait, 15)
     assert code == 130
