@@ -396,19 +396,23 @@ class Subscriber:
             msg, views = _decode_view(self.msg_class, view.data, view)
         except MrosError as exc:
             view.release()
-            _ratelog.warning(
-                self.topic + ":undecodable",
-                "%s: dropping a message from %s that does not decode: %s",
-                self.topic,
-                link.uri,
-                exc,
-            )
+            self._undecodable(link, exc)
             return
         if views:
             view.views.extend(views)
         else:
             view.release()
         self._hand_over(msg)
+
+    def _undecodable(self, link: PublisherLink, exc: MrosError) -> None:
+        """A publisher's message that does not decode: dropped, a few lines per topic and minute."""
+        _ratelog.warning(
+            self.topic + ":undecodable",
+            "%s: dropping a message from %s that does not decode: %s",
+            self.topic,
+            link.uri,
+            exc,
+        )
 
     def _deliver(self, body: bytes | bytearray, link: PublisherLink) -> None:
         if self.raw:
@@ -420,13 +424,7 @@ class Subscriber:
                 # fields are read-only views into it, not copies (mrosd.msg.runtime.FrameBuffer).
                 msg = self.msg_class.deserialize(body)
             except MrosError as exc:
-                _ratelog.warning(
-                    self.topic + ":undecodable",
-                    "%s: dropping a message from %s that does not decode: %s",
-                    self.topic,
-                    link.uri,
-                    exc,
-                )
+                self._undecodable(link, exc)
                 return
             if self.max_leased:  # one API whatever the transport: release() and ``with`` (no lease here)
                 from mrosd.shm.views import leased_class
