@@ -1,8 +1,9 @@
 """A publisher or subscriber process of the shared-memory transport, driven by the tests over stdin/stdout.
 
-    shmnode.py pub --subs N [--size S] [--queue Q] [--latch]
+    shmnode.py pub --subs N [--size S] [--queue Q] [--latch] [--stall SECONDS]
         prints ``addr ADDRESS TOKEN``, then ``attached`` once N subscribers are; each stdin line ``go K``
-        publishes K messages and prints ``published K`` and ``stats JSON``; stdin EOF closes it.
+        publishes K messages and prints ``published K`` and ``stats JSON``; stdin EOF closes it. ``--stall``
+        replaces ``STALL``, how long a subscriber may hold back the others before its oldest messages go.
     shmnode.py sub ADDRESS TOKEN --expect K [--zero-copy]
         prints ``attached``; once K messages are received or dropped, or the publisher is gone, prints
         ``result JSON`` and, after closing, ``leftover N`` (its own fds and mappings of rings still open).
@@ -22,6 +23,7 @@ import sys
 
 from mrosd import backports
 from mrosd.shm import ShmPublisherEndpoint, ShmSubscriberConnection, ShmView, parse_answer
+from mrosd.shm import publisher as shm_publisher
 from mrosd.shm.negotiate import PROTOCOL, VERSION
 from mrosd.wire.header import ConnectionHeader
 
@@ -80,6 +82,8 @@ def fail_on_loop_errors() -> None:
 
 async def pub(args: argparse.Namespace) -> None:
     fail_on_loop_errors()
+    if args.stall is not None:
+        shm_publisher.STALL = args.stall
     changed = asyncio.Event()
     ep = ShmPublisherEndpoint("/shm_test", queue_size=args.queue, latch=args.latch, on_change=changed.set)
     await ep.start()
@@ -159,6 +163,7 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=64)
     parser.add_argument("--queue", type=int, default=100)
     parser.add_argument("--latch", action="store_true")
+    parser.add_argument("--stall", type=float)
     parser.add_argument("--expect", type=int, default=1)
     parser.add_argument("--zero-copy", action="store_true")
     parser.add_argument("--linger", action="store_true")
