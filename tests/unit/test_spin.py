@@ -249,7 +249,9 @@ async def test_a_probe_runs_at_each_spin_step_of_its_window_until_it_says_done()
             await asyncio.sleep(0.001)
     assert min(calls) >= now + 2 * MS  # not before the window opened
     await asyncio.sleep(0.005)
-    assert len(calls) == 3 and spinner._task is not None  # done: not called again, though the window lasts
+    alive = spinner._task is not None
+    assert len(calls) == 3  # done: not called again, though the window lasts
+    assert alive or time.monotonic_ns() >= now + 30 * MS  # the task lasts its window (a loaded machine slept past it)
     async with backports.timeout(2):
         while spinner._task is not None:  # noqa: ASYNC110 - ends itself at the window's end
             await asyncio.sleep(0.005)

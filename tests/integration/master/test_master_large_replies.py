@@ -24,7 +24,9 @@ TOPICS = 3000
 
 @pytest.fixture
 async def ours() -> AsyncIterator[str]:
-    async with Master("127.0.0.1", 0, advertise="127.0.0.1") as m:
+    # no sweep: the graph's nodes are at a port nothing listens on, and a loaded machine's mros calls can come
+    # after the 5 s sweep has rightly removed them all (rosmaster, the reference, keeps them)
+    async with Master("127.0.0.1", 0, advertise="127.0.0.1", cleanup_interval=0) as m:
         yield m.uri
 
 
