@@ -4,7 +4,8 @@ bytes that arrived, not the length announced.
 A pending large frame's buffer grows as its bytes arrive, and a bytearray that grows is filled with zeros
 to its new size, so every byte of capacity is resident at once. Before: each time the buffer was full it grew
 to sixteen times what had arrived, up to the announced length, so a peer that announced 256 MiB and sent
-16 MiB made a mrosd subscriber hold 256 MiB. Now it is at most twice what arrived.
+16 MiB made a mrosd subscriber hold 256 MiB (two such peers: +358 MiB). Now a buffer is at most twice what
+arrived (+98 MiB for the two, the peak including a buffer moved while it grew).
 """
 
 from __future__ import annotations
