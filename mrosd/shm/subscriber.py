@@ -25,7 +25,7 @@ from typing import Any
 from mrosd import backports
 from mrosd.errors import HandshakeError, LocalProtocolError, RemoteProtocolError
 from mrosd.ixm.channel import drain_socket, is_wake_socket, small_send_buffer, wake_socket
-from mrosd.msg.runtime import FramePool
+from mrosd.msg.runtime import FrameBuffer
 from mrosd.shm import control
 from mrosd.shm.channel import (
     ATTACH_TIMEOUT,
@@ -41,6 +41,7 @@ from mrosd.shm.ring import RingCursor
 from mrosd.shm.segment import MAX_LEASES, MappedAck, MappedRing
 from mrosd.spin import Anticipation, loop_spinner
 from mrosd.wire.header import ConnectionHeader, decode_connection_header, encode_header
+from mrosd.wire.spares import spare_pool
 
 __all__ = [
     "DEFAULT_MAX_MAP_BYTES",
@@ -101,8 +102,8 @@ class ShmSubscriberConnection:
         self._ring: MappedRing | None = None
         self._cursor: RingCursor | None = None
         self._ack: MappedAck | None = None
-        #: copies are made into these buffers, reused once the messages decoded from them are gone
-        self._pool = FramePool()
+        #: copies are made into the process's spare buffers, reused once the messages decoded from them are gone
+        self._pool = spare_pool()
         self._dropped_before = 0
         self._reported = 0
         self._on_frame: Callable[[Any], None] | None = None
@@ -363,6 +364,8 @@ class ShmSubscriberConnection:
                     break
             else:
                 data = cursor.read(self._pool)
+                if type(data) is FrameBuffer:
+                    self._pool.watch(self._loop)  # kept for reuse: given back once idle
                 if data is not None:
                     frame, n = data, len(data)
                     self._acknowledge(cursor.next)

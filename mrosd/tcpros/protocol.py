@@ -21,9 +21,11 @@ from typing import Any, cast
 
 from mrosd.errors import RemoteProtocolError
 from mrosd.lograte import RateLimitedLog
+from mrosd.msg.runtime import FrameBuffer
 from mrosd.spin import loop_spinner
 from mrosd.wire.framing import MAX_FRAME_SIZE, FrameDecoder
 from mrosd.wire.header import MAX_HEADER_SIZE, ConnectionHeader, decode_connection_header
+from mrosd.wire.spares import spare_pool
 
 log = logging.getLogger(__name__)
 #: A peer decides how often its connections fail (a garbage header each time): a few lines per interval.
@@ -93,6 +95,9 @@ class TcprosProtocol(asyncio.BufferedProtocol):
                 self.header = decode_connection_header(frames[0])
                 self.header_received(self.header)
                 del frames[0]
+            if frames and type(frames[0]) is FrameBuffer:
+                # a large frame's buffer was kept for reuse: the process's pool gives it back once idle
+                spare_pool().watch(asyncio.get_running_loop())
             frame_received = self.frame_received
             for frame in frames:
                 transport = self.transport

@@ -123,6 +123,7 @@ class RosbridgeSender(ClientSession):
             self._wake.clear()
             while not self._closed:
                 deflate = True
+                frame: tuple[bool, bytes, bool] | None = None
                 rest: Iterator[bytes] | None = getattr(self, "_fragment_rest", None)
                 piece = next(rest, None) if rest is not None else None
                 if piece is not None:
@@ -144,6 +145,9 @@ class RosbridgeSender(ClientSession):
                     await ws.send_bytes(data)
                 else:
                     await ws.send_str(data.decode())
+                # not kept while the loop waits for the next one: an op is this client's own copy of a message
+                # (a latched 40 MiB one replayed to each client stayed, one per client)
+                del data, frame
             throttled = [s for s in self.subs.values() if len(s.queue) and s.throttle_s]
             if throttled:
                 delay = min(s.throttle_s - (time.monotonic() - s.last_sent) for s in throttled)

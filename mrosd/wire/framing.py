@@ -5,7 +5,9 @@ incomplete. ``feed_frames()`` is the batch form (one call per socket read). For
 ``asyncio.BufferedProtocol`` the decoder also lends the buffer to receive into: ``get_buffer()`` /
 ``buffer_updated()``. Once a large frame's length is known, ``get_buffer()`` is a view into that frame's
 own ``FrameBuffer``, so the kernel writes the body straight where it is delivered from, and the buffer
-becomes the decoded message's storage (see ``mrosd.msg.runtime.FrameBuffer`` for the ownership rule).
+becomes the decoded message's storage (see ``mrosd.msg.runtime.FrameBuffer`` for the ownership rule); once
+delivered it is offered to the process's ``SparePool`` (``mrosd.wire.spares``), which lends it to a later large
+frame of any connection once nobody holds it, within one bound for the whole process.
 That buffer grows with the bytes that actually arrive, never with the announced length, and the length is
 checked against the decoder's limit before anything is buffered: a 4 GB claim is refused at once, and a
 1 GiB claim followed by 5 bytes costs kilobytes. No sockets, no asyncio.
@@ -18,10 +20,10 @@ protocol (``mrosd.ixm.protocol``) uses the same decoder with its own limits.
 from __future__ import annotations
 
 import struct
-import sys
 
 from mrosd.errors import RemoteProtocolError
 from mrosd.msg.runtime import FrameBuffer
+from mrosd.wire.spares import SparePool, spare_pool
 
 __all__ = [
     "GROWTH",
@@ -50,8 +52,12 @@ LARGE_FRAME = 64 * 1024
 
 #: A pending large frame's buffer is at most this many times the bytes of it received so far (and at least
 #: LARGE_FRAME); once a 1/GROWTH share of it has arrived it gets its full size. Memory follows data, not the
-#: length a peer announces, and an honest frame is moved at most a few times while small.
-GROWTH = 16
+#: length a peer announces: a buffer that grows is zero-filled to its new size, so all of its capacity is
+#: resident at once (at 16, a peer that announced 256 MiB and sent 16 MiB held 256 MiB). Growing by doubling
+#: costs no more than in large steps: the buffer is resized in place (the kernel moves no pages), and every
+#: byte is zeroed once either way (a cold 8 MB frame in 256 KiB reads: 6-13 ms at 16, 7-23 ms at 2 on a
+#: loaded 2-core machine; 40 MB: 76-128 ms and 63-107 ms).
+GROWTH = 2
 
 #: Size of the receive buffer lent by ``get_buffer()`` while no large frame is pending (allocated on
 #: first use, per connection). Large bodies bypass it, so it only bounds how many small frames one read takes.
@@ -61,12 +67,6 @@ RECV_BUFFER_SIZE = 64 * 1024
 #: Until a peer has identified itself it gets this much and no more: its header bytes are kept as they
 #: arrive (memory follows bytes received), and the big receive buffer is allocated only after the header.
 HEADER_RECV_SIZE = 4 * 1024
-
-#: Large frames' buffers kept for reuse per decoder: at most this many, and this many bytes unless only one.
-SPARES = 4
-SPARE_BYTES = 64 * 1024 * 1024
-#: sys.getrefcount of a spare that only the decoder holds (see ``_take_spare``)
-_FREE_SPARE_REFS = 3
 
 #: Compact the buffer once this many consumed bytes sit at its front (amortises the memmove).
 _COMPACT_AT = 64 * 1024
@@ -123,7 +123,12 @@ class FrameDecoder:
     )
 
     def __init__(
-        self, max_size: int = MAX_FRAME_SIZE, *, header_max_size: int | None = None, ok_byte: bool = False
+        self,
+        max_size: int = MAX_FRAME_SIZE,
+        *,
+        header_max_size: int | None = None,
+        ok_byte: bool = False,
+        spares: SparePool | None = None,
     ) -> None:
         #: Every frame after the connection header (every frame without ``header_max_size``) follows an ok
         #: byte, as service responses do: read them with ``feed_responses()``, not the frame methods (which
@@ -136,11 +141,11 @@ class FrameDecoder:
         self._large_filled = 0
         self._large_size = 0
         self._recv: bytearray | None = None
-        #: The last large frames delivered, newest last. Once nothing refers to one any more (the message
-        #: built on it is gone, no transport still writes it), the next large frame is received into it
-        #: again: steady streams of images cost no allocation, no zero-filling and no page faults per frame,
-        #: even where the application holds a few frames at a time (a bridge queueing them for its clients).
-        self._spares: list[FrameBuffer] = []
+        #: Where delivered large frames' buffers are kept for reuse (default: the process's pool, shared by
+        #: every connection and bounded for all of them). Once nothing refers to one any more (the message
+        #: built on it is gone, no transport still writes it), a later large frame is received into it again:
+        #: steady streams of images cost no allocation, no zero-filling and no page faults per frame.
+        self._spares = spare_pool() if spares is None else spares
         #: The limit of the frame being decoded. With ``header_max_size`` the first frame (a connection
         #: header) is judged by that limit and every later one by ``max_size``: the switch happens inside
         #: the decoder, between two frames of the same read (as h11 switches from headers to body).
@@ -158,7 +163,7 @@ class FrameDecoder:
 
     def _capacity_for(self, filled: int) -> int:
         """The pending large frame's buffer size once ``filled`` bytes of it arrived: the whole frame once
-        a sixteenth of it is here, else GROWTH times what arrived (LARGE_FRAME at least)."""
+        a 1/GROWTH share of it is here, else GROWTH times what arrived (LARGE_FRAME at least)."""
         size = self._large_size
         if filled * GROWTH >= size:
             return size
@@ -168,7 +173,7 @@ class FrameDecoder:
         self._large_size = length
         avail = len(first)
         capacity = self._capacity_for(max(avail, 1))
-        large = self._take_spare(capacity)
+        large = self._spares.take(capacity)
         if large is None:
             large = FrameBuffer(capacity)
         elif len(large) > length:
@@ -183,23 +188,8 @@ class FrameDecoder:
         self._large = None
         self._large_filled = 0
         self._large_size = 0
-        spares = self._spares
-        spares.append(large)
-        # The newest always stays; older ones while they fit the count and byte bounds.
-        while len(spares) > 1 and (len(spares) > SPARES or sum(map(len, spares)) > SPARE_BYTES):
-            del spares[0]
+        self._spares.keep(large)
         return large
-
-    def _take_spare(self, capacity: int) -> FrameBuffer | None:
-        """A spare of at least ``capacity`` bytes that nobody else refers to, taken out of the list."""
-        spares = self._spares
-        for i in range(len(spares) - 1, -1, -1):
-            spare = spares[i]
-            # The list, ``spare`` and getrefcount's argument: any other reference is a holder outside.
-            if len(spare) >= capacity and sys.getrefcount(spare) == _FREE_SPARE_REFS:
-                del spares[i]
-                return spare
-        return None
 
     def feed_frames(self, data: bytes | bytearray | memoryview) -> list[bytes | bytearray]:
         """``feed(data)`` and return every frame now complete (the hot path: one call per socket read).

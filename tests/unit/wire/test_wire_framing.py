@@ -16,14 +16,13 @@ from mrosd.wire.framing import (
     GROWTH,
     LARGE_FRAME,
     MAX_FRAME_SIZE,
-    SPARE_BYTES,
-    SPARES,
     FrameBuffer,
     FrameDecoder,
     Response,
     encode_frame,
     frame_prefix,
 )
+from mrosd.wire.spares import SPARES, SparePool
 
 
 def pieces(stream: bytes, cuts: list[int]) -> Iterator[bytes]:
@@ -240,7 +239,7 @@ def test_a_claimed_gigabyte_costs_what_arrived_not_what_was_claimed(path: str) -
 def test_lent_buffers_grow_with_the_data_and_stay_bounded_by_it(size: int, cuts: list[int]) -> None:
     body = bytes([size % 251]) * size
     stream = encode_frame(body)
-    dec = FrameDecoder()
+    dec = FrameDecoder(spares=SparePool())  # no spare of the process's pool (that memory is already there)
     pos = 0
     i = 0
     out: list[bytes | bytearray] = []
@@ -275,7 +274,7 @@ def test_received_hands_back_the_bytes_written_into_the_lent_buffer() -> None:
 
 def test_a_delivered_large_frame_never_changes_and_is_reused_only_once_released() -> None:
     first, second, third = (bytes([i]) * (3 * LARGE_FRAME) for i in (1, 2, 3))
-    dec = FrameDecoder()
+    dec = FrameDecoder(spares=SparePool())
     (held,) = _receive_in_place(dec, encode_frame(first), [LARGE_FRAME])
     view = memoryview(held)[10:20]  # as a decoded message's payload view would
     del held
@@ -288,12 +287,12 @@ def test_a_delivered_large_frame_never_changes_and_is_reused_only_once_released(
 
 
 def test_frames_held_a_few_at_a_time_are_received_into_the_same_buffers_again() -> None:
-    """A bridge holds a few frames while its clients read them: the decoder keeps that many to reuse."""
-    dec = FrameDecoder()
+    """A bridge holds a few frames while its clients read them: the pool keeps that many to reuse."""
+    dec = FrameDecoder(spares=SparePool())
     size = 3 * LARGE_FRAME
-    held = [_receive_in_place(dec, encode_frame(bytes([i]) * size), [LARGE_FRAME])[0] for i in range(SPARES)]
+    held = [_receive_in_place(dec, encode_frame(bytes([i]) * size), [LARGE_FRAME])[0] for i in range(4)]
     ids = {id(b) for b in held}
-    for step in range(3 * SPARES):
+    for step in range(3 * 4):
         oldest = held.pop(0)  # released: one of the spares is free again
         del oldest
         body = bytes([100 + step]) * size
@@ -303,13 +302,18 @@ def test_frames_held_a_few_at_a_time_are_received_into_the_same_buffers_again() 
         assert all(b[0] == b[-1] for b in held)  # a frame still held was never written into
 
 
-def test_the_spares_kept_are_bounded_in_bytes() -> None:
-    dec = FrameDecoder()
-    size = SPARE_BYTES // 2 + 1
-    held = [_receive_in_place(dec, encode_frame(bytes(size)), [size])[0] for _ in range(3)]
+def test_the_connections_of_a_process_share_one_bounded_pool_of_spares() -> None:
+    """Each link used to keep its newest large buffer however many links there were (six publishers latching
+    40 MiB: 240 MiB kept in a bridge after every message was sent and dropped); the pool is one per process."""
+    pool = SparePool(max_bytes=4 * LARGE_FRAME)
+    links = [FrameDecoder(spares=pool) for _ in range(SPARES)]
+    size = 2 * LARGE_FRAME
+    held = [_receive_in_place(dec, encode_frame(bytes([i]) * size), [LARGE_FRAME])[0] for i, dec in enumerate(links)]
+    assert len(pool) == 2 and pool.size == 2 * size  # the newest two: the rest are the receivers' alone
+    kept = {id(held[-1]), id(held[-2])}
     del held
-    kept = dec._spares
-    assert len(kept) == 1 and sum(map(len, kept)) <= max(size, SPARE_BYTES)
+    (frame,) = _receive_in_place(links[0], encode_frame(b"z" * size), [LARGE_FRAME])
+    assert frame == b"z" * size and id(frame) in kept  # a buffer another link delivered, received into again
 
 
 @settings(deadline=None, max_examples=50)
