@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import gc
 import os
-from collections.abc import Iterator
+from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
 from tests.rosenv import Processes, start_rosmaster
+
+if TYPE_CHECKING:
+    from mrosd.master import Master
 
 # Every mrosd daemon a test starts (and that inherits this environment) serves its web part on a free port:
 # tests run in parallel, and the default 8765 may belong to a daemon the developer runs.
@@ -38,6 +42,16 @@ def procs(tmp_path: Path) -> Iterator[Processes]:
         yield p
     finally:
         p.close()
+
+
+@pytest.fixture
+async def master() -> AsyncIterator[Master]:
+    """mrosd's ``Master`` in the test's event loop, on 127.0.0.1 and a free port, with its default settings
+    (a module whose tests need other settings, or a daemon process, defines its own ``master``)."""
+    from mrosd.master import Master  # imported here: collecting a test must not load the master
+
+    async with Master(host="127.0.0.1", port=0) as m:
+        yield m
 
 
 @pytest.fixture

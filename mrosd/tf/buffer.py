@@ -178,13 +178,16 @@ class Buffer:
                         static=static,
                     )
                     if i % 64 == 63 and loop_time() > slice_end:
-                        self._changed.set()
-                        await asyncio.sleep(0)
-                        slice_end = loop_time() + SLICE_S
+                        slice_end = await self._next_slice()
                 self._changed.set()
                 if loop_time() > slice_end:
-                    await asyncio.sleep(0)
-                    slice_end = loop_time() + SLICE_S
+                    slice_end = await self._next_slice()
+
+    async def _next_slice(self) -> float:
+        """The slice is over: wake the waiters for what is stored so far, give the loop back, start the next."""
+        self._changed.set()
+        await asyncio.sleep(0)
+        return _time.monotonic() + SLICE_S
 
     def _on_tf(self, raw: RawMessage) -> None:
         self._feed(raw, False)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import select
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -32,6 +33,9 @@ _MAX_CHUNK_LINE = 1024
 _SEPARATE_BODY = 64 * 1024
 
 _Key = tuple[str, int]
+
+#: The peer shut its sending side (Linux); POLLIN reports the same end of stream elsewhere.
+_POLLRDHUP = getattr(select, "POLLRDHUP", 0)
 
 
 class _Conn:
@@ -105,36 +109,31 @@ class XmlRpcClient:
             self._slots = asyncio.Semaphore(self._limit)
         async with self._slots:
             key = (host, port)
-            while True:
-                conn = self._pooled(key)
-                reused = conn is not None
-                if conn is None:
-                    reader, writer = await asyncio.open_connection(host, port, limit=MAX_HEADER_SIZE)
-                    conn = _Conn(reader, writer)
-                self._busy.add(conn)
-                keep = False
-                try:
-                    try:
-                        conn.writer.write(head + body if len(body) < _SEPARATE_BODY else head)
-                        if len(body) >= _SEPARATE_BODY:
-                            conn.writer.write(body)  # not copied into one more big bytes object
-                        await conn.writer.drain()
-                        status, length, keep_alive, chunked = await self._read_head(conn.reader)
-                    except (ConnectionError, asyncio.IncompleteReadError):
-                        if reused:  # the server closed a kept-alive connection as we reused it: once more, anew
-                            continue
-                        raise
-                    data = await _read_body(conn.reader, length, chunked)
-                    if status != 200:
-                        raise ValueError(f"HTTP status {status}")
-                    keep = keep_alive
-                    return data
-                finally:
-                    self._busy.discard(conn)
-                    if keep:
-                        self._release(key, conn)
-                    else:
-                        conn.close()
+            conn = self._pooled(key)  # checked just now, and nothing awaited until the request is written
+            if conn is None:
+                reader, writer = await asyncio.open_connection(host, port, limit=MAX_HEADER_SIZE)
+                conn = _Conn(reader, writer)
+            self._busy.add(conn)
+            keep = False
+            try:
+                # Sent once, never again: once a byte is written the server may have executed the call
+                # (registerPublisher, setParam), so a connection lost from here on is the call's error.
+                conn.writer.write(head + body if len(body) < _SEPARATE_BODY else head)
+                if len(body) >= _SEPARATE_BODY:
+                    conn.writer.write(body)  # not copied into one more big bytes object
+                await conn.writer.drain()
+                status, length, keep_alive, chunked = await self._read_head(conn.reader)
+                data = await _read_body(conn.reader, length, chunked)
+                if status != 200:
+                    raise ValueError(f"HTTP status {status}")
+                keep = keep_alive
+                return data
+            finally:
+                self._busy.discard(conn)
+                if keep:
+                    self._release(key, conn)
+                else:
+                    conn.close()
 
     @staticmethod
     async def _read_head(reader: asyncio.StreamReader) -> tuple[int, int | None, bool, bool]:
@@ -153,13 +152,13 @@ class XmlRpcClient:
         while idle:
             conn = idle.pop()
             self._idle_count -= 1
-            if now - conn.idle_since < KEEPALIVE_TIMEOUT and not conn.reader.at_eof() and not conn.writer.is_closing():
+            if now - conn.idle_since < KEEPALIVE_TIMEOUT and _reusable(conn):
                 return conn
             conn.close()
         return None
 
     def _release(self, key: _Key, conn: _Conn) -> None:
-        if conn.reader.at_eof() or conn.writer.is_closing() or conn.reader._buffer:  # type: ignore[attr-defined]
+        if not _reusable(conn):
             conn.close()  # closed by the server, or bytes nobody asked for: not reusable
             return
         conn.idle_since = asyncio.get_running_loop().time()
@@ -188,6 +187,26 @@ class XmlRpcClient:
 
     async def __aexit__(self, *exc_info: object) -> None:
         await self.aclose()
+
+
+def _reusable(conn: _Conn) -> bool:
+    """True when an idle connection can carry a request: the server has neither closed it nor sent anything.
+
+    Asks the socket too, not only the stream: a close the server made a moment ago is in the socket before the
+    event loop has read it, and a request written then would be lost (or, had the server read it, executed
+    without an answer). ``poll`` with no wait: any event (bytes, end of stream, error) means not reusable.
+    """
+    if conn.writer.is_closing() or conn.reader.at_eof() or conn.reader._buffer:  # type: ignore[attr-defined]
+        return False
+    sock = conn.writer.get_extra_info("socket")
+    if sock is None:
+        return False
+    try:
+        poller = select.poll()
+        poller.register(sock.fileno(), select.POLLIN | select.POLLPRI | _POLLRDHUP)
+        return not poller.poll(0)
+    except (OSError, ValueError):
+        return False
 
 
 def _too_big() -> _TooBig:

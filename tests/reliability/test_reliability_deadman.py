@@ -11,7 +11,6 @@ from __future__ import annotations
 import asyncio
 import json
 import struct
-from collections.abc import AsyncIterator
 from typing import Any
 
 import aiohttp
@@ -26,12 +25,6 @@ from tests.web.inloop import node, rosbridge_and_node
 
 Twist = get_message_class("geometry_msgs/Twist")
 TwistStamped = get_message_class("geometry_msgs/TwistStamped")
-
-
-@pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
 
 
 async def _received(topic: str, cls: Any, robot: mrosd.Node) -> asyncio.Queue[Any]:

@@ -10,10 +10,8 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import AsyncIterator
 
 import aiohttp
-import pytest
 
 from mrosd import backports
 from mrosd.master import Master
@@ -24,12 +22,6 @@ from tests.web.inloop import node
 
 CAP = 50
 ADVERTISES = 2000
-
-
-@pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
 
 
 async def test_one_clients_advertise_flood_is_capped_and_the_master_answers(master: Master) -> None:

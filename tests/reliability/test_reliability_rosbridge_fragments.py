@@ -10,11 +10,9 @@ from __future__ import annotations
 
 import json
 import tracemalloc
-from collections.abc import AsyncIterator
 from typing import Any
 
 import aiohttp
-import pytest
 
 import mrosd
 from mrosd import backports
@@ -27,12 +25,6 @@ from tests.web.inloop import node, rosbridge_and_node, until
 String = get_message_class("std_msgs/String")
 KiB = 1024
 MiB = 1024 * KiB
-
-
-@pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
 
 
 def fragment(message_id: Any, num: int, total: Any, data: str) -> str:

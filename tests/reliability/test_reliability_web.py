@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-from collections.abc import AsyncIterator
 
 import aiohttp
 import pytest
@@ -21,12 +20,6 @@ from tests.web.inloop import node, until
 
 Image = get_message_class("sensor_msgs/Image")
 MiB = 1024 * 1024
-
-
-@pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
 
 
 async def channels_of(ws: aiohttp.ClientWebSocketResponse, topics: set[str]) -> dict[str, int]:

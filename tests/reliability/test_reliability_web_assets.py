@@ -16,7 +16,6 @@ import stat
 import struct
 import threading
 import time
-from collections.abc import AsyncIterator
 from pathlib import Path
 
 import aiohttp
@@ -31,12 +30,6 @@ from mrosd.web.server import WebServer
 MiB = 1024 * 1024
 MESH = bytes(range(256)) * 64
 SECRET = b"secret: never served"
-
-
-@pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
 
 
 @pytest.fixture

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import AsyncIterator
 from typing import Any
 
 import pytest
@@ -30,12 +29,6 @@ HOSTILE: dict[str, Any] = {
     "/unknown": Image(height=8, width=8, encoding="yuv999", step=8, data=b"\0" * 64),
     "/garbage": b"\x05\x00\x00\x00not an image at all",
 }
-
-
-@pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
 
 
 async def test_hostile_images_are_one_line_each_and_the_topics_keep_going(

@@ -4,10 +4,7 @@ of a rosbridge client too, and costs nobody else anything."""
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
-
 import aiohttp
-import pytest
 
 from mrosd.master import Master
 from mrosd.web.access import AccessPolicy
@@ -16,12 +13,6 @@ from mrosd.web.server import WebServer
 
 MAX_FRAME = 1024 * 1024
 BOMB = "\0" * (8 * MAX_FRAME)
-
-
-@pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
 
 
 async def test_a_deflate_bomb_is_refused_at_the_frame_limit_on_both_ports(master: Master) -> None:

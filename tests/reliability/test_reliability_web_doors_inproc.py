@@ -17,7 +17,6 @@ import os
 import socket
 import struct
 import tracemalloc
-from collections.abc import AsyncIterator
 
 import aiohttp
 import pytest
@@ -37,12 +36,6 @@ CompressedImage = get_message_class("sensor_msgs/CompressedImage")
 String = get_message_class("std_msgs/String")
 SIDE = 4096  # 16 MiB of mono8
 FOXGLOVE = "foxglove.websocket.v1"
-
-
-@pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
 
 
 def test_encoding_a_16_mib_frame_allocates_no_copy_of_it() -> None:

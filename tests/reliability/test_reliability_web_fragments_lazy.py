@@ -8,10 +8,8 @@ from __future__ import annotations
 
 import asyncio
 import json
-from collections.abc import AsyncIterator
 
 import aiohttp
-import pytest
 
 import mrosd
 from mrosd.master import Master
@@ -21,12 +19,6 @@ from mrosd.web.server import WebServer
 from tests.web.inloop import until
 
 UInt8MultiArray = get_message_class("std_msgs/UInt8MultiArray")
-
-
-@pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
 
 
 async def test_fragments_of_a_big_message_are_made_lazily_and_counted(master: Master) -> None:

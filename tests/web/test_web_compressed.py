@@ -26,11 +26,11 @@ from mrosd.msg import get_message_class
 from mrosd.web.server import WebServer
 from tests.rosenv import ROS_PYTHON, ros_available, ros_env
 from tests.web.inloop import Collect, node, until
-from tests.web.test_web_real_clients import HERE, NodeClient, client_of, master, needs_node
+from tests.web.test_web_real_clients import HERE, NodeClient, client_of, needs_node
 
 PIL = pytest.importorskip("PIL.Image")
 
-__all__ = ["client_of", "master"]  # fixtures
+__all__ = ["client_of"]  # fixtures
 
 Image = get_message_class("sensor_msgs/Image")
 CompressedImage = get_message_class("sensor_msgs/CompressedImage")

@@ -13,9 +13,9 @@ from mrosd.msg import get_message_class
 from mrosd.web.foxglove_sender import REPORT_PERIOD
 from mrosd.web.server import WebServer
 from tests.web.inloop import node
-from tests.web.test_web_foxglove_integration import Client, master, server
+from tests.web.test_web_foxglove_integration import Client, server
 
-__all__ = ["master", "server"]  # the fixtures this module shares with the Foxglove integration tests
+__all__ = ["server"]  # the fixtures this module shares with the Foxglove integration tests
 
 String = get_message_class("std_msgs/String")
 CompressedImage = get_message_class("sensor_msgs/CompressedImage")

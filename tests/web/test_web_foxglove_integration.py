@@ -68,12 +68,6 @@ class Client:
 
 
 @pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
-
-
-@pytest.fixture
 async def server(master: Master) -> AsyncIterator[WebServer]:
     async with WebServer(master.uri, port=0, node_host="127.0.0.1") as s:
         yield s

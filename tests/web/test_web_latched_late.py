@@ -10,10 +10,8 @@ from __future__ import annotations
 
 import json
 import struct
-from collections.abc import AsyncIterator
 
 import aiohttp
-import pytest
 
 import mrosd
 from mrosd import backports
@@ -22,12 +20,6 @@ from mrosd.msg import get_message_class
 from mrosd.web.server import WebServer
 
 String = get_message_class("std_msgs/String")
-
-
-@pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
 
 
 async def _first_message(

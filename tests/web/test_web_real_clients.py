@@ -125,12 +125,6 @@ class NodeClient:
 
 
 @pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
-
-
-@pytest.fixture
 async def client_of(master: Master) -> AsyncIterator[Any]:
     clients: list[NodeClient] = []
 

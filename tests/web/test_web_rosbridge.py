@@ -8,7 +8,6 @@ import io
 import json
 import math
 import random
-from collections.abc import AsyncIterator
 from typing import Any
 
 import aiohttp
@@ -176,12 +175,6 @@ def test_fragments_refused_with_a_reason() -> None:
     assert joiner.expire(31.0) == [("a", 1, 3)]
     with pytest.raises(rb.RosbridgeRefusal, match="without an id"):
         joiner.feed(rb.Fragment(num=0, total=2, data="x"), 0.0)
-
-
-@pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
 
 
 async def receive(ws: aiohttp.ClientWebSocketResponse, op: str, timeout: float = 10.0, **match: Any) -> dict[str, Any]:

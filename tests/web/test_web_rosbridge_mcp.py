@@ -33,12 +33,6 @@ pytestmark = [
 SetBool = get_service_class("std_srvs/SetBool")
 
 
-@pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
-
-
 class Agent:
     """An MCP client session with ros-mcp's server process (stdio)."""
 

@@ -37,12 +37,6 @@ Status = get_message_class("actionlib_msgs/GoalStatusArray")
 SetBool = get_service_class("std_srvs/SetBool")
 
 
-@pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
-
-
 async def call(ws: aiohttp.ClientWebSocketResponse, service: str, args: Any = None, **extra: Any) -> dict[str, Any]:
     op_id = f"{service}:{id(args)}"
     await ws.send_str(json.dumps({"op": "call_service", "service": service, "args": args or {}, "id": op_id, **extra}))

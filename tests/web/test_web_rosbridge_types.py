@@ -53,12 +53,6 @@ def make_workspace(root: Path) -> Path:
     return root
 
 
-@pytest.fixture
-async def master() -> AsyncIterator[Master]:
-    async with Master(host="127.0.0.1", port=0) as m:
-        yield m
-
-
 @contextlib.asynccontextmanager
 async def bridge_process(master_uri: str, package_path: Path) -> AsyncIterator[str]:
     """``mros bridge`` in a process of its own with ``ROS_PACKAGE_PATH``; its rosbridge URL."""

@@ -19,7 +19,8 @@ Modules, by concern: ``sizes`` (names, type tables, wire sizes), ``writer`` (the
 
 from mrosd.msg.codegen.classes import PRELUDE, GeneratedClass, generate_class, generate_view_decoder
 from mrosd.msg.codegen.decode import MAX_TAIL_STRUCTS
-from mrosd.msg.codegen.sizes import MAX_EMPTY_ITEMS, attribute_name, class_name, fixed_size, min_size, symbol
+from mrosd.msg.codegen.sizes import attribute_name, class_name, fixed_size, min_size, symbol
+from mrosd.msg.layout import MAX_EMPTY_ITEMS
 
 __all__ = [
     "MAX_EMPTY_ITEMS",

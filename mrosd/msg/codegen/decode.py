@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from mrosd.msg.codegen.sizes import (
     BYTE_TYPES,
-    MAX_EMPTY_ITEMS,
     TIME_FORMATS,
     Lookup,
     class_name,
@@ -14,6 +13,7 @@ from mrosd.msg.codegen.sizes import (
     symbol,
 )
 from mrosd.msg.codegen.writer import Writer
+from mrosd.msg.layout import MAX_EMPTY_ITEMS
 from mrosd.msg.spec import PRIMITIVE_FORMATS, Field, MsgSpec
 
 #: Placeholder for the string decode call; the strict variant is tried first, the lenient one (invalid

@@ -6,11 +6,8 @@ import keyword
 import struct
 from collections.abc import Callable
 
+from mrosd.msg.layout import Layouts, builtin_size
 from mrosd.msg.spec import PRIMITIVE_FORMATS, MsgSpec
-
-#: Bound on the item count of an array of messages that occupy no bytes (an empty message type):
-#: nothing in the buffer limits such a count, so without it a forged header could spin for hours.
-MAX_EMPTY_ITEMS = 1 << 16
 
 Lookup = Callable[[str], MsgSpec]
 
@@ -49,29 +46,17 @@ def min_size(spec: MsgSpec, lookup: Lookup) -> int:
 
 
 def element_min_size(base: str, lookup: Lookup) -> int:
-    if base in PRIMITIVE_FORMATS:
-        return PRIMITIVE_FORMATS[base][1]
-    if base in TIME_FORMATS:
-        return 8
+    size = builtin_size(base)
+    if size is not None:
+        return size
     if base == "string":
         return 4
     return min_size(lookup(base), lookup)
 
 
 def fixed_size(spec: MsgSpec, lookup: Lookup) -> int | None:
-    """The serialized size if every field has a fixed size, else None."""
-    total = 0
-    for f in spec.fields:
-        if f.base == "string" or (f.is_array and f.length is None):
-            return None
-        if f.base in PRIMITIVE_FORMATS or f.base in TIME_FORMATS:
-            item: int | None = element_min_size(f.base, lookup)
-        else:
-            item = fixed_size(lookup(f.base), lookup)
-        if item is None:
-            return None
-        total += item * (f.length if f.is_array and f.length is not None else 1)
-    return total
+    """The serialized size if every field has a fixed size, else None (from the type's one layout walk)."""
+    return Layouts(lookup).of(spec).fixed
 
 
 def is_flat(spec: MsgSpec) -> bool:
