@@ -165,7 +165,7 @@ def test_a_definition_is_refused_exactly_when_its_expansion_is_over_a_bound(defi
     name, text = definition
     fields, depth = _reference(parse_definition(name, text), name, {})
     over = fields > bounds.MAX_FIELDS or depth > bounds.MAX_DEPTH
-    start = time.perf_counter()
+    start = time.process_time()  # this process's CPU (a loaded machine's other processes took 1.9 s of wall time)
     try:
         cls = load_type(name, text)
     except MsgTooComplexError as exc:
@@ -174,7 +174,7 @@ def test_a_definition_is_refused_exactly_when_its_expansion_is_over_a_bound(defi
     else:
         assert not over, (fields, depth)
         assert cls.deserialize(cls().serialize()) == cls()
-    assert time.perf_counter() - start < 1.0
+    assert time.process_time() - start < 1.0
 
 
 def test_every_shipped_type_is_under_the_bounds_with_a_margin() -> None:
