@@ -40,7 +40,7 @@ from mrosd.images.wire import read_image
 from mrosd.lograte import RateLimitedLog
 from mrosd.tcpros import Node
 from mrosd.tcpros.subscriber import Subscriber
-from mrosd.web.shared import SharedSubscriptions
+from mrosd.web.shared import PAUSE_BYTES, SharedSubscriptions
 
 __all__ = [
     "COMPRESSED_TYPE",
@@ -161,6 +161,14 @@ def compress_image_body(body: bytes | bytearray | memoryview, settings: EncodeSe
     )
 
 
+def _encode_taken(box: list[bytes | bytearray], settings: EncodeSettings) -> bytes:
+    """``compress_image_body`` of the one body in ``box``, taken out of it: the worker thread drops its last
+    reference to the frame as the encode returns. (Passed as an argument, the frame stayed referenced by the
+    executor's work item until the thread got round to deleting it, after the loop had already read the next
+    frame: TCPROS then received that one into a new buffer instead of the encoded one's.)"""
+    return compress_image_body(box.pop(), settings)
+
+
 class _Body:
     """What the shared fan-out reads of a received message: its ``data``."""
 
@@ -183,9 +191,20 @@ class _RawSink:
             source.stats.dropped += 1
         source.latest = body
         source.ready.set()
+        if len(body) >= PAUSE_BYTES and not source.held:
+            # a big frame: T is not read until the encoder is done with it, so no second one is received
+            # meanwhile only to wait (and be replaced); the publisher's queue keeps the newest instead. Paused
+            # here, as it arrives: by the time the encoder task runs, the next frame's first bytes would have
+            # made TCPROS allocate its whole buffer.
+            source.held = source.owner.hold_raw(source.raw, self)
 
     def backlog(self, topic: str) -> int:
-        return 0
+        """The frame waiting while another is encoded: behind by its size, so that the hub stops reading ``T``
+        once it is big (``PAUSE_BYTES``) and no other sink of ``T`` still reads. The next frame then waits in
+        the publisher's queue and the kernel's buffers instead of being received only to replace this one."""
+        source = self.source
+        latest = source.latest
+        return len(latest) if source.busy and latest is not None else 0
 
     def queued(self) -> int:
         return 0
@@ -206,6 +225,10 @@ class CompressedSource:
     #: the shared fan-out pauses a subscriber's links; a source has none
     links: dict[Any, Any] = field(default_factory=dict)
     latest: bytes | bytearray | None = None
+    #: a frame is being encoded (a frame that arrives meanwhile waits in ``latest``)
+    busy: bool = False
+    #: the hub stopped reading ``T`` for this source (a big frame waits or is being encoded)
+    held: bool = False
     ready: asyncio.Event = field(default_factory=asyncio.Event)
     task: asyncio.Task[None] | None = None
 
@@ -215,6 +238,12 @@ class CompressedSource:
             self.task.cancel()
         if self.owner.sources.get(self.name) is self:  # not a newer source of the same name
             del self.owner.sources[self.name]
+
+    def _release(self) -> None:
+        """Read ``T`` again if it was stopped for this source (a frame it held, or one that waited)."""
+        if self.held or self.latest is not None:
+            self.held = False
+            self.owner.resume_raw(self.raw)
 
     async def run(self) -> None:
         owner = self.owner
@@ -229,6 +258,7 @@ class CompressedSource:
                 if settings.max_rate > 0:
                     wait_ns = next_ns - time.monotonic_ns()
                     if wait_ns > 0:
+                        self._release()
                         await asyncio.sleep(wait_ns / 1e9)  # newer frames replace the waiting one meanwhile
                     next_ns = time.monotonic_ns() + int(1e9 / settings.max_rate)
                 self.ready.clear()
@@ -236,19 +266,27 @@ class CompressedSource:
                 if body is None:
                     continue
                 started = time.perf_counter_ns()
+                self.busy = True
                 try:
                     out = await loop.run_in_executor(
-                        owner.executor(), compress_image_body, body, settings.encode_settings()
+                        owner.executor(), _encode_taken, [body], settings.encode_settings()
                     )
                 except (MrosError, ValueError, RuntimeError, OSError) as exc:  # an encoder's own refusal too
                     self.stats.refused += 1
                     self.stats.encode_ns += time.perf_counter_ns() - started
                     _ratelog.warning(self.name, "web: %s: a frame of %s was not encoded: %s", self.name, self.raw, exc)
                     continue
+                finally:
+                    # the raw frame is released now, not when the next one arrives: TCPROS receives the next
+                    # one into its buffer instead of a new one (a 100 MB camera: 100 MB less)
+                    body = None
+                    self.busy = False
+                    self._release()
                 self.stats.encoded += 1
                 self.stats.encode_ns += time.perf_counter_ns() - started
                 self.stats.bytes_out += len(out)
                 self.emit(_Body(out))
+                del out
         except MrosError as exc:  # the raw topic could not be subscribed
             _ratelog.warning(self.name, "web: %s cannot be made: %s", self.name, exc)
         except Exception:  # a bug, not a peer's doing: said once, loudly, rather than a task that just stops
@@ -271,9 +309,15 @@ class CompressedTopics:
         add_raw_sink: Callable[[str, Any], Any],
         remove_raw_sink: Callable[[str, Any], Any],
         rules: Iterable[ImageRule] = (),
+        hold_raw: Callable[[str, Any], bool] = lambda topic, sink: False,
+        resume_raw: Callable[[str], None] = lambda topic: None,
     ) -> None:
         self.add_raw_sink = add_raw_sink
         self.remove_raw_sink = remove_raw_sink
+        #: the hub's: stop reading ``T`` while its only sink, an encoder, works on a big frame (True: paused)
+        self.hold_raw = hold_raw
+        #: the hub's ``resume``: read ``T`` again
+        self.resume_raw = resume_raw
         self.rules: list[ImageRule] = list(rules)
         #: virtual topic names offered now -> their raw topic
         self.virtual: dict[str, str] = {}
