@@ -114,7 +114,10 @@ class WebHub:
         self.node = Node(name, master_uri=master_uri, argv=[], rosout=False, logger_services=False, host=host)
         #: ``T/compressed`` for every Image topic ``T`` that has no real one (``mrosd.web.compressed``)
         self.compressed = CompressedTopics(
-            lambda topic, sink: self.add_sink(topic, sink, check=False), self.remove_sink
+            lambda topic, sink: self.add_sink(topic, sink, check=False),
+            self.remove_sink,
+            hold_raw=self._hold_raw,
+            resume_raw=self.resume,
         )
         self.subs = VirtualSubscriptions(
             self.node, self.compressed, max_queued_bytes=max_queued_bytes, before_subscribe=self._unprobe
@@ -512,6 +515,15 @@ class WebHub:
     def resume(self, topic: str) -> None:
         """A sink of ``topic`` caught up: read from the publishers again (no-op unless paused)."""
         self.subs.resume(topic)
+
+    def _hold_raw(self, topic: str, sink: TopicSink) -> bool:
+        """Stop reading ``topic`` while an encoder works on its frame, when that encoder is its only sink (no
+        client reads the raw topic): True when paused (``resume`` ends it)."""
+        entry = self.subs.entries.get(topic)
+        if entry is None or entry.sinks != [sink]:
+            return False
+        self.subs.pause(topic)
+        return True
 
     def topic_stats(self, topic: str) -> tuple[int, int] | None:
         """``(messages, bytes)`` received on a shared subscription since it opened (None: not subscribed)."""

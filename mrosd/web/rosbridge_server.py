@@ -134,7 +134,8 @@ class RosbridgeSession(RosbridgeSender):
         FairSender.queued(sub.queue, len(body))
         while sub.queue_length and len(sub.queue) > sub.queue_length:
             sub.queue.drop_oldest()
-        trim_to_budget([s.queue for s in self.subs.values()], self.limits.client_bytes, sub.queue)
+        if self.hub.ledger.size > self.limits.client_bytes:  # all clients' bytes: O(1), the trim O(topics)
+            trim_to_budget([s.queue for s in self.subs.values()], self.limits.client_bytes, sub.queue)
         self._wake.set()
 
     def topics_changed(self, added: list[TopicInfo], removed: list[TopicInfo]) -> None:

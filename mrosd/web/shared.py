@@ -213,6 +213,12 @@ class SharedSubscriptions:
                 else:
                     transport.pause_reading()
 
+    def pause(self, topic: str) -> None:
+        """Stop reading ``topic``'s publishers until ``resume`` (its one sink takes nothing now)."""
+        entry = self.entries.get(topic)
+        if entry is not None and not entry.paused:
+            self._set_reading(entry, False)
+
     def resume(self, topic: str) -> None:
         """A sink of ``topic`` caught up: read from the publishers again (no-op unless paused)."""
         entry = self.entries.get(topic)
