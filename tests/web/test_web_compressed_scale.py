@@ -16,9 +16,6 @@ from mrosd.web.compressed import ImageSettings
 from mrosd.web.server import WebServer
 from mrosd.web.shared import PAUSE_BYTES
 from tests.web.inloop import Collect, node, until
-from tests.web.test_web_real_clients import master
-
-__all__ = ["master"]  # fixture
 
 Image = get_message_class("sensor_msgs/Image")
 CompressedImage = get_message_class("sensor_msgs/CompressedImage")
