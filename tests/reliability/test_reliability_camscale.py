@@ -112,7 +112,11 @@ def test_a_big_camera_watched_compressed_costs_the_frames_it_must_hold_and_no_mo
     print(f"{got} frames; {watch}; {watch.growth / BIG_FRAME:.2f} frames")
     assert got >= 3
     assert watch.worst < 1.0 and watch.failed == 0, watch
-    assert watch.growth < 3 * BIG_FRAME, watch
+    # Two frames it must hold (one being received, one being encoded), plus what growing the received frame's
+    # buffer by doubling (mrosd/wire/framing.py GROWTH, so that a peer's claimed length costs nothing) leaves
+    # in the C heap: its freed halves, at most one frame in all, reused by the next frame (3.0 frames here,
+    # 2.0 with GROWTH 16). Before the fix: 3.7-4.7 frames with GROWTH 16, so about 5 with 2.
+    assert watch.growth < 3.5 * BIG_FRAME, watch
 
 
 #: Many small cameras in one process: argv master, count, rate (Hz). 64x64 mono8 each.
