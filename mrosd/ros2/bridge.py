@@ -27,7 +27,7 @@ from mrosd.fleet.keys import NameFilter
 from mrosd.lograte import RateLimitedLog
 from mrosd.names import canonicalize, is_valid_name
 from mrosd.ros2.attachment import encode_attachment, gid_of
-from mrosd.ros2.inbound import Inbound
+from mrosd.ros2.inbound import INBOX_BYTES, INBOX_BYTES_EACH, Inbound
 from mrosd.ros2.keys import (
     DURABILITY_TRANSIENT_LOCAL,
     MAX_TOKEN_LENGTH,
@@ -208,7 +208,14 @@ class Ros2Bridge:
 
     def _start_inbound(self, loop: asyncio.AbstractEventLoop) -> None:
         zenoh = self._zenoh
-        inbox = self._inbox = Inbox(loop, self._deliver, self.options.queue_size, {TOKENS: TOKEN_QUEUE})
+        inbox = self._inbox = Inbox(
+            loop,
+            self._deliver,
+            self.options.queue_size,
+            {TOKENS: TOKEN_QUEUE},
+            max_bytes=INBOX_BYTES,
+            max_bytes_each=INBOX_BYTES_EACH,
+        )
         self.inbound = Inbound(
             self.from_ros2,
             self.options.domain_id,
@@ -224,8 +231,9 @@ class Ros2Bridge:
             # no rmw_zenoh token is this long: the queue holds only what parse_token could take (None: refused)
             inbox.put(TOKENS, (key if len(key) <= MAX_TOKEN_LENGTH else None, sample.kind == zenoh.SampleKind.PUT))
 
+        # on Zenoh's own thread: zenoh-python's default (``indirect``) queues for a Python thread with no bound
         self._token_sub = self.session.liveliness().declare_subscriber(
-            f"@ros2_lv/{self.options.domain_id}/**", heard, history=True
+            f"@ros2_lv/{self.options.domain_id}/**", zenoh.handlers.Callback(heard, indirect=False), history=True
         )
 
     def _deliver(self, name: str, items: list[Any]) -> None:

@@ -1,0 +1,159 @@
+"""A stranger's Zenoh peer against what the ros2 part buffers for it: bytes, not only counts.
+
+The bridge listens (``router = true``); a bare Zenoh session in another process (so its own buffers are not
+counted here) floods big samples into imported names. What the bridge holds for them follows a byte budget,
+never the peer's sends: the daemon's peak RSS grows by less than 256 MiB, the master answers ``getPid`` within a
+second throughout, and the drops are a few log lines.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import subprocess
+import time
+import xmlrpc.client
+from collections.abc import AsyncIterator
+from contextlib import AsyncExitStack, asynccontextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from mrosd.master import Master
+from mrosd.ros2.bridge import Ros2Bridge, Ros2Options
+from mrosd.ros2.keys import data_key, dds_type_name, mangle_name
+from mrosd.ros2.types import TypeMapper
+from tests.rosenv import Processes, free_port, iter_lines_until
+
+zenoh = pytest.importorskip("zenoh")
+
+STRING_HASH = TypeMapper().mapping("std_msgs/String").type_hash
+TOPICS = [f"/big{i}" for i in range(4)]
+MiB = 1 << 20
+#: the bar of issue 31: daemon RSS growth under any attack
+RSS_BAR = 256 * MiB
+
+#: a peer in its own process: declares rmw_zenoh publisher tokens for the names on its command line, says
+#: "ready", waits for "go" on stdin, then puts ``rounds`` samples of ``size`` bytes on each, and says "done"
+FLOODER = """
+import sys, struct, zenoh
+endpoint, rounds, size, *specs = sys.argv[1:]
+conf = zenoh.Config()
+conf.insert_json5("mode", '"peer"')
+conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
+conf.insert_json5("scouting/multicast/enabled", "false")
+session = zenoh.open(conf)
+zid = str(session.zid())
+tokens, publishers = [], []
+for n, spec in enumerate(specs):
+    token, key = spec.replace("ZID", zid).split("|")
+    tokens.append(session.liveliness().declare_token(token))
+    publishers.append(session.declare_publisher(key))
+print("ready", flush=True)
+sys.stdin.readline()
+text = b"x" * (int(size) - 9)
+body = b"\\x00\\x01\\x00\\x00" + struct.pack("<I", len(text) + 1) + text + b"\\x00"
+for _ in range(int(rounds)):
+    for pub in publishers:
+        pub.put(body)
+print("done", flush=True)
+sys.stdin.readline()
+"""
+
+
+def _mp_token(n: int, topic: str) -> str:
+    return (
+        f"@ros2_lv/0/ZID/0/{n}/MP/%/%/flooder/{mangle_name(topic)}/{dds_type_name('std_msgs/msg/String')}/"
+        f"{STRING_HASH}/::,:,:,:,,"
+    )
+
+
+@asynccontextmanager
+async def robot(**keys: Any) -> AsyncIterator[tuple[str, Ros2Bridge, str]]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    async with AsyncExitStack() as stack:
+        master = await stack.enter_async_context(Master(host="127.0.0.1", port=0))
+        options = Ros2Options(domain_id=0, connect=(), listen=(endpoint,), router=True, **keys)
+        bridge = await stack.enter_async_context(Ros2Bridge(options, master.uri, host="127.0.0.1"))
+        yield master.uri, bridge, endpoint
+
+
+def _rss(field: str) -> int:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) * 1024
+    raise AssertionError(f"no {field} in /proc/self/status")
+
+
+def _reset_peak() -> None:
+    Path("/proc/self/clear_refs").write_text("5")  # VmHWM := VmRSS
+
+
+class _Pinger:
+    """Calls the master's getPid in a loop from a thread and keeps the slowest answer."""
+
+    def __init__(self, uri: str) -> None:
+        self.uri = uri
+        self.worst = 0.0
+        self.calls = 0
+        self.stop = False
+
+    def run(self) -> None:
+        with xmlrpc.client.ServerProxy(self.uri) as api:
+            while not self.stop:
+                start = time.monotonic()
+                api.getPid("/pinger")
+                self.worst = max(self.worst, time.monotonic() - start)
+                self.calls += 1
+                time.sleep(0.05)
+
+
+async def test_a_peer_flooding_big_samples_into_imported_names_holds_a_byte_budget_not_its_sends(
+    procs: Processes, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Four imported topics, 8 MiB samples as fast as the link takes them (about 1 GiB in all): before, each
+    topic held ``queue_size`` samples in the inbox plus eight in its conversion backlog and the batch being
+    converted, whatever their size (+500 MiB and more); now the daemon's peak RSS grows by less than the bar."""
+    with caplog.at_level(logging.WARNING, logger="mrosd"):
+        async with robot(from_ros2=tuple(TOPICS), queue_size=64) as (uri, bridge, endpoint):
+            specs = [
+                f"{_mp_token(n + 1, t)}|{data_key(0, t, 'std_msgs/msg/String', STRING_HASH)}"
+                for n, t in enumerate(TOPICS)
+            ]
+            flooder = procs.our_python(["-c", FLOODER, endpoint, "32", str(8 * MiB), *specs], stdin=subprocess.PIPE)
+            assert await asyncio.to_thread(lambda: list(iter_lines_until(flooder, 1, 30))) == ["ready"]
+            inbound = bridge.inbound
+            assert inbound is not None
+            await bridge.wait_until(
+                lambda: all((rt := inbound.topics.get(t)) is not None and rt.subscriber is not None for t in TOPICS),
+                30,
+            )
+            _reset_peak()
+            base = _rss("VmRSS")
+            pinger = _Pinger(uri)
+            ping = asyncio.create_task(asyncio.to_thread(pinger.run))
+            try:
+                assert flooder.stdin is not None
+                flooder.stdin.write(b"go\n")
+                flooder.stdin.flush()
+                assert await asyncio.to_thread(lambda: list(iter_lines_until(flooder, 1, 60))) == ["done"]
+                # what was received is converted or dropped: the topics go quiet
+                await bridge.wait_until(lambda: all(inbound.topics[t].worker is None for t in TOPICS), 30)
+            finally:
+                pinger.stop = True
+                await ping
+            growth = _rss("VmHWM") - base
+            received = sum(inbound.topics[t].received for t in TOPICS)
+            dropped = sum(bridge.inbound_status()[i]["dropped"] for i in range(len(TOPICS)))
+            print(
+                f"peak RSS growth {growth / MiB:.0f} MiB; {received} converted, {dropped} dropped; "
+                f"getPid worst {pinger.worst * 1000:.0f} ms over {pinger.calls} calls"
+            )
+            assert received > 0
+            assert growth < RSS_BAR, f"peak RSS grew by {growth / MiB:.0f} MiB"
+            assert pinger.worst < 1.0
+            flooder.stdin.write(b"bye\n")
+            flooder.stdin.flush()
+    assert not [r for r in caplog.records if r.exc_info], "a traceback was logged"
+    assert len([r for r in caplog.records if r.levelno >= logging.WARNING]) <= 10
