@@ -64,16 +64,14 @@ def group() -> None:
 @click.option(
     "--tls-root-ca",
     type=click.Path(exists=True, dir_okay=False),
-    default="",
     help="PEM: the CA every peer's certificate must be signed by (tls/ endpoints)",
 )
 @click.option(
     "--tls-certificate",
     type=click.Path(exists=True, dir_okay=False),
-    default="",
     help="PEM: this end's certificate; with --tls-private-key, peers must show one of the CA (mutual TLS)",
 )
-@click.option("--tls-private-key", type=click.Path(exists=True, dir_okay=False), default="", help="PEM: its key")
+@click.option("--tls-private-key", type=click.Path(exists=True, dir_okay=False), help="PEM: its key")
 def bridge(
     *,
     to_ros2: tuple[str, ...],
@@ -88,9 +86,9 @@ def bridge(
     service_timeout: float,
     mapping_rules: tuple[str, ...],
     ros2_share: tuple[str, ...],
-    tls_root_ca: str,
-    tls_certificate: str,
-    tls_private_key: str,
+    tls_root_ca: str | None,
+    tls_certificate: str | None,
+    tls_private_key: str | None,
 ) -> None:
     """Put the chosen ROS 1 topics on Zenoh as an rmw_zenoh ROS 2 node publishes them, and back."""
     from mrosd.config import Ros2Config
@@ -113,9 +111,9 @@ def bridge(
         service_timeout=service_timeout,
         mapping_rules=list(mapping_rules),
         ros2_share=list(ros2_share),
-        tls_root_ca=tls_root_ca,
-        tls_certificate=tls_certificate,
-        tls_private_key=tls_private_key,
+        tls_root_ca=tls_root_ca or "",
+        tls_certificate=tls_certificate or "",
+        tls_private_key=tls_private_key or "",
     )
     try:
         options = ros2_options(cfg)
