@@ -39,3 +39,38 @@ async def test_the_inbox_without_a_byte_budget_counts_only_items() -> None:
         inbox.put("t", item)
     await asyncio.wait_for(done.wait(), 5)
     assert got == [("token", True), b"y"] and inbox.dropped("t") == 1
+
+
+def test_token_lanes_take_each_session_in_turn_and_drop_from_the_longest() -> None:
+    from mrosd.ros2.tokens import TokenLanes
+
+    lanes = TokenLanes(max_waiting=6)
+    assert lanes.put("flood", ("f0", True)) == (True, False)
+    for i in range(1, 5):
+        lanes.put("flood", (f"f{i}", True))
+    lanes.put("honest", ("h0", True))
+    assert lanes.put("flood", ("f5", True)) == (False, True)  # full: the flood's oldest goes
+    assert lanes.put("honest", ("h0", False)) == (False, True)  # and again the flood's, never the honest one
+    assert lanes.take(3) == [("f2", True), ("h0", True), ("f3", True)]
+    assert lanes.take(10) == [("h0", False), ("f4", True), ("f5", True)]
+    assert lanes.waiting == 0 and lanes.dropped == 2 and lanes.take(1) == []
+
+
+def test_the_token_filter_keeps_only_what_can_matter_from_the_key_alone() -> None:
+    from mrosd.fleet.keys import NameFilter
+    from mrosd.ros2.tokens import TokenFilter
+
+    def key(zid: str, kind: str, topic: str, domain: int = 0) -> str:
+        return f"@ros2_lv/{domain}/{zid}/0/1/{kind}/%/%/n/{topic.replace('/', '%')}/t/h/::,:,:,:,,"
+
+    wanted = TokenFilter(0, "me", NameFilter(include=("/in/**",)), None)
+    assert wanted.session_of(key("z1", "MP", "/in/a")) == "z1"
+    assert wanted.session_of(key("z1", "SS", "/in/a")) == "z1"
+    assert wanted.session_of(key("z1", "MP", "/out")) is None
+    assert wanted.session_of(key("me", "MP", "/in/a")) is None
+    assert wanted.session_of(key("z1", "MP", "/in/a", domain=3)) is None
+    assert wanted.session_of(key("z1", "MS", "/in/a")) is None  # subscribers only matter in mode "demand"
+    assert wanted.session_of("@ros2_lv/0/z1/0/0/NN/%/%/node") is None
+    demand = TokenFilter(0, "me", NameFilter(), NameFilter(include=("/**",)))
+    assert demand.session_of(key("z2", "MS", "/cam")) == "z2"
+    assert demand.session_of(key("z2", "MP", "/cam")) is None
