@@ -251,3 +251,76 @@ async def test_a_flood_of_forged_tokens_neither_pushes_out_nor_holds_up_a_real_p
             await asyncio.to_thread(honest.close)
         await asyncio.to_thread(router.close)
     assert not [r for r in caplog.records if r.exc_info], "a traceback was logged"
+
+
+# --- service calls -------------------------------------------------------------------------------------------
+
+#: a ROS 1 service in its own process (so the requests it receives are not counted here) that never answers
+SLEEPER = """
+import asyncio, sys
+import mrosd
+from mrosd.msg import get_service_class
+
+async def main():
+    srv = get_service_class("roscpp/SetLoggerLevel")
+    async def never(request):
+        await asyncio.sleep(60)
+    async with mrosd.Node("sleeper", master_uri=sys.argv[1], argv=[], host="127.0.0.1") as node:
+        await node.advertise_service("/slow", srv, never)
+        print("ready", flush=True)
+        await asyncio.sleep(120)
+
+asyncio.run(main())
+"""
+
+#: a peer in its own process: ``count`` calls of ``size`` bytes to ``key``, each under a GID of its own
+CALLER = """
+import struct, sys, time, zenoh
+endpoint, key, count, size = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+conf = zenoh.Config()
+conf.insert_json5("mode", '"peer"')
+conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
+conf.insert_json5("scouting/multicast/enabled", "false")
+session = zenoh.open(conf)
+text = b"x" * (size - 20)
+body = b"\\x00\\x01\\x00\\x00" + struct.pack("<I", len(text) + 1) + text + b"\\x00" + b"\\x00" * 3
+body += struct.pack("<I", 5) + b"info\\x00"
+replies = []
+for n in range(count):
+    attachment = struct.pack("<qq", n, time.time_ns()) + b"\\x10" + n.to_bytes(16, "little")
+    session.get(key, lambda r: replies.append(r.ok is not None), payload=body, attachment=attachment, timeout=20.0)
+print("sent", flush=True)
+sys.stdin.readline()
+"""
+
+
+async def test_big_calls_from_a_peer_hold_a_byte_budget_in_flight(procs: Processes) -> None:
+    """40 calls of 15 MiB each (under 40 GIDs) to a ROS 1 service that never answers: before, 32 were admitted
+    (the per-service cap), each held as CDR and as its ROS 1 form (+960 MiB); now calls in flight hold 64 MiB
+    at most and the rest are refused at once."""
+    async with robot(to_ros2=("/slow",), service_timeout=3.0) as (uri, bridge, endpoint):
+        sleeper = procs.our_python(["-c", SLEEPER, uri])
+        assert await asyncio.to_thread(lambda: list(iter_lines_until(sleeper, 1, 30))) == ["ready"]
+        services = bridge.services
+        assert services is not None
+        await bridge.wait_until(lambda: (o := services.offered.get("/slow")) is not None and o.token is not None, 30)
+        key = services.offered["/slow"].key
+        await asyncio.to_thread(_reset_peak)
+        base = _rss("VmRSS")
+        pinger = _Pinger(uri)
+        ping = asyncio.create_task(asyncio.to_thread(pinger.run))
+        try:
+            caller = procs.our_python(["-c", CALLER, endpoint, key, "40", str(15 * MiB)], stdin=subprocess.PIPE)
+            assert await asyncio.to_thread(lambda: list(iter_lines_until(caller, 1, 60))) == ["sent"]
+            await bridge.wait_until(lambda: services.offered["/slow"].refused + services.inflight_in >= 40, 30)
+            in_flight = services.inflight_in
+            await bridge.wait_until(lambda: services.inflight_in == 0, 30)
+        finally:
+            pinger.stop = True
+            await ping
+        growth = _rss("VmHWM") - base
+        print(
+            f"peak RSS growth {growth / MiB:.0f} MiB; {in_flight} in flight; getPid worst {pinger.worst * 1000:.0f} ms"
+        )
+        assert growth < RSS_BAR, f"peak RSS grew by {growth / MiB:.0f} MiB"
+        assert pinger.worst < 1.0
