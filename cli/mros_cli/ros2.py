@@ -27,6 +27,8 @@ def group() -> None:
     Examples:
       mros ros2 bridge --to-ros2 /chatter --from-ros2 /cmd_vel
       mros ros2 bridge --to-ros2 '/camera/**' --connect tcp/laptop:7447 --domain-id 3
+      mros ros2 bridge --router --listen tls/0.0.0.0:7447 --from-ros2 /cmd_vel \\
+        --tls-root-ca ca.pem --tls-certificate robot.pem --tls-private-key robot.key
       mros ros2 status
     """
 
@@ -59,6 +61,17 @@ def group() -> None:
 @click.option("--service-timeout", type=click.FloatRange(0.1, 3600), default=10.0, show_default=True)
 @click.option("--mapping-rules", multiple=True, help="ros1_bridge mapping-rule YAML (repeatable)")
 @click.option("--ros2-share", multiple=True, help="ROS 2 share tree with <pkg>/msg/*.msg (repeatable)")
+@click.option(
+    "--tls-root-ca",
+    type=click.Path(exists=True, dir_okay=False),
+    help="PEM: the CA every peer's certificate must be signed by (tls/ endpoints)",
+)
+@click.option(
+    "--tls-certificate",
+    type=click.Path(exists=True, dir_okay=False),
+    help="PEM: this end's certificate; with --tls-private-key, peers must show one of the CA (mutual TLS)",
+)
+@click.option("--tls-private-key", type=click.Path(exists=True, dir_okay=False), help="PEM: its key")
 def bridge(
     *,
     to_ros2: tuple[str, ...],
@@ -73,6 +86,9 @@ def bridge(
     service_timeout: float,
     mapping_rules: tuple[str, ...],
     ros2_share: tuple[str, ...],
+    tls_root_ca: str | None,
+    tls_certificate: str | None,
+    tls_private_key: str | None,
 ) -> None:
     """Put the chosen ROS 1 topics on Zenoh as an rmw_zenoh ROS 2 node publishes them, and back."""
     from mrosd.config import Ros2Config
@@ -95,6 +111,9 @@ def bridge(
         service_timeout=service_timeout,
         mapping_rules=list(mapping_rules),
         ros2_share=list(ros2_share),
+        tls_root_ca=tls_root_ca or "",
+        tls_certificate=tls_certificate or "",
+        tls_private_key=tls_private_key or "",
     )
     try:
         options = ros2_options(cfg)

@@ -57,7 +57,13 @@ class ReplyFuture:
 
 
 class Inbox:
-    """Any thread -> the loop: ``put(name, item)``; ``deliver(name, items)`` runs on the loop in batches."""
+    """Any thread -> the loop: ``put(name, item)``; ``deliver(name, items)`` runs on the loop in batches.
+
+    With ``max_bytes``, bodies (``bytes``) are also bounded in bytes: at most ``max_bytes`` wait in all and
+    ``max_bytes_each`` under one name. A body that does not fit drops the oldest of its own name first, then
+    the oldest of the name holding most, so a peer flooding one name cannot push another's out; a body bigger
+    than a name's share is refused. Memory then follows the budget, not a peer's sends.
+    """
 
     def __init__(
         self,
@@ -65,39 +71,96 @@ class Inbox:
         deliver: Callable[[str, list[Any]], None],
         maxlen: int,
         maxlen_of: dict[str, int] | None = None,
+        *,
+        max_bytes: int = 0,
+        max_bytes_each: int = 0,
     ) -> None:
         self._loop = loop
         self._deliver = deliver
         self._maxlen = maxlen
         #: names with a bound of their own (the discovery stream: one entry per announced item, not per topic)
         self._maxlen_of = dict(maxlen_of or {})
+        self._max_bytes = max_bytes
+        self._max_bytes_each = min(max_bytes_each or max_bytes, max_bytes)
+        #: bytes of bodies waiting, per name and in all (only with ``max_bytes``)
+        self._held: dict[str, int] = {}
+        self.held_bytes = 0
+        #: bodies dropped for bytes under any name (``put`` says whether one of its call was)
+        self._popped = 0
         self._lock = threading.Lock()
         self._queues: dict[str, DropOldestQueue[Any]] = {}
         self._scheduled = False
         self.closed = False
 
-    def put(self, name: str, item: Any) -> None:
-        """Queue ``item`` (from any thread); the oldest of ``name`` is dropped and counted when full."""
+    def put(self, name: str, item: Any) -> bool:
+        """Queue ``item`` (from any thread); the oldest of ``name`` is dropped and counted when full (in count,
+        or in bytes as the class says). True if anything was dropped or refused."""
         if self.closed:
-            return
+            return False
         with self._lock:
             q = self._queues.get(name)
             if q is None:
                 q = self._queues[name] = DropOldestQueue(self._maxlen_of.get(name, self._maxlen))
+            dropped = q.dropped + self._popped
+            if self._max_bytes and isinstance(item, bytes):
+                if not self._fit(name, q, len(item)):
+                    q.dropped += 1
+                    return True
+            elif len(q) >= q.maxlen and self._max_bytes and isinstance(q.items[0], bytes):
+                self._forget_bytes(name, len(q.items[0]))
             q.put(item)
+            lost = q.dropped + self._popped != dropped
             if self._scheduled:
-                return
+                return lost
             self._scheduled = True
         try:
             self._loop.call_soon_threadsafe(self._drain)
         except RuntimeError:  # the loop is closed: nothing will read this any more
             self.closed = True
+        return lost
+
+    def _fit(self, name: str, q: DropOldestQueue[Any], size: int) -> bool:
+        """Make room for a body of ``size`` under ``name`` (lock held); False: it can never fit."""
+        if size > self._max_bytes_each:
+            return False
+        held = self._held.get(name, 0)
+        while q.items and (len(q) >= q.maxlen or held + size > self._max_bytes_each):
+            held -= self._pop_oldest(name, q)
+        while self.held_bytes + size > self._max_bytes:
+            # the name holding most, this body counted with its own name, gives up its oldest
+            victim = max(self._held, key=lambda n: self._held[n] + (size if n == name else 0))
+            if self._held.get(name, 0) + size >= self._held[victim]:
+                if not q.items:
+                    return False
+                victim = name
+            self._pop_oldest(victim, self._queues[victim])
+        self._held[name] = self._held.get(name, 0) + size
+        self.held_bytes += size
+        return True
+
+    def _pop_oldest(self, name: str, q: DropOldestQueue[Any]) -> int:
+        old = q.items.popleft()
+        q.dropped += 1
+        self._popped += 1
+        size = len(old) if isinstance(old, bytes) else 0
+        self._forget_bytes(name, size)
+        return size
+
+    def _forget_bytes(self, name: str, size: int) -> None:
+        left = self._held.get(name, 0) - size
+        if left > 0:
+            self._held[name] = left
+        else:
+            self._held.pop(name, None)
+        self.held_bytes -= size
 
     def _drain(self) -> None:
         with self._lock:
             batches = [(name, list(q.items)) for name, q in self._queues.items() if q.items]
             for q in self._queues.values():
                 q.items.clear()
+            self._held.clear()
+            self.held_bytes = 0
             self._scheduled = False
         for name, items in batches:
             try:
@@ -112,7 +175,9 @@ class Inbox:
 
     def forget(self, name: str) -> None:
         with self._lock:
-            self._queues.pop(name, None)
+            q = self._queues.pop(name, None)
+            if q is not None and self._max_bytes:
+                self._forget_bytes(name, sum(len(i) for i in q.items if isinstance(i, bytes)))
 
 
 class Outbox:

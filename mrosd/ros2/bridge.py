@@ -27,7 +27,7 @@ from mrosd.fleet.keys import NameFilter
 from mrosd.lograte import RateLimitedLog
 from mrosd.names import canonicalize, is_valid_name
 from mrosd.ros2.attachment import encode_attachment, gid_of
-from mrosd.ros2.inbound import Inbound
+from mrosd.ros2.inbound import INBOX_BYTES, INBOX_BYTES_EACH, Inbound
 from mrosd.ros2.keys import (
     DURABILITY_TRANSIENT_LOCAL,
     MAX_TOKEN_LENGTH,
@@ -43,6 +43,7 @@ from mrosd.ros2.options import Ros2Options, ros2_options, zenoh_config
 from mrosd.ros2.services import Ros2Services
 from mrosd.ros2.srvtypes import HUMBLE_TYPE_HASH
 from mrosd.ros2.status import RateMeter, status_document
+from mrosd.ros2.tokens import MAX_WAITING, TokenFilter, TokenLanes
 from mrosd.ros2.types import TypeMapper, TypeMapping, UnmappableTypeError
 from mrosd.tcpros.node import Node
 from mrosd.tcpros.subscriber import AnyMsg, RawMessage
@@ -56,9 +57,8 @@ _ratelog = RateLimitedLog(log, period=60.0, burst=3)
 GRAPH_PERIOD = 1.0
 #: refused names remembered so each is logged once (a stranger can register any number of them)
 MAX_REFUSED_NAMES = 1024
-#: the inbox's name for liveliness tokens, and how many may wait for the loop
-TOKENS = "@tokens"
-TOKEN_QUEUE = 4096
+#: liveliness tokens handled per turn of the loop (then other tasks run)
+TOKEN_BATCH = 256
 #: seconds between sporadic heartbeats of a TRANSIENT_LOCAL publisher (rmw_zenoh's
 #: SAMPLE_MISS_DETECTION_HEARTBEAT_PERIOD, 500 ms); sent only when a sample was published since the last one
 HEARTBEAT = 0.5
@@ -148,8 +148,9 @@ class Ros2Bridge:
         self.inbound: Inbound | None = None
         self.services: Ros2Services | None = None
         self._background: set[asyncio.Task[None]] = set()
-        #: the latest task handling liveliness tokens (the next one waits for it)
-        self._last_tokens: asyncio.Task[None] | None = None
+        #: liveliness tokens waiting for the loop, a lane per session (``mrosd.ros2.tokens``)
+        self._lanes = TokenLanes()
+        self._tokens_waiting = asyncio.Event()
         self._node_token: Any = None
         self._zid = ""
         self._next_id = 0
@@ -204,11 +205,15 @@ class Ros2Bridge:
             await self.aclose()
             raise
         self._tasks = [asyncio.create_task(self._graph_loop(), name="ros2-graph")]
+        if self.inbound is not None:
+            self._tasks.append(asyncio.create_task(self._token_loop(), name="ros2-tokens"))
         log.info("ros2: node %s on Zenoh %s, domain %d", self.options.node_name, self._zid, self.options.domain_id)
 
     def _start_inbound(self, loop: asyncio.AbstractEventLoop) -> None:
         zenoh = self._zenoh
-        inbox = self._inbox = Inbox(loop, self._deliver, self.options.queue_size, {TOKENS: TOKEN_QUEUE})
+        self._inbox = Inbox(
+            loop, self._deliver, self.options.queue_size, max_bytes=INBOX_BYTES, max_bytes_each=INBOX_BYTES_EACH
+        )
         self.inbound = Inbound(
             self.from_ros2,
             self.options.domain_id,
@@ -219,31 +224,52 @@ class Ros2Bridge:
             demand=self.demand,
         )
 
+        wanted = TokenFilter(
+            self.options.domain_id, self._zid, NameFilter(include=self.from_ros2), self.filter if self.demand else None
+        )
+        lanes, waiting = self._lanes, self._tokens_waiting
+
         def heard(sample: Any) -> None:  # on Zenoh's thread
             key = str(sample.key_expr)
-            # no rmw_zenoh token is this long: the queue holds only what parse_token could take (None: refused)
-            inbox.put(TOKENS, (key if len(key) <= MAX_TOKEN_LENGTH else None, sample.kind == zenoh.SampleKind.PUT))
+            session = wanted.session_of(key)
+            if session is None:
+                return  # cannot matter to the bridge: costs the loop nothing
+            # no rmw_zenoh token is this long: the lanes hold only what parse_token could take (None: refused)
+            token = (key if len(key) <= MAX_TOKEN_LENGTH else None, sample.kind == zenoh.SampleKind.PUT)
+            was_empty, dropped = lanes.put(session, token)
+            if dropped:
+                _ratelog.warning(
+                    "tokens", "ros2: over %d liveliness tokens wait; the busiest session's oldest dropped", MAX_WAITING
+                )
+            if was_empty:
+                with contextlib.suppress(RuntimeError):  # the loop is closed
+                    loop.call_soon_threadsafe(waiting.set)
 
+        # zenoh-python's default (``indirect``): a Python thread runs ``heard``, through a queue with no bound; run
+        # on Zenoh's own thread instead, history's replies stalled the loop's own declarations for seconds. What
+        # waits there is what Zenoh itself already holds of each token (its key), and ``heard`` is cheap.
         self._token_sub = self.session.liveliness().declare_subscriber(
             f"@ros2_lv/{self.options.domain_id}/**", heard, history=True
         )
 
     def _deliver(self, name: str, items: list[Any]) -> None:
-        if name == TOKENS:
-            # Batches are handled one after the other, in arrival order: a token's going must never be
-            # handled before its coming (handling one may wait for types loaded off the loop).
-            task = asyncio.create_task(self._tokens(items, self._last_tokens))
-            self._last_tokens = task
-            self._background.add(task)
-            task.add_done_callback(self._background.discard)
-        elif self.inbound is not None and name.startswith("in:"):
+        if self.inbound is not None and name.startswith("in:"):
             self.inbound.deliver(name[3:], items)
             self._changed.set()
 
-    async def _tokens(self, items: list[tuple[str | None, bool]], previous: asyncio.Task[None] | None) -> None:
-        if previous is not None:
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await asyncio.shield(previous)
+    async def _token_loop(self) -> None:
+        """Handle waiting liveliness tokens, the lanes in turn; one task, so a token's going is never handled
+        before its coming (handling one may wait for types loaded off the loop)."""
+        while True:
+            await self._tokens_waiting.wait()
+            self._tokens_waiting.clear()
+            while batch := self._lanes.take(TOKEN_BATCH):
+                try:
+                    await self._tokens(batch)
+                except Exception as exc:  # a peer's token never ends the loop that reads them
+                    _ratelog.warning("token", "ros2: handling liveliness tokens failed: %s", exc)
+
+    async def _tokens(self, items: list[tuple[str | None, bool]]) -> None:
         inbound, inbox = self.inbound, self._inbox
         if inbound is None or inbox is None or self._closed:
             return

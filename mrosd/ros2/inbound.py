@@ -67,6 +67,16 @@ MAX_FOLLOWED_SUBSCRIBERS = 16_384
 #: and so is every body of that topic behind it, in order; at most ``OFFLOAD_BACKLOG`` wait (drop-oldest)
 OFFLOAD_SIZE = 256 * 1024
 OFFLOAD_BACKLOG = 8
+#: bytes of samples waiting in the inbox for the loop, over all imported topics and per topic (drop-oldest, the
+#: oldest of the topic holding most first: ``Inbox``), and the biggest sample taken at all (4K rgb8 is 25 MB)
+INBOX_BYTES = 32 * 1024 * 1024
+INBOX_BYTES_EACH = 32 * 1024 * 1024
+MAX_SAMPLE_BYTES = INBOX_BYTES_EACH
+#: bytes of bodies waiting for a worker thread or being converted there, per topic and over all topics: a
+#: peer's big samples make memory follow this budget, not its sends (the oldest waiting body goes first; a body
+#: that finds the budget held by bodies in conversion is refused); both are counted as drops
+BACKLOG_BYTES = 32 * 1024 * 1024
+BACKLOG_BYTES_ALL = 32 * 1024 * 1024
 #: samples asked of each TRANSIENT_LOCAL publisher's cache: a latched ROS 1 topic keeps the last one only
 LATCH_HISTORY = 1
 
@@ -105,7 +115,9 @@ class ReceivedTopic:
     #: the liveliness keys of the ROS 2 publishers seen: the topic stays on ROS 1 while one is left
     sources: set[str] = field(default_factory=set)
     #: bodies waiting for the worker thread (big ones are converted off the loop), drop-oldest
-    backlog: deque[bytes] = field(default_factory=lambda: deque(maxlen=OFFLOAD_BACKLOG))
+    backlog: deque[bytes] = field(default_factory=deque)
+    #: bytes in ``backlog`` and in the batch being converted
+    held: int = 0
     worker: asyncio.Task[None] | None = None
     dropped: int = 0
     #: a ROS 2 publisher of it is TRANSIENT_LOCAL: latched on ROS 1, its caches queried on Zenoh
@@ -143,6 +155,8 @@ class Inbound:
         self.mapper = mapper
         self.own_zid = own_zid
         self.topics: dict[str, ReceivedTopic] = {}
+        #: bytes held for worker threads over all topics (``ReceivedTopic.held``)
+        self.held = 0
         #: liveliness keys in ``remote_subscribers``
         self._followed = 0
         self._full_logged = False
@@ -282,22 +296,36 @@ class Inbound:
         name = "in:" + rt.topic
 
         def heard(sample: Any) -> None:  # on Zenoh's thread
-            inbox.put(name, sample.payload.to_bytes())
+            size = len(sample.payload)
+            if size > MAX_SAMPLE_BYTES:  # refused before it is copied out of Zenoh
+                rt.dropped += 1
+                _ratelog.warning(
+                    "bytes", "ros2: %s: a sample of %d bytes refused (at most %d)", name[3:], size, MAX_SAMPLE_BYTES
+                )
+            elif inbox.put(name, sample.payload.to_bytes()):
+                _ratelog.warning(
+                    "bytes", "ros2: %s: samples dropped: they come faster than they are converted", name[3:]
+                )
 
+        import zenoh
+
+        # run on Zenoh's own thread (``indirect=False``): zenoh-python's default hands each sample to a Python
+        # thread through a queue with no bound, where a peer's samples piled up while the GIL was busy
+        direct = zenoh.handlers.Callback(heard, indirect=False)
         if rt.latched:
             import zenoh.ext as zenoh_ext
 
             rt.subscriber = zenoh_ext.declare_advanced_subscriber(
                 session,
                 rt.key,
-                heard,
+                direct,
                 history=zenoh_ext.HistoryConfig(detect_late_publishers=True, max_samples=LATCH_HISTORY),
                 recovery=zenoh_ext.RecoveryConfig(periodic_queries=None, heartbeat=True) if rt.reliable else None,
                 subscriber_detection=True,
             )
             qos = Qos(durability=DURABILITY_TRANSIENT_LOCAL, depth=LATCH_HISTORY)
         else:
-            rt.subscriber = session.declare_subscriber(rt.key, heard)
+            rt.subscriber = session.declare_subscriber(rt.key, direct)
             qos = None
         rt.token = session.liveliness().declare_token(
             make_token(EntityKind.SUBSCRIPTION, rt.topic, rt.mapping, qos=qos).key()
@@ -323,8 +351,10 @@ class Inbound:
 
     async def _close(self, rt: ReceivedTopic) -> None:
         if rt.worker is not None:
-            rt.worker.cancel()
-        rt.backlog.clear()
+            rt.worker.cancel()  # it releases what it holds
+        else:
+            self._release(rt, rt.held)
+            rt.backlog.clear()
         self._detach(rt)
         if rt.publisher is not None:
             with contextlib.suppress(MrosError, OSError):
@@ -336,9 +366,9 @@ class Inbound:
         if rt is None or rt.publisher is None:
             return
         if rt.worker is not None or any(len(cdr) >= OFFLOAD_SIZE for cdr in bodies):
-            rt.dropped += max(0, len(rt.backlog) + len(bodies) - OFFLOAD_BACKLOG)
-            rt.backlog.extend(bodies)
-            if rt.worker is None:
+            for body in bodies:
+                self._queue(rt, body)
+            if rt.worker is None and rt.backlog:
                 rt.worker = asyncio.create_task(self._drain(rt))
             return
         for body in self._convert(rt, bodies):
@@ -356,16 +386,49 @@ class Inbound:
             rt.received += 1
         return out
 
+    def _queue(self, rt: ReceivedTopic, body: bytes) -> None:
+        """Into ``rt``'s backlog within ``OFFLOAD_BACKLOG`` bodies and the byte budgets, dropping its oldest."""
+        size = len(body)
+        while rt.backlog and (
+            len(rt.backlog) >= OFFLOAD_BACKLOG or rt.held + size > BACKLOG_BYTES or self.held + size > BACKLOG_BYTES_ALL
+        ):
+            self._release(rt, len(rt.backlog.popleft()))
+            rt.dropped += 1
+        if rt.held + size > BACKLOG_BYTES or self.held + size > BACKLOG_BYTES_ALL:
+            rt.dropped += 1
+            _ratelog.warning(
+                "bytes",
+                "ros2: %s: a sample of %d bytes dropped: %d MiB of samples wait for conversion",
+                rt.topic,
+                size,
+                self.held >> 20,
+            )
+            return
+        rt.backlog.append(body)
+        rt.held += size
+        self.held += size
+
+    def _release(self, rt: ReceivedTopic, size: int) -> None:
+        rt.held -= size
+        self.held -= size
+
     async def _drain(self, rt: ReceivedTopic) -> None:
         """Convert the topic's backlog on a worker thread and publish it, in order, until it is empty."""
+        size = 0
         try:
             while rt.backlog and rt.publisher is not None:
                 batch = list(rt.backlog)
                 rt.backlog.clear()
+                size = sum(map(len, batch))
                 for body in await asyncio.to_thread(self._convert, rt, batch):
                     rt.publisher.publish_serialized(body)
+                del batch
+                self._release(rt, size)
+                size = 0
         finally:
             rt.worker = None
+            self._release(rt, size + sum(map(len, rt.backlog)))
+            rt.backlog.clear()
 
     async def aclose(self) -> None:
         for rt in self.topics.values():

@@ -34,6 +34,10 @@ ROUTER_LISTEN = ("tcp/[::]:7447",)
 NODE_NAME = "mrosd_ros2"
 #: topics bridged ROS 1 -> ROS 2 at most in mode "all" (each holds a TCPROS subscription and a publisher)
 MAX_ALL_TOPICS = 256
+#: the biggest Zenoh message the session reassembles from a link (Zenoh's default, and rmw_zenohd's, is 1 GiB:
+#: any peer could make it hold that much per link before the bridge sees a byte); above the biggest sample the
+#: bridge takes (``inbound.MAX_SAMPLE_BYTES``) and service body (``services.MAX_SERVICE_BODY``)
+MAX_MESSAGE_SIZE = 64 * 1024 * 1024
 
 Mode = Literal["listed", "all", "demand"]
 Distro = Literal["jazzy", "humble"]
@@ -135,6 +139,7 @@ def zenoh_config(zenoh: Any, options: Ros2Options) -> Any:
         config.insert_json5("connect/endpoints", msgspec.json.encode(list(options.connect)).decode())
         config.insert_json5("listen/endpoints", msgspec.json.encode(list(options.listen)).decode())
         config.insert_json5("scouting/multicast/enabled", "false")
+        config.insert_json5("transport/link/rx/max_message_size", str(MAX_MESSAGE_SIZE))
         # rmw_zenoh's session config stamps every sample; TRANSIENT_LOCAL's advanced publisher needs it
         config.insert_json5("timestamping/enabled", "true")
         tls = {

@@ -69,6 +69,9 @@ PROBE_TIMEOUT = 3.0
 #: a request or response body larger than this is refused before it is converted (services carry commands,
 #: not images; rmw_zenoh has no limit of its own)
 MAX_SERVICE_BODY = 16 * 1024 * 1024
+#: bytes of the requests from ROS 2 in flight (each counted as its CDR body and its ROS 1 form, held until the
+#: call ends): a call that would pass it is refused at once, so memory follows this, not a peer's calls
+MAX_INFLIGHT_BYTES = 64 * 1024 * 1024
 #: rmw's rmw_qos_profile_services_default: reliable, volatile, keep last 10 (the token's QoS)
 SERVICE_QOS = Qos(depth=10)
 
@@ -159,6 +162,8 @@ class Ros2Services:
         self._by_peer: Counter[str] = Counter()
         self._by_service: Counter[str] = Counter()
         self.inflight_in = 0
+        #: bytes the calls in ``inflight_in`` hold (of ``MAX_INFLIGHT_BYTES``)
+        self.inflight_bytes = 0
         self.inflight_out = 0
         self.closed = False
         self._tasks: set[asyncio.Task[None]] = set()
@@ -243,23 +248,26 @@ class Ros2Services:
             why = ""
             try:
                 payload = query.payload
-                body = payload.to_bytes() if payload is not None else b""
-                raw = query.attachment
-                attachment = decode_attachment(raw.to_bytes() if raw is not None else b"")
-                if not body or len(body) > MAX_SERVICE_BODY:
-                    why = f"a request of {len(body)} bytes"
+                size = len(payload) if payload is not None else 0
+                if not size or size > MAX_SERVICE_BODY:  # measured before it is copied out of Zenoh
+                    why = f"a request of {size} bytes"
                 else:  # bounded by the body's size: a malformed request never takes a slot
-                    request = bytes(self.mapper.to_ros1(mapping.request_type, body))
+                    raw = query.attachment
+                    attachment = decode_attachment(raw.to_bytes() if raw is not None else b"")
+                    request = bytes(self.mapper.to_ros1(mapping.request_type, payload.to_bytes()))
             except (RemoteProtocolError, MrosError) as exc:
                 why = str(exc)
             if not why:
                 peer = _caller_of(query, attachment.gid)
-                if self._admit(name, peer):
+                held = size + len(request)
+                if self._admit(name, peer, held):
                     try:
-                        loop.call_soon_threadsafe(self._spawn, self._serve(os_, query, request, attachment, peer))
+                        loop.call_soon_threadsafe(
+                            self._spawn, self._serve(os_, query, request, attachment, peer, held=held)
+                        )
                         return  # handed over: the loop replies and drops it
                     except RuntimeError:  # the loop is gone
-                        self._call_done(name, peer)
+                        self._call_done(name, peer, held)
                 why = "too many calls in flight"
             os_.refused += 1
             _ratelog.warning("bad query", "ros2: refusing a call of %s: %s", name, why)
@@ -269,7 +277,11 @@ class Ros2Services:
                 query.drop()
 
         try:
-            os_.queryable = self.session.declare_queryable(os_.key, on_query, complete=True)
+            # on Zenoh's own thread: zenoh-python's default (``indirect``) queues queries for a Python thread
+            # with no bound, where a peer's requests would pile up while the GIL is busy
+            os_.queryable = self.session.declare_queryable(
+                os_.key, self.zenoh.handlers.Callback(on_query, indirect=False), complete=True
+            )
             token = self.make_token(EntityKind.SERVICE, name, mapping, qos=SERVICE_QOS, type_hash=self._hash(mapping))
             os_.token = self.session.liveliness().declare_token(token.key())
         except Exception as exc:
@@ -279,7 +291,9 @@ class Ros2Services:
             return
         log.info("ros2: service %s (%s) -> %s", name, mapping.ros1_type, os_.key)
 
-    async def _serve(self, os_: OfferedService, query: Any, request: bytes, attachment: Any, peer: str) -> None:
+    async def _serve(
+        self, os_: OfferedService, query: Any, request: bytes, attachment: Any, peer: str, *, held: int
+    ) -> None:
         mapping, raw = os_.mapping, os_.raw
         assert mapping is not None
         try:
@@ -299,28 +313,32 @@ class Ros2Services:
         except Exception as exc:  # Zenoh refused the reply (the querier is gone): nothing to tell anyone
             _ratelog.warning(f"reply {os_.name}", "ros2: cannot answer a call of %s: %s", os_.name, exc)
         finally:
-            self._call_done(os_.name, peer)
+            self._call_done(os_.name, peer, held)
             with contextlib.suppress(Exception):
                 query.drop()
 
-    def _admit(self, service: str, peer: str) -> bool:
-        """Take a slot for a call of ``service`` from ``peer`` if the caps allow (any thread)."""
+    def _admit(self, service: str, peer: str, held: int) -> bool:
+        """Take a slot for a call of ``service`` from ``peer`` holding ``held`` bytes if the caps allow (any
+        thread)."""
         with self._lock:
             if (
                 self.closed
                 or self.inflight_in >= self.max_calls
+                or self.inflight_bytes + held > MAX_INFLIGHT_BYTES
                 or self._by_service[service] >= self.per_service
                 or self._by_peer[peer] >= self.per_peer
             ):
                 return False
             self.inflight_in += 1
+            self.inflight_bytes += held
             self._by_service[service] += 1
             self._by_peer[peer] += 1
             return True
 
-    def _call_done(self, service: str, peer: str) -> None:
+    def _call_done(self, service: str, peer: str, held: int) -> None:
         with self._lock:
             self.inflight_in -= 1
+            self.inflight_bytes -= held
             for counter, name in ((self._by_service, service), (self._by_peer, peer)):
                 counter[name] -= 1
                 if counter[name] <= 0:
@@ -473,14 +491,18 @@ class Ros2Services:
         except MrosError as exc:
             raise ServiceError(str(exc)) from None
         outcome = ReplyFuture(asyncio.get_running_loop())
+        answered = threading.Event()
 
         def on_reply(reply: Any) -> None:  # Zenoh's thread
+            if answered.is_set():  # the first reply decides: what other queryables send is not even copied
+                return
+            answered.set()
             if reply.ok is not None:
-                body = reply.ok.payload.to_bytes()
-                if len(body) > MAX_SERVICE_BODY:
-                    outcome.fail(f"ros2: {ps.name}: a response of {len(body)} bytes")
+                size = len(reply.ok.payload)
+                if size > MAX_SERVICE_BODY:
+                    outcome.fail(f"ros2: {ps.name}: a response of {size} bytes")
                 else:
-                    outcome.ok(body)
+                    outcome.ok(reply.ok.payload.to_bytes())
                 return
             text = reply.err.payload.to_bytes()[:500].decode("utf-8", "replace")
             if text == "Timeout":  # Zenoh's own error reply once the query's timeout has passed
@@ -495,7 +517,7 @@ class Ros2Services:
         attachment = encode_attachment(ps.sequence, time.time_ns(), ps.gid)
         self.session.get(
             ps.key,
-            zenoh.handlers.Callback(on_reply, on_done),
+            zenoh.handlers.Callback(on_reply, on_done, indirect=False),
             payload=cdr,
             attachment=attachment,
             target=zenoh.QueryTarget.ALL_COMPLETE,
