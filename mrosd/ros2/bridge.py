@@ -42,7 +42,7 @@ from mrosd.ros2.mapping import load_mapping_rules
 from mrosd.ros2.options import Ros2Options, ros2_options, zenoh_config
 from mrosd.ros2.services import Ros2Services
 from mrosd.ros2.srvtypes import HUMBLE_TYPE_HASH
-from mrosd.ros2.status import RateMeter, status_document
+from mrosd.ros2.status import RateMeter, inbound_rows, outbound_rows, status_document
 from mrosd.ros2.tokens import MAX_WAITING, TokenFilter, TokenLanes
 from mrosd.ros2.types import TypeMapper, TypeMapping, UnmappableTypeError
 from mrosd.tcpros.node import Node
@@ -62,6 +62,10 @@ TOKEN_BATCH = 256
 #: seconds between sporadic heartbeats of a TRANSIENT_LOCAL publisher (rmw_zenoh's
 #: SAMPLE_MISS_DETECTION_HEARTBEAT_PERIOD, 500 ms); sent only when a sample was published since the last one
 HEARTBEAT = 0.5
+
+
+def _none(_name: str) -> int:
+    return 0
 
 
 class RmwPublisher:
@@ -366,20 +370,7 @@ class Ros2Bridge:
         inbound, inbox = self.inbound, self._inbox
         if inbound is None:
             return []
-        return [
-            {
-                "topic": rt.topic,
-                "ros2_type": rt.ros2_type,
-                "key": rt.key,
-                "received": rt.received,
-                "rate": self.rates.rate("in:" + rt.topic),
-                "dropped": (inbox.dropped("in:" + rt.topic) if inbox is not None else 0) + rt.dropped,
-                "bad": rt.bad,
-                "latched": rt.latched,
-                "subscribed": rt.subscriber is not None,
-            }
-            for rt in inbound.topics.values()
-        ]
+        return inbound_rows(inbound.topics.values(), self.rates, inbox.dropped if inbox is not None else _none)
 
     def summary(self) -> str:
         """A few words for the daemon's status line."""
@@ -397,21 +388,8 @@ class Ros2Bridge:
 
     def status(self) -> list[dict[str, Any]]:
         """One row per ROS 1 topic shown to ROS 2: names, key, counts and any problem."""
-        rows = []
-        for bt in self.topics.values():
-            rows.append(
-                {
-                    "topic": bt.topic,
-                    "ros2_type": bt.mapping.ros2_type if bt.mapping else "",
-                    "key": bt.key,
-                    "sent": bt.rmw.sent if bt.rmw else 0,
-                    "rate": self.rates.rate("out:" + bt.topic),
-                    "dropped": self._outbox.dropped(bt.key) if self._outbox and bt.key else 0,
-                    "latched": bt.latched,
-                    "problem": bt.problem,
-                }
-            )
-        return rows
+        outbox = self._outbox
+        return outbound_rows(self.topics.values(), self.rates, outbox.dropped if outbox is not None else _none)
 
     # --- names -------------------------------------------------------------------------------------
 

@@ -7,9 +7,10 @@ a bridge in mode "all" on a large graph still answers in one small service respo
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from typing import Any
 
-__all__ = ["MAX_ROWS", "RateMeter", "status_document"]
+__all__ = ["MAX_ROWS", "RateMeter", "inbound_rows", "outbound_rows", "status_document"]
 
 #: rows per section of the status document; the rest are counted in ``<section>_more``
 MAX_ROWS = 200
@@ -60,3 +61,39 @@ def status_document(
     _bounded(doc, "from_ros2", from_ros2)
     _bounded(doc, "services", services)
     return doc
+
+
+def outbound_rows(topics: Iterable[Any], rates: RateMeter, dropped: Callable[[str], int]) -> list[dict[str, Any]]:
+    """One row per ROS 1 topic shown to ROS 2 (the bridge's ``BridgedTopic`` s): names, key, counts, any problem."""
+    return [
+        {
+            "topic": bt.topic,
+            "ros2_type": bt.mapping.ros2_type if bt.mapping else "",
+            "key": bt.key,
+            "sent": bt.rmw.sent if bt.rmw else 0,
+            "rate": rates.rate("out:" + bt.topic),
+            "dropped": dropped(bt.key) if bt.key else 0,
+            "latched": bt.latched,
+            "problem": bt.problem,
+        }
+        for bt in topics
+    ]
+
+
+def inbound_rows(topics: Iterable[Any], rates: RateMeter, dropped: Callable[[str], int]) -> list[dict[str, Any]]:
+    """One row per ROS 2 topic republished on ROS 1 (``mrosd.ros2.inbound`` 's topics); ``dropped`` counts the
+    inbox's drops of a topic's ``in:`` name."""
+    return [
+        {
+            "topic": rt.topic,
+            "ros2_type": rt.ros2_type,
+            "key": rt.key,
+            "received": rt.received,
+            "rate": rates.rate("in:" + rt.topic),
+            "dropped": dropped("in:" + rt.topic) + rt.dropped,
+            "bad": rt.bad,
+            "latched": rt.latched,
+            "subscribed": rt.subscriber is not None,
+        }
+        for rt in topics
+    ]
