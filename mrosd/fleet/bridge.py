@@ -22,6 +22,7 @@ from mrosd.errors import ConfigError, MrosError
 from mrosd.fleet.discovery import Discovery
 from mrosd.fleet.handoff import Inbox, Outbox
 from mrosd.fleet.keys import ANNOUNCE_PERIOD, discovery_subscription
+from mrosd.fleet.limits import INBOX_BYTES, INBOX_BYTES_EACH
 from mrosd.fleet.link import Counters, FleetLink, ReceivedService, ReceivedTopic, SentService, SentTopic, ratelog
 from mrosd.fleet.options import FleetOptions, zenoh_settings
 from mrosd.fleet.presence import Presence
@@ -155,7 +156,14 @@ class FleetBridge:
                 link.session = await asyncio.to_thread(zenoh.open, config)
             except Exception as exc:
                 raise ConfigError(f"fleet: cannot open the Zenoh session: {exc}") from exc
-            link.inbox = Inbox(loop, self._deliver, link.options.queue_size, {DISCOVERY: DISCOVERY_QUEUE})
+            link.inbox = Inbox(
+                loop,
+                self._deliver,
+                link.options.queue_size,
+                {DISCOVERY: DISCOVERY_QUEUE},
+                max_bytes=INBOX_BYTES,
+                max_bytes_each=INBOX_BYTES_EACH,
+            )
             announce = {
                 "congestion_control": zenoh.CongestionControl.DROP,
                 "priority": zenoh.Priority.BACKGROUND,
@@ -294,6 +302,7 @@ class FleetBridge:
             "unchecked_types": counters.unchecked_types,
             "refused_calls": counters.refused_calls,
             "malformed": counters.malformed,
+            "oversized": counters.oversized,
             "sent": {
                 t: {
                     "key": st.key,

@@ -59,10 +59,11 @@ class ReplyFuture:
 class Inbox:
     """Any thread -> the loop: ``put(name, item)``; ``deliver(name, items)`` runs on the loop in batches.
 
-    With ``max_bytes``, bodies (``bytes``) are also bounded in bytes: at most ``max_bytes`` wait in all and
-    ``max_bytes_each`` under one name. A body that does not fit drops the oldest of its own name first, then
-    the oldest of the name holding most, so a peer flooding one name cannot push another's out; a body bigger
-    than a name's share is refused. Memory then follows the budget, not a peer's sends.
+    With ``max_bytes``, bodies (``bytes``, or a tuple whose first item is one) are also bounded in bytes: at
+    most ``max_bytes`` wait in all and ``max_bytes_each`` under one name. A body that does not fit drops the
+    oldest of its own name first, then the oldest of the name holding most, so a peer flooding one name cannot
+    push another's out; a body bigger than a name's share is refused. Memory then follows the budget, not a
+    peer's sends.
     """
 
     def __init__(
@@ -102,12 +103,13 @@ class Inbox:
             if q is None:
                 q = self._queues[name] = DropOldestQueue(self._maxlen_of.get(name, self._maxlen))
             dropped = q.dropped + self._popped
-            if self._max_bytes and isinstance(item, bytes):
-                if not self._fit(name, q, len(item)):
+            size = _body_size(item) if self._max_bytes else 0
+            if size:
+                if not self._fit(name, q, size):
                     q.dropped += 1
                     return True
-            elif len(q) >= q.maxlen and self._max_bytes and isinstance(q.items[0], bytes):
-                self._forget_bytes(name, len(q.items[0]))
+            elif len(q) >= q.maxlen and self._max_bytes:
+                self._forget_bytes(name, _body_size(q.items[0]))
             q.put(item)
             lost = q.dropped + self._popped != dropped
             if self._scheduled:
@@ -142,7 +144,7 @@ class Inbox:
         old = q.items.popleft()
         q.dropped += 1
         self._popped += 1
-        size = len(old) if isinstance(old, bytes) else 0
+        size = _body_size(old)
         self._forget_bytes(name, size)
         return size
 
@@ -177,7 +179,16 @@ class Inbox:
         with self._lock:
             q = self._queues.pop(name, None)
             if q is not None and self._max_bytes:
-                self._forget_bytes(name, sum(len(i) for i in q.items if isinstance(i, bytes)))
+                self._forget_bytes(name, sum(map(_body_size, q.items)))
+
+
+def _body_size(item: Any) -> int:
+    """The bytes an inbox item holds: a body, or a ``(body, ...)`` tuple (the fleet's samples); else none."""
+    if isinstance(item, bytes):
+        return len(item)
+    if isinstance(item, tuple) and item and isinstance(item[0], bytes):
+        return len(item[0])
+    return 0
 
 
 class Outbox:

@@ -13,6 +13,20 @@ from typing import Generic, TypeVar
 
 T = TypeVar("T")
 
+MiB = 1024 * 1024
+#: What another robot's bodies may hold here, in bytes, whatever it sends: bodies waiting for the loop, in all
+#: and per topic (drop-oldest, the fullest topic first: ``handoff.Inbox``); a body or request over
+#: ``MAX_BODY_BYTES`` is refused before it is copied out of Zenoh, and Zenoh itself rebuilds no message over
+#: ``MAX_MESSAGE_SIZE`` (its default is 1 GiB: a peer could make it hold that much per link); calls from other
+#: robots hold at most ``MAX_CALL_BYTES`` of requests in flight; the queue of a slow local subscriber of a
+#: received topic at most ``LINK_BYTES`` (besides ``queue_size`` messages: the newest is always kept).
+INBOX_BYTES = 64 * MiB
+INBOX_BYTES_EACH = 32 * MiB
+MAX_BODY_BYTES = INBOX_BYTES_EACH
+MAX_MESSAGE_SIZE = 64 * MiB
+MAX_CALL_BYTES = 64 * MiB
+LINK_BYTES = 16 * MiB
+
 
 @dataclass
 class RateLimit:

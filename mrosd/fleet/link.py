@@ -18,7 +18,7 @@ from typing import Any
 
 from mrosd.fleet.handoff import Inbox, Outbox
 from mrosd.fleet.keys import Item, ItemKind, discovery_key
-from mrosd.fleet.limits import RateLimit, RateMeter
+from mrosd.fleet.limits import MAX_BODY_BYTES, RateLimit, RateMeter
 from mrosd.fleet.options import FleetOptions
 from mrosd.fleet.presence import Presence
 from mrosd.lograte import RateLimitedLog
@@ -111,7 +111,11 @@ class Counters:
     refused_calls: int = 0
     #: bodies, requests and responses from Zenoh that did not decode as their type
     malformed: int = 0
+    #: bodies and requests over ``limits.MAX_BODY_BYTES``, refused before they were copied out of Zenoh
+    oversized: int = 0
     inflight: int = 0
+    #: bytes of the requests of calls in flight (at most ``limits.MAX_CALL_BYTES``)
+    inflight_bytes: int = 0
     started: float = field(default_factory=time.monotonic)
 
 
@@ -155,8 +159,14 @@ class FleetLink:
 
     def inbox_put(self, name: str, item: Any) -> None:
         inbox = self.inbox
-        if inbox is not None:
-            inbox.put(name, item)
+        if inbox is not None and inbox.put(name, item):
+            ratelog.warning("inbox", "fleet: %s: bodies dropped: they come faster than they are published", name)
+
+    def oversized(self, name: str, size: int) -> None:
+        """Count one body or request refused for its size; one rate-limited line for all of them."""
+        with self.lock:
+            self.counters.oversized += 1
+        ratelog.warning("oversized", "fleet: refused %d bytes on %s (at most %d)", size, name, MAX_BODY_BYTES)
 
     def malformed(self, what: str, name: str, why: str) -> None:
         """Count one body from Zenoh that did not decode as its type; one rate-limited line for all of them."""

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from mrosd.config import FleetConfig
 from mrosd.errors import ConfigError
 from mrosd.fleet.keys import NameFilter, RenameRule, glob_match
-from mrosd.fleet.limits import RateLimit
+from mrosd.fleet.limits import MAX_MESSAGE_SIZE, RateLimit
 
 _ROBOT = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 _ENDPOINT = re.compile(r"^(tcp|tls|udp|quic)/.+:\d+$")
@@ -107,8 +107,9 @@ def zenoh_settings(opts: FleetOptions) -> list[tuple[str, str]]:
 
     Multicast scouting stays off unless asked (a robot does not advertise itself on every network it joins);
     the lease is short so a cut link is noticed within seconds, and reconnection attempts to the configured
-    endpoints never stop and never wait longer than ``retry_max``. (``connect/timeout_ms`` stays Zenoh's: set to
-    0 it also ends the background attempts, and a robot started before its peer would never link.)
+    endpoints never stop and never wait longer than ``retry_max``; no message over ``MAX_MESSAGE_SIZE`` is
+    rebuilt. (``connect/timeout_ms`` stays Zenoh's: set to 0 it also ends the background attempts, and a robot
+    started before its peer would never link.)
     """
     lease_ms = int(opts.lease * 1000)
     retry_ms = int(opts.retry_max * 1000)
@@ -124,6 +125,7 @@ def zenoh_settings(opts: FleetOptions) -> list[tuple[str, str]]:
             json.dumps({"period_init_ms": min(250, retry_ms), "period_max_ms": retry_ms, "period_increase_factor": 2}),
         ),
         ("listen/retry", json.dumps({"period_init_ms": min(250, retry_ms), "period_max_ms": retry_ms})),
+        ("transport/link/rx/max_message_size", json.dumps(MAX_MESSAGE_SIZE)),
     ]
     if opts.tls_root_ca:
         out.append(("transport/link/tls/root_ca_certificate", json.dumps(opts.tls_root_ca)))

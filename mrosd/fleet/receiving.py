@@ -19,6 +19,7 @@ from typing import Any
 from mrosd.errors import MrosError
 from mrosd.fleet.frames import prefix_tf_frames, wants_tf_prefix
 from mrosd.fleet.keys import LATCHED_ATTACHMENT, WILDCARD_NS, Item
+from mrosd.fleet.limits import LINK_BYTES, MAX_BODY_BYTES
 from mrosd.fleet.link import QUERY_TIMEOUT, FleetLink, ReceivedTopic, ratelog
 from mrosd.fleet.raw import FleetTypeError, checker, message_class, raw_message_class
 
@@ -77,7 +78,9 @@ class Receiver:
             return
         cls = raw_message_class(rt.item.type, rt.item.md5sum, str(rt.cls._full_text))
         try:
-            rt.publisher = await link.node.advertise(rt.local, cls, queue_size=link.options.queue_size)
+            rt.publisher = await link.node.advertise(
+                rt.local, cls, queue_size=link.options.queue_size, max_queued_bytes=LINK_BYTES
+            )
             link.touch()
         except MrosError as exc:
             ratelog.warning(f"adv {rt.local}", "fleet: cannot publish %s here: %s", rt.local, exc)
@@ -136,7 +139,9 @@ class Receiver:
                 with contextlib.suppress(MrosError, OSError):
                     await old.aclose()
             cls = raw_message_class(rt.item.type, rt.item.md5sum, str(rt.cls._full_text))
-            pub = await link.node.advertise(rt.local, cls, latch=True, queue_size=link.options.queue_size)
+            pub = await link.node.advertise(
+                rt.local, cls, latch=True, queue_size=link.options.queue_size, max_queued_bytes=LINK_BYTES
+            )
         except MrosError as exc:
             ratelog.warning(f"adv {rt.local}", "fleet: cannot publish %s latched here: %s", rt.local, exc)
             return
@@ -177,18 +182,31 @@ class Receiver:
         zenoh = link.zenoh
         local = rt.local
         key = rt.item.data_key
-        rt.subscriber = link.session.declare_subscriber(
-            key,
-            lambda sample: link.inbox_put(local, (sample.payload.to_bytes(), _how(sample))),
-            allowed_origin=zenoh.Locality.REMOTE,
-        )
+
+        def take(payload: Any, how: int) -> None:  # on Zenoh's thread
+            if len(payload) > MAX_BODY_BYTES:  # refused before it is copied out of Zenoh
+                link.oversized(local, len(payload))
+            else:
+                link.inbox_put(local, (payload.to_bytes(), how))
 
         def reply(r: Any) -> None:
             if r.ok is not None:
-                link.inbox_put(local, (r.ok.payload.to_bytes(), CACHED))
+                take(r.ok.payload, CACHED)
 
+        # On Zenoh's own thread (``indirect=False``): zenoh-python's default hands each sample to a Python thread
+        # through a queue with no bound, where a peer's bodies piled up while the GIL was busy.
+        rt.subscriber = link.session.declare_subscriber(
+            key,
+            zenoh.handlers.Callback(lambda sample: take(sample.payload, _how(sample)), indirect=False),
+            allowed_origin=zenoh.Locality.REMOTE,
+        )
         # The latched body, if the sender holds one (a late joiner's first message).
-        link.session.get(key, reply, timeout=QUERY_TIMEOUT, allowed_destination=zenoh.Locality.REMOTE)
+        link.session.get(
+            key,
+            zenoh.handlers.Callback(reply, indirect=False),
+            timeout=QUERY_TIMEOUT,
+            allowed_destination=zenoh.Locality.REMOTE,
+        )
 
     def follow_subscribers(self) -> bool:
         """Subscribe in Zenoh to the topics a local node subscribes to, and only those; True if any changed."""

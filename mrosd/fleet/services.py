@@ -23,6 +23,7 @@ from mrosd import backports
 from mrosd.errors import MrosError, ServiceError
 from mrosd.fleet.handoff import ReplyFuture
 from mrosd.fleet.keys import Item, ItemKind, data_key, discovery_key
+from mrosd.fleet.limits import MAX_BODY_BYTES, MAX_CALL_BYTES
 from mrosd.fleet.link import QUERY_TIMEOUT, FleetLink, ReceivedService, SentService, ratelog
 from mrosd.fleet.raw import FleetTypeError, RawBody, checker, raw_service_class, service_class
 from mrosd.tcpros.service import probe_service
@@ -107,6 +108,13 @@ class Services:
             # Zenoh's thread: a malformed request is refused before it takes a slot (decoding is bounded by the
             # body's size); beyond the caps, or once closing, the call is refused at once; else to the loop.
             payload = query.payload
+            size = len(payload) if payload is not None else 0
+            if size > MAX_BODY_BYTES:  # refused before it is copied out of Zenoh
+                ss.refused += 1
+                link.oversized(name, size)
+                with query:
+                    query.reply_err(b"mrosd fleet: request too big")
+                return
             body = payload.to_bytes() if payload is not None else b""
             why = check_request(body)
             if why is not None:
@@ -117,11 +125,16 @@ class Services:
                 return
             peer = _peer_of(query)
             with link.lock:
+                counters = link.counters
                 admitted = (
-                    not link.closed and link.counters.inflight < self.max_calls and self._by_peer[peer] < self.per_peer
+                    not link.closed
+                    and counters.inflight < self.max_calls
+                    and self._by_peer[peer] < self.per_peer
+                    and counters.inflight_bytes + size <= MAX_CALL_BYTES
                 )
                 if admitted:
-                    link.counters.inflight += 1
+                    counters.inflight += 1
+                    counters.inflight_bytes += size
                     self._by_peer[peer] += 1
                 else:
                     link.counters.refused_calls += 1
@@ -132,10 +145,14 @@ class Services:
             try:
                 loop.call_soon_threadsafe(link.spawn, self._serve_call(ss, raw, query, body, peer))
             except RuntimeError:  # the loop is gone
-                self._call_done(peer)
+                self._call_done(peer, size)
                 query.drop()
 
-        ss.queryable = link.session.declare_queryable(key, on_query, allowed_origin=link.zenoh.Locality.REMOTE)
+        # On Zenoh's own thread (``indirect=False``): zenoh-python's default queues queries for a Python thread
+        # with no bound; ``on_query`` is cheap (a bounded check of the body, then a hand-off or a refusal).
+        ss.queryable = link.session.declare_queryable(
+            key, link.zenoh.handlers.Callback(on_query, indirect=False), allowed_origin=link.zenoh.Locality.REMOTE
+        )
         ss.announced = discovery_key(ItemKind.SERVICE, srv_type, md5sum, link.options.robot, name)
         link.announce()
 
@@ -159,13 +176,14 @@ class Services:
         except Exception as exc:
             ratelog.warning(f"call {ss.name}", "fleet: answering a call of %s failed: %s", ss.name, exc)
         finally:
-            self._call_done(peer)
+            self._call_done(peer, len(body))
             with contextlib.suppress(Exception):
                 query.drop()
 
-    def _call_done(self, peer: str) -> None:
+    def _call_done(self, peer: str, size: int) -> None:
         with self.link.lock:
             self.link.counters.inflight -= 1
+            self.link.counters.inflight_bytes -= size
             self._by_peer[peer] -= 1
             if self._by_peer[peer] <= 0:
                 del self._by_peer[peer]
@@ -228,9 +246,19 @@ class Services:
         zenoh = link.zenoh
         outcome = ReplyFuture(asyncio.get_running_loop())
 
+        first = [True]
+
         def on_reply(reply: Any) -> None:  # Zenoh's thread
+            if not first[0]:
+                return  # only the first reply is read: further ones (from any peer serving the key) cost nothing
+            first[0] = False
             if reply.ok is not None:
-                outcome.ok(reply.ok.payload.to_bytes())
+                size = len(reply.ok.payload)
+                if size > MAX_BODY_BYTES:  # refused before it is copied out of Zenoh
+                    link.oversized(key, size)
+                    outcome.fail(f"the remote service's answer has {size} bytes (at most {MAX_BODY_BYTES})")
+                else:
+                    outcome.ok(reply.ok.payload.to_bytes())
             else:
                 text = reply.err.payload.to_bytes()[:500].decode("utf-8", "replace")
                 outcome.fail(f"the remote service answered an error: {text}")
@@ -241,7 +269,7 @@ class Services:
         self._sn += 1
         link.session.get(
             key,
-            zenoh.handlers.Callback(on_reply, on_done),
+            zenoh.handlers.Callback(on_reply, on_done, indirect=False),
             payload=body,
             source_info=zenoh.SourceInfo(link.session.id, self._sn),  # the callee's per-caller cap counts us
             timeout=QUERY_TIMEOUT,

@@ -72,6 +72,8 @@ OFFLOAD_BACKLOG = 8
 INBOX_BYTES = 32 * 1024 * 1024
 INBOX_BYTES_EACH = 32 * 1024 * 1024
 MAX_SAMPLE_BYTES = INBOX_BYTES_EACH
+#: bytes the queue of a slow ROS 1 subscriber of an imported topic may hold (besides its 100 messages)
+LINK_BYTES = 16 * 1024 * 1024
 #: bytes of bodies waiting for a worker thread or being converted there, per topic and over all topics: a
 #: peer's big samples make memory follow this budget, not its sends (the oldest waiting body goes first; a body
 #: that finds the budget held by bodies in conversion is refused); both are counted as drops
@@ -266,7 +268,10 @@ class Inbound:
         self.topics[tok.topic] = rt
         try:
             rt.publisher = await self.node.advertise(
-                tok.topic, raw_message_class(ros1_type, back.md5sum, back.definition), latch=rt.latched
+                tok.topic,
+                raw_message_class(ros1_type, back.md5sum, back.definition),
+                latch=rt.latched,
+                max_queued_bytes=LINK_BYTES,
             )
         except MrosError as exc:
             _ratelog.warning(f"adv {tok.topic}", "ros2: cannot publish %s on ROS 1: %s", tok.topic, exc)

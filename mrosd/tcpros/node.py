@@ -408,12 +408,15 @@ class Node:
         latch: bool = False,
         queue_size: int = DEFAULT_QUEUE_SIZE,
         max_message_size: int | None = None,
+        max_queued_bytes: int = 0,
     ) -> Publisher:
         """Publish ``topic`` with type ``msg_class``; registers with the master.
 
         ``max_message_size`` (bytes, serialized): the largest message this publisher will send. Its
         same-host shared-memory pool is then made now, every page faulted in, so that neither the first
-        message nor a new subscriber pays for fresh memory (``docs/shm.md``).
+        message nor a new subscriber pays for fresh memory (``docs/shm.md``). ``max_queued_bytes``: what a
+        slow subscriber's queue may hold in bytes, besides ``queue_size`` messages (0: no such bound, as in
+        rospy and roscpp); the oldest go first, the newest is always kept.
 
         Raises:
             LocalProtocolError: the topic is already advertised by this node with another type.
@@ -426,7 +429,15 @@ class Node:
             if existing.md5sum != getattr(msg_class, "_md5sum", None):
                 raise LocalProtocolError(f"{name} is already advertised by {self.name} as {existing.type}")
             return existing
-        pub = Publisher(self, name, msg_class, latch=latch, queue_size=queue_size, max_message_size=max_message_size)
+        pub = Publisher(
+            self,
+            name,
+            msg_class,
+            latch=latch,
+            queue_size=queue_size,
+            max_message_size=max_message_size,
+            max_queued_bytes=max_queued_bytes,
+        )
         self.publishers[name] = pub
         try:
             if max_message_size is not None:

@@ -2,13 +2,15 @@
 
 Each subscriber connection is a ``SubscriberLink``. While its socket keeps up, a frame is written at once
 (one ``transport.write``). When the transport pushes back (pause_writing), frames wait in that link's
-queue of at most ``queue_size`` frames, dropping the OLDEST when full and counting the drop (reported in
-getBusStats); once the socket drains, everything waiting goes out as ONE coalesced write. A large message
-is never joined: its length prefix and its pieces (``serialize_parts``: the payload is the very object the
-message holds, e.g. a view into the frame it was received in) go to the socket in one ``writev``
-(``TcprosProtocol.write_parts``). A slow subscriber therefore never delays the others and costs at most
-WRITE_HIGH_WATER plus its queue. Latching keeps the serialized bytes, never the live message object.
-Messages with ``Header header`` get the publisher's sequence number in ``header.seq``, as rospy and roscpp do.
+queue of at most ``queue_size`` frames (and, with ``max_queued_bytes``, at most that many bytes: a bridge
+republishing what a stranger sends bounds its memory, not only its count), dropping the OLDEST when full and
+counting the drop (reported in getBusStats); once the socket drains, everything waiting goes out as ONE
+coalesced write. A large message is never joined: its length prefix and its pieces (``serialize_parts``: the
+payload is the very object the message holds, e.g. a view into the frame it was received in) go to the socket
+in one ``writev`` (``TcprosProtocol.write_parts``). A slow subscriber therefore never delays the others and
+costs at most WRITE_HIGH_WATER plus its queue. Latching keeps the serialized bytes, never the live message
+object. Messages with ``Header header`` get the publisher's sequence number in ``header.seq``, as rospy and
+roscpp do.
 """
 
 from __future__ import annotations
@@ -49,12 +51,17 @@ DEFAULT_QUEUE_SIZE = 100
 class SubscriberLink:
     """One subscriber's connection to a publisher: bounded drop-oldest queue, coalesced writes."""
 
-    def __init__(self, publisher: Publisher, proto: TcprosProtocol, callerid: str, queue_size: int) -> None:
+    def __init__(
+        self, publisher: Publisher, proto: TcprosProtocol, callerid: str, queue_size: int, max_bytes: int = 0
+    ) -> None:
         self.publisher = publisher
         self.proto = proto
         self.callerid = callerid
         self.queue_size = max(1, queue_size)
-        self.queue: collections.deque[Frame] = collections.deque()
+        #: bound on the bytes queued (0: none); the newest frame is kept whatever its size
+        self.max_bytes = max_bytes
+        self.queue: collections.deque[tuple[Frame, int]] = collections.deque()
+        self.queued_bytes = 0
         self.id = next(_connection_ids)
         self.bytes_sent = 0
         self.messages_sent = 0
@@ -75,11 +82,13 @@ class SubscriberLink:
             self.bytes_sent += len(frame)
             self.messages_sent += 1
             return
-        self._enqueue(frame)
+        self._enqueue(frame, len(frame))
 
-    def _enqueue(self, frame: Frame) -> None:
-        if len(self.queue) >= self.queue_size:
-            self.queue.popleft()
+    def _enqueue(self, frame: Frame, size: int) -> None:
+        queue = self.queue
+        self.queued_bytes += size
+        while queue and (len(queue) >= self.queue_size or (self.max_bytes and self.queued_bytes > self.max_bytes)):
+            self.queued_bytes -= queue.popleft()[1]
             self.dropped += 1
             if self.dropped == 1 or self.dropped % 1000 == 0:
                 log.warning(
@@ -89,7 +98,7 @@ class SubscriberLink:
                     self.dropped,
                     self.queue_size,
                 )
-        self.queue.append(frame)
+        queue.append((frame, size))
         if self._flusher is None:
             self._flusher = asyncio.get_running_loop().create_task(self._flush())
 
@@ -103,7 +112,7 @@ class SubscriberLink:
             self.bytes_sent += size
             self.messages_sent += 1
             return
-        self._enqueue(parts)
+        self._enqueue(parts, size)
 
     async def _flush(self) -> None:
         try:
@@ -112,24 +121,27 @@ class SubscriberLink:
                 if self.proto.transport is None:
                     break
                 parts: list[bytes | bytearray | memoryview] = []
-                for frame in self.queue:
+                for frame, _size in self.queue:
                     if isinstance(frame, tuple):
                         parts.extend(frame)
                     else:
                         parts.append(frame)
                 self.messages_sent += len(self.queue)
+                self.bytes_sent += self.queued_bytes
                 self.queue.clear()
+                self.queued_bytes = 0
                 # One transport call for everything queued (uvloop writes it with one writev, no join).
                 self.proto.transport.writelines(parts)
-                self.bytes_sent += sum(map(len, parts))
         except ConnectionResetError:
             self.queue.clear()
+            self.queued_bytes = 0
         finally:
             self._flusher = None
 
     def close(self) -> None:
         """Close now; bytes a stalled subscriber never read are discarded, not waited for."""
         self.queue.clear()
+        self.queued_bytes = 0
         if self._flusher is not None:
             self._flusher.cancel()
         transport = self.proto.transport
@@ -165,6 +177,7 @@ class Publisher:
         latch: bool = False,
         queue_size: int = DEFAULT_QUEUE_SIZE,
         max_message_size: int | None = None,
+        max_queued_bytes: int = 0,
     ) -> None:
         for attr in ("_type", "_md5sum", "_full_text"):
             if not hasattr(msg_class, attr):
@@ -177,6 +190,8 @@ class Publisher:
         self.message_definition: str = msg_class._full_text
         self._latch = latch
         self.queue_size = queue_size
+        #: per subscriber, bytes its queue may hold besides ``queue_size`` frames (0: no bound but the count)
+        self.max_queued_bytes = max_queued_bytes
         #: declared largest serialized message: the shared-memory pool is made for it up front
         self.max_message_size = max_message_size
         self.links: list[SubscriberLink] = []
@@ -329,7 +344,7 @@ class Publisher:
             proto.close()
             return
         proto.set_nodelay(header.flag("tcp_nodelay"))
-        link = SubscriberLink(self, proto, header.callerid or "?", self.queue_size)
+        link = SubscriberLink(self, proto, header.callerid or "?", self.queue_size, self.max_queued_bytes)
         proto.link = link
         data = encode_header(reply)
         if self.latched is not None:

@@ -136,9 +136,14 @@ async def test_a_subscriber_reconnects_after_the_publisher_restarts(rosmaster: s
                 assert (await sub.next(timeout=5)).data == f"round {round_}"
 
 
-async def test_a_slow_subscriber_drops_oldest_and_never_slows_a_fast_one(rosmaster: str) -> None:
+@pytest.mark.parametrize("bound", ["count", "bytes"])
+async def test_a_slow_subscriber_drops_oldest_and_never_slows_a_fast_one(rosmaster: str, bound: str) -> None:
+    """Bounded by ``queue_size`` (5), or by ``max_queued_bytes`` (50 kB: two and a half messages of 20 kB)."""
     async with node("talker", rosmaster) as a, node("fast", rosmaster) as b:
-        pub = await a.advertise("/flood", String, queue_size=5)
+        if bound == "count":
+            pub = await a.advertise("/flood", String, queue_size=5)
+        else:
+            pub = await a.advertise("/flood", String, queue_size=1000, max_queued_bytes=50_000)
         fast = await b.subscribe("/flood", String, queue_size=100000)
         await pub.wait_for_subscribers(1, timeout=10)
         # The slow subscriber: a raw socket that handshakes and then never reads.
@@ -157,7 +162,10 @@ async def test_a_slow_subscriber_drops_oldest_and_never_slows_a_fast_one(rosmast
                     assert (await fast.next()).data.startswith(f"{i} ")
             slow_link = next(lk for lk in pub.links if lk.callerid == "/slow")
             assert slow_link.dropped > 0
-            assert len(slow_link.queue) <= 5
+            if bound == "count":
+                assert len(slow_link.queue) <= 5
+            else:
+                assert 0 < slow_link.queued_bytes <= 50_000 and len(slow_link.queue) == 2
             client = XmlRpcClient()
             stats = await client.call(a.uri, "getBusStats", "/test")
             await client.aclose()
