@@ -244,11 +244,16 @@ class Daemon:
         self.uri = run.uri
         self.log: list[str] = []
 
-    def foxglove_url(self) -> str:
-        for line in self.log:
-            if "Foxglove WebSocket on " in line:
-                return line.split("Foxglove WebSocket on ", 1)[1].split()[0].rstrip(",")
-        raise AssertionError(f"no Foxglove URL in the daemon's log: {self.log[-5:]}")
+    def foxglove_url(self, timeout: float = 20.0) -> str:
+        """From the daemon's log, which a thread reads: the line can come after ``ready()`` (bounded wait)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            for line in list(self.log):
+                if "Foxglove WebSocket on " in line:
+                    return line.split("Foxglove WebSocket on ", 1)[1].split()[0].rstrip(",")
+            if time.monotonic() > deadline:
+                raise AssertionError(f"no Foxglove URL in the daemon's log: {self.log[-5:]}")
+            time.sleep(0.05)
 
 
 @pytest.fixture

@@ -50,7 +50,11 @@ async def test_debian_simple_action_client_drives_the_example_server(procs: Proc
     client = rospy_action(procs, rosmaster, "client", "5")
     out, _ = await asyncio.to_thread(client.communicate, None, 40.0)  # it prints 7 lines and ends
     got = out.decode().splitlines()
-    assert got == ["up", *(f"feedback {i}" for i in range(1, 6)), "done SUCCEEDED 10"], got
+    # every feedback from the first the client takes: SimpleActionClient drops a feedback that comes before
+    # send_goal has returned its goal handle (``self.gh``, set after the goal is published), and our server
+    # answers at once: CI saw feedback 2..5 (actionlib's race, not the link's: the client waits for our header)
+    assert got[0] == "up" and got[-1] == "done SUCCEEDED 10", got
+    assert got[1:-1] and got[1:-1] == [f"feedback {i}" for i in range(6 - len(got[1:-1]), 6)], got
 
     canceller = rospy_action(procs, rosmaster, "cancel", "50", "2")
     got = await lines(canceller, 4, timeout=40.0)
