@@ -21,7 +21,6 @@ __all__ = [
     "DeserializationError",
     "Duration",
     "FrameBuffer",
-    "FramePool",
     "SerializationError",
     "Time",
     "array_decoder",
@@ -61,50 +60,6 @@ class FrameBuffer(bytearray):
     """
 
     __slots__ = ()
-
-
-class FramePool:
-    """A few received-frame buffers, each reused once nothing references it any more.
-
-    Why: a fresh multi-megabyte allocation comes from the kernel as untouched pages (glibc maps large
-    blocks anew and gives them back on free), and faulting them in cost more than the copy itself (an 8 MB
-    copy-out from shared memory: 2.0 ms and ~590 page faults fresh, 0.4 ms into a reused buffer). A buffer
-    is reused only when its reference count says that no message, view or caller holds it: whoever keeps a
-    message keeps its buffer, which then simply stays out of the pool's reach (the FrameBuffer rule holds).
-    """
-
-    __slots__ = ("bufs", "keep")
-
-    def __init__(self, keep: int = 4) -> None:
-        self.keep = keep
-        self.bufs: list[FrameBuffer] = []
-
-    def copy(self, data: memoryview) -> FrameBuffer:
-        """A FrameBuffer holding a copy of ``data``: a free one of that size refilled, else a new one."""
-        n = len(data)
-        bufs = self.bufs
-        for i in range(len(bufs)):
-            # references: the list's, ``buf`` and getrefcount's argument; any more is a holder outside
-            buf = bufs[i]
-            if len(buf) == n and sys.getrefcount(buf) == _FREE_REFS:
-                with memoryview(buf) as view:
-                    view[:] = data
-                return buf
-        buf = FrameBuffer(data)
-        if len(bufs) >= self.keep:
-            del bufs[0]
-        bufs.append(buf)
-        return buf
-
-
-def _free_refs() -> int:
-    bufs = [FrameBuffer()]
-    buf = bufs[0]
-    return sys.getrefcount(buf)
-
-
-#: what ``sys.getrefcount`` says of an unreferenced buffer in FramePool.copy's loop (measured, not assumed)
-_FREE_REFS = _free_refs()
 
 
 #: Array typecodes whose item size matches the wire size of each ROS numeric type on every CPython.

@@ -50,7 +50,7 @@ import struct
 from collections.abc import Iterable
 
 from mrosd.errors import LocalProtocolError, RemoteProtocolError
-from mrosd.msg.runtime import FrameBuffer, FramePool
+from mrosd.msg.runtime import FrameBuffer
 from mrosd.wire.framing import LARGE_FRAME
 from mrosd.wire.spares import SparePool
 
@@ -333,7 +333,7 @@ class RingCursor:
             self.next = m + 1
         return ok
 
-    def read(self, pool: SparePool | FramePool | None = None) -> bytes | FrameBuffer | None:
+    def read(self, pool: SparePool | None = None) -> bytes | FrameBuffer | None:
         """The next message, copied out and consistent; None when no new one is complete. The copy of a message
         over ``LARGE_FRAME`` is a buffer from ``pool`` when one is given (reused when free: no fresh pages to
         fault in), as TCPROS receives large frames into FrameBuffers; anything else is copied into bytes.

@@ -14,7 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mrosd.msg import get_message_class
-from mrosd.msg.runtime import ZERO_COPY_MIN, FrameBuffer, FramePool, is_immutable
+from mrosd.msg.runtime import ZERO_COPY_MIN, FrameBuffer, is_immutable
+from mrosd.wire.spares import SparePool
 
 Image = get_message_class("sensor_msgs/Image")
 PointCloud2 = get_message_class("sensor_msgs/PointCloud2")
@@ -94,8 +95,8 @@ def test_frame_buffers_and_bytes_decode_to_equal_messages(data: bytes, encoding:
     assert b"".join(from_frame.serialize_parts()) == body
 
 
-def test_a_frame_pool_refills_a_buffer_only_when_nothing_holds_it() -> None:
-    pool = FramePool(keep=2)
+def test_a_spare_pool_refills_a_buffer_only_when_nothing_holds_it() -> None:
+    pool = SparePool(max_count=2)
     first = pool.copy(memoryview(b"a" * 100_000))
     assert type(first) is FrameBuffer and first == b"a" * 100_000
     first_id = id(first)
@@ -110,7 +111,7 @@ def test_a_frame_pool_refills_a_buffer_only_when_nothing_holds_it() -> None:
     del held, decoded
     other = pool.copy(memoryview(msg.serialize()))
     assert other is not view.obj and bytes(view) == b"c" * 100_000
-    assert len(pool.bufs) == 2  # no more than ``keep`` are kept
+    assert len(pool) == 2  # no more than ``max_count`` are kept
     held_id = id(view.obj)
     del view  # the last holder of that buffer lets go: it is refilled next
     assert id(pool.copy(memoryview(msg.serialize()))) == held_id

@@ -7,9 +7,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mrosd.errors import LocalProtocolError, RemoteProtocolError
-from mrosd.msg.runtime import FrameBuffer, FramePool
+from mrosd.msg.runtime import FrameBuffer
 from mrosd.shm.ring import HEADER_SIZE, RingCursor, RingLayout, dir_entries, ring_size, slot_stride
 from mrosd.wire.framing import LARGE_FRAME
+from mrosd.wire.spares import SparePool
 
 
 def fresh(slots: int = 4, capacity: int = 64, head: int = 0) -> RingLayout:
@@ -73,7 +74,7 @@ def test_copies_into_a_pool_reuse_a_buffer_nothing_holds_and_wait_word_round_tri
     big = LARGE_FRAME + 1
     ring = fresh(capacity=big)
     cur = RingCursor(ring, 1)
-    pool = FramePool()
+    pool = SparePool()
     ring.write(content(1, big))
     first = cur.read(pool)
     assert type(first) is FrameBuffer and first == content(1, big)
